@@ -1,0 +1,1 @@
+"""Calibration: error library and matching (domain), state machine and campaigns (orchestration)."""

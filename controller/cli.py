@@ -1,0 +1,60 @@
+"""The ``heliocal`` command line.
+
+Each sub-command lives in its own module in :mod:`controller.commands`. A module there
+defines ``register(subparsers)``, which adds its parser and sets ``func`` on it; ``func``
+receives the parsed namespace and returns the exit status. Modules are discovered, so adding
+a command never touches this file.
+
+Errors derived from :class:`controller.errors.HeliocalError` are printed on one line
+(as JSON ``{"ok": false, "error": ...}`` when ``--json`` was given) and end the program with
+their exit code; argparse usage errors exit 2 as usual.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import pkgutil
+import sys
+
+from controller import __version__, commands
+from controller.errors import HeliocalError
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="heliocal",
+        description="Heliostat calibration controller for CSP plants.",
+    )
+    parser.add_argument("--version", action="version", version=f"heliocal {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):
+        if info.name.startswith("_"):
+            continue
+        module = importlib.import_module(f"{commands.__name__}.{info.name}")
+        module.register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except HeliocalError as exc:
+        if getattr(args, "json", False):
+            print(json.dumps({"ok": False, "error": str(exc)}))
+        else:
+            print(f"heliocal {args.command}: error: {exc}", file=sys.stderr)
+        return exc.exit_code
+    except KeyboardInterrupt:
+        print(f"heliocal {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""CLI sub-commands, one module each; see :mod:`controller.cli` for the convention."""

@@ -1,0 +1,7 @@
+"""``heliocal sim {firmware,errorset}``: the embedded simulated plant's pieces."""
+
+from controller.commands._groups import register_group
+
+
+def register(subparsers) -> None:
+    register_group(subparsers, "sim", "run pieces of the simulated plant")

@@ -1,0 +1,315 @@
+"""Plant configuration: YAML files validated into typed, frozen pydantic models.
+
+Conventions (see docs/configuration.md):
+- positions are local ENU metres (east, north, up) about the plant origin;
+- azimuth is clockwise from north, angles in degrees at this edge, except the actuator
+  parameters, which keep the names *and units* of the PAINT/ARTIST heliostat records
+  (``increment`` in steps/m, lengths in m, ``initial_angle`` in rad);
+- soft limits are in motor steps and must lie inside the hard range
+  ``[min_increment, max_increment]``.
+
+:func:`load_config` is the only entry point. Every failure (unreadable file, bad YAML,
+missing or unknown key, wrong type, value out of range, broken cross-reference) raises one
+:class:`controller.errors.ConfigError` whose message names the file, the key path and the
+rule broken.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Annotated, Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from controller.errors import ConfigError
+
+Vec3 = tuple[float, float, float]
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+def _unit(v: Vec3) -> Vec3:
+    n = math.sqrt(sum(c * c for c in v))
+    if not 0.999 <= n <= 1.001:
+        raise ValueError(f"must be a unit vector (its norm is {n:.6g})")
+    return v
+
+
+class Site(_Model):
+    name: str = "plant"
+    latitude_deg: float = Field(ge=-90, le=90)
+    longitude_deg: float = Field(ge=-180, le=180)
+    elevation_m: float = Field(ge=-500, le=9000)
+    pressure_mbar: float = Field(gt=0, le=1200)
+    temperature_c: float = Field(ge=-90, le=70)
+    delta_t_s: float | None = Field(default=None, description="TT-UT1 in s; None: estimated")
+
+
+class Target(_Model):
+    id: str
+    center_enu_m: Vec3
+    normal: Vec3
+    width_m: float = Field(gt=0)
+    height_m: float = Field(gt=0)
+
+    _check_normal = field_validator("normal")(classmethod(lambda cls, v: _unit(v)))
+
+
+class SunSource(_Model):
+    kind: Literal["sun"]
+    id: str = "sun"
+    angular_diameter_mrad: float = Field(default=9.3, gt=0, le=50)
+
+
+class LampSource(_Model):
+    kind: Literal["lamp"]
+    id: str
+    position_enu_m: Vec3
+    diameter_m: float = Field(gt=0, le=10)
+
+
+LightSource = Annotated[SunSource | LampSource, Field(discriminator="kind")]
+
+
+class SoftLimits(_Model):
+    min_steps: int
+    max_steps: int
+
+    @model_validator(mode="after")
+    def _ordered(self) -> SoftLimits:
+        if self.min_steps >= self.max_steps:
+            raise ValueError(f"min_steps ({self.min_steps}) must be below max_steps ({self.max_steps})")
+        return self
+
+
+class AxisConfig(_Model):
+    """One linear-actuator axis. Names and units as in the PAINT/ARTIST heliostat records."""
+
+    increment: float = Field(gt=0, description="motor steps per metre of stroke")
+    initial_stroke_length: float = Field(gt=0, description="stroke L0 at step 0, m")
+    offset: float = Field(gt=0, description="actuator mount offset from the pivot, m")
+    pivot_radius: float = Field(gt=0, description="lever arm from pivot to actuator rod end, m")
+    initial_angle: float = Field(ge=-math.pi, le=math.pi, description="axis angle at step 0, rad")
+    clockwise_axis_movement: bool = False
+    min_increment: int = Field(ge=0, description="hard range start, steps")
+    max_increment: int = Field(gt=0, description="hard range end, steps")
+    soft_limits: SoftLimits
+    speed_steps_per_s: float = Field(default=1500.0, gt=0, le=100000)
+    acceleration_steps_per_s2: float = Field(default=3000.0, gt=0, le=1000000)
+    backlash_steps: int = Field(default=0, ge=0, le=1000)
+
+    @model_validator(mode="after")
+    def _limits_inside_range(self) -> AxisConfig:
+        if self.min_increment >= self.max_increment:
+            raise ValueError("min_increment must be below max_increment")
+        lo, hi = self.soft_limits.min_steps, self.soft_limits.max_steps
+        if lo < self.min_increment or hi > self.max_increment:
+            raise ValueError(
+                f"soft_limits [{lo}, {hi}] must lie inside the hard range "
+                f"[{self.min_increment}, {self.max_increment}]"
+            )
+        return self
+
+
+class Axes(_Model):
+    azimuth: AxisConfig
+    elevation: AxisConfig
+
+
+class Mirror(_Model):
+    width_m: float = Field(gt=0, le=30)
+    height_m: float = Field(gt=0, le=30)
+    focal_length_m: float = Field(gt=0, description="on-axis focal length, m")
+    slope_error_mrad: float = Field(default=1.5, ge=0, le=20)
+    reflectivity: float = Field(default=0.93, gt=0, le=1)
+
+
+class SerialLink(_Model):
+    kind: Literal["serial"]
+    device: str
+    address: int = Field(ge=1, le=247)
+    baud: int = Field(default=115200, gt=0)
+
+
+class ModbusTcpLink(_Model):
+    kind: Literal["modbus-tcp"]
+    host: str
+    port: int = Field(ge=1, le=65535)
+    unit: int = Field(ge=1, le=247)
+
+
+class ModbusRtuLink(_Model):
+    kind: Literal["modbus-rtu"]
+    device: str
+    unit: int = Field(ge=1, le=247)
+    baud: int = Field(default=115200, gt=0)
+
+
+Link = Annotated[SerialLink | ModbusTcpLink | ModbusRtuLink, Field(discriminator="kind")]
+
+
+class Heliostat(_Model):
+    id: str
+    position_enu_m: Vec3
+    mirror: Mirror
+    axes: Axes
+    link: Link
+
+
+class Sensor(_Model):
+    name: str
+    exposure_s: float = Field(gt=0, le=10)
+    gain: float = Field(default=1.0, gt=0, le=10, description="relative gain (mismatch)")
+
+
+class Camera(_Model):
+    """The double-CCD prism camera. ``sensors[0]`` is the shorter exposure (LOW)."""
+
+    sensors: tuple[Sensor, Sensor]
+    width_px: int = Field(default=1024, gt=0, le=16384)
+    height_px: int = Field(default=768, gt=0, le=16384)
+    bit_depth: int = Field(default=8, ge=8, le=16)
+    crf_file: str | None = None
+    dark_offset_counts: float = Field(default=8.0, ge=0, le=255)
+    read_noise_counts: float = Field(default=0.8, ge=0, le=50)
+    full_well_electrons: float = Field(default=20000.0, gt=0)
+    position_enu_m: Vec3 | None = Field(default=None, description="camera position, m ENU")
+
+    @model_validator(mode="after")
+    def _low_first(self) -> Camera:
+        if self.sensors[0].exposure_s > self.sensors[1].exposure_s:
+            raise ValueError("sensors[0] must have the shorter exposure (LOW), sensors[1] the longer")
+        return self
+
+
+class Calibration(_Model):
+    light_source: str = Field(description="id of the light source used for calibration")
+    target: str = Field(description="id of the calibration target")
+    thresholds: tuple[float, ...] = (0.45, 0.5, 0.55, 0.6, 0.65, 0.7, 0.75, 0.8, 0.85, 0.9)
+    threshold: float = Field(default=0.5, gt=0, lt=1, description="beam segmentation fraction")
+    tolerance_mrad: float = Field(default=0.5, gt=0, le=50)
+    max_iterations: int = Field(default=4, ge=1, le=50)
+    standby_offset_m: float = Field(default=15.0, gt=0, le=200,
+                                    description="standby aim point distance beside the target")
+    library: str | None = Field(default=None, description="error library YAML; None: built")
+
+    @field_validator("thresholds")
+    @classmethod
+    def _fractions(cls, v: tuple[float, ...]) -> tuple[float, ...]:
+        if not v or any(not 0 < t < 1 for t in v):
+            raise ValueError("every threshold must be a fraction in (0, 1)")
+        return v
+
+
+class Simulation(_Model):
+    """Settings of the embedded simulated plant (used by ``heliocal demo`` and ``sim``)."""
+
+    clock_speedup: float = Field(default=1.0, gt=0, le=1000)
+    seed: int = 0
+    tracking_error_mrad: float = Field(default=3.0, ge=0, le=50,
+                                       description="scale of hidden per-heliostat errors")
+
+
+class PlantConfig(_Model):
+    site: Site
+    targets: tuple[Target, ...] = Field(min_length=1)
+    light_sources: tuple[LightSource, ...] = Field(min_length=1)
+    heliostats: tuple[Heliostat, ...] = Field(min_length=1)
+    camera: Camera
+    calibration: Calibration
+    simulation: Simulation = Simulation()
+
+    @model_validator(mode="after")
+    def _references(self) -> PlantConfig:
+        for kind, items in (("targets", self.targets), ("light_sources", self.light_sources),
+                            ("heliostats", self.heliostats)):
+            ids = [i.id for i in items]
+            dup = sorted({i for i in ids if ids.count(i) > 1})
+            if dup:
+                raise ValueError(f"{kind}: duplicate id {dup[0]!r}")
+        if self.calibration.light_source not in {s.id for s in self.light_sources}:
+            raise ValueError(f"calibration.light_source {self.calibration.light_source!r} "
+                             "is not the id of any entry of light_sources")
+        if self.calibration.target not in {t.id for t in self.targets}:
+            raise ValueError(f"calibration.target {self.calibration.target!r} "
+                             "is not the id of any entry of targets")
+        seen: dict[tuple, str] = {}
+        for h in self.heliostats:
+            link = h.link
+            key = (link.kind, getattr(link, "device", None) or f"{link.host}:{link.port}",
+                   getattr(link, "address", None) or link.unit)
+            if key in seen:
+                raise ValueError(f"heliostats {seen[key]!r} and {h.id!r} share the link {key}")
+            seen[key] = h.id
+        return self
+
+    def heliostat(self, hid: str) -> Heliostat:
+        for h in self.heliostats:
+            if h.id == hid:
+                return h
+        raise ConfigError(f"no heliostat {hid!r} in the configuration "
+                          f"(known: {', '.join(h.id for h in self.heliostats)})")
+
+    def target(self, tid: str | None = None) -> Target:
+        tid = tid or self.calibration.target
+        return next(t for t in self.targets if t.id == tid)
+
+    def light_source(self, sid: str | None = None) -> SunSource | LampSource:
+        sid = sid or self.calibration.light_source
+        return next(s for s in self.light_sources if s.id == sid)
+
+
+def _key_path(loc: tuple) -> str:
+    out = ""
+    for part in loc:
+        if isinstance(part, int):
+            out += f"[{part}]"
+        elif part in ("sun", "lamp", "serial", "modbus-tcp", "modbus-rtu"):
+            continue  # discriminator tags pydantic inserts; not part of the user's key path
+        else:
+            out += ("." if out else "") + str(part)
+    return out or "(top level)"
+
+
+def parse_config(data: object, source: str = "<config>") -> PlantConfig:
+    """Validate an already-parsed YAML document; errors name ``source`` and the key path."""
+    if not isinstance(data, dict):
+        raise ConfigError(f"{source}: (top level): must be a mapping of sections, "
+                          f"got {type(data).__name__}")
+    # Top-level "x-" keys hold YAML anchors shared by several entries (as in compose files).
+    data = {k: v for k, v in data.items() if not str(k).startswith("x-")}
+    try:
+        return PlantConfig.model_validate(data)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        rule = err["msg"].removeprefix("Value error, ")
+        if err["type"] == "extra_forbidden":
+            rule = "unknown key"
+        elif err["type"] == "missing":
+            rule = "required key is missing"
+        more = f" (and {len(exc.errors()) - 1} more problems)" if len(exc.errors()) > 1 else ""
+        raise ConfigError(f"{source}: {_key_path(err['loc'])}: {rule}{more}") from None
+
+
+def load_config(path: str | Path) -> PlantConfig:
+    """Read and validate a plant configuration YAML file.
+
+    Raises ConfigError (exit status 2) naming the file, key path and rule on any problem.
+    """
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(f"{p}: cannot read configuration: {exc.strerror or exc}") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark else ""
+        problem = getattr(exc, "problem", None) or str(exc)
+        raise ConfigError(f"{p}: {where}invalid YAML: {problem}") from None
+    return parse_config(data, str(p))

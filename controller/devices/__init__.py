@@ -1,0 +1,1 @@
+"""Device drivers: actuator drives (serial, Modbus) and double-CCD cameras."""

@@ -1,0 +1,186 @@
+"""The drive interface every actuator link implements (serial frame protocol, Modbus).
+
+The calibration state machine talks only to :class:`Drive`, so it does not care which link
+a heliostat has. Positions are motor steps (int). Soft limits are checked here, in the
+controller, *before* anything is sent; the firmware checks them again.
+"""
+
+from __future__ import annotations
+
+import time
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+
+from controller.errors import DeviceError, LimitError
+
+
+class DriveError(DeviceError):
+    """The drive answered with an error, or could not be reached."""
+
+
+class LinkError(DriveError):
+    """No valid answer within the timeout after all retries, or the link is down."""
+
+
+class NakError(DriveError):
+    """The firmware refused the command; ``code`` is the rejection code (firmware_proto.faults)."""
+
+    def __init__(self, message: str, code: int) -> None:
+        super().__init__(message)
+        self.code = code
+
+
+class ActuatorFault(DriveError):
+    """The firmware reports latched faults (stall, limit switch, power cycle, ...)."""
+
+    def __init__(self, message: str, faults: list[str]) -> None:
+        super().__init__(message)
+        self.faults = faults
+
+
+@dataclass(frozen=True)
+class AxisLimits:
+    """Soft limits of one axis in motor steps, inclusive."""
+
+    min_steps: int
+    max_steps: int
+
+
+@dataclass(frozen=True)
+class DriveLimits:
+    az: AxisLimits
+    el: AxisLimits
+
+    @classmethod
+    def from_axes(cls, axes) -> DriveLimits:
+        """From a :class:`controller.config.Axes`."""
+        return cls(
+            AxisLimits(axes.azimuth.soft_limits.min_steps, axes.azimuth.soft_limits.max_steps),
+            AxisLimits(axes.elevation.soft_limits.min_steps, axes.elevation.soft_limits.max_steps),
+        )
+
+    def check(self, az_steps: int, el_steps: int, what: str = "target") -> None:
+        """Raise :class:`LimitError` (exit 2) naming the axis when a target is out of range."""
+        for name, value, lim in (("az", az_steps, self.az), ("el", el_steps, self.el)):
+            if not isinstance(value, int) or isinstance(value, bool):
+                raise LimitError(f"{what} {name}_steps must be an integer, got {value!r}")
+            if not lim.min_steps <= value <= lim.max_steps:
+                raise LimitError(
+                    f"{what} {name}_steps={value} is outside the soft limits "
+                    f"[{lim.min_steps}, {lim.max_steps}]; nothing was sent")
+
+
+@dataclass(frozen=True)
+class DriveStatus:
+    """One status reading. ``faults`` holds the names from :func:`firmware_proto.faults.fault_names`."""
+
+    unit: int
+    az_steps: int
+    el_steps: int
+    az_target: int
+    el_target: int
+    moving: bool
+    in_position: bool
+    limit_az: bool = False
+    limit_el: bool = False
+    faults: tuple[str, ...] = ()
+
+    def to_json(self) -> dict:
+        """The ``drive status --json`` contract."""
+        return {"unit": self.unit, "az_steps": self.az_steps, "el_steps": self.el_steps,
+                "moving": self.moving, "in_position": self.in_position,
+                "faults": list(self.faults)}
+
+
+@dataclass(frozen=True)
+class MoveResult:
+    """Outcome of a move or jog. ``retries`` counts retransmissions the link needed."""
+
+    ok: bool
+    az_steps: int
+    el_steps: int
+    retries: int = 0
+    extra: dict = field(default_factory=dict)
+
+    def to_json(self) -> dict:
+        """The ``drive move|jog --json`` contract."""
+        return {"ok": self.ok, "az_steps": self.az_steps, "el_steps": self.el_steps,
+                "retries": self.retries}
+
+
+class Drive(ABC):
+    """A two-axis heliostat drive on some link.
+
+    Subclasses implement the link-specific verbs; limit checks before sending and the
+    move-and-wait helper are shared here. Every method raises :class:`DriveError`
+    subclasses on failure, never returns a silent error.
+    """
+
+    unit: int
+    limits: DriveLimits
+    retries_used: int = 0  # retransmissions since the last reset, for reporting
+
+    @abstractmethod
+    def status(self) -> DriveStatus: ...
+
+    @abstractmethod
+    def _send_move_abs(self, az_steps: int, el_steps: int) -> None: ...
+
+    @abstractmethod
+    def _send_jog(self, daz_steps: int, del_steps: int) -> None: ...
+
+    @abstractmethod
+    def stop(self) -> None: ...
+
+    @abstractmethod
+    def home(self) -> None: ...
+
+    @abstractmethod
+    def stow(self) -> None: ...
+
+    @abstractmethod
+    def clear_fault(self) -> None: ...
+
+    @abstractmethod
+    def close(self) -> None: ...
+
+    def move_abs(self, az_steps: int, el_steps: int) -> None:
+        """Command an absolute move; refused with LimitError before sending if out of range."""
+        self.limits.check(az_steps, el_steps)
+        self._send_move_abs(az_steps, el_steps)
+
+    def jog(self, daz_steps: int, del_steps: int, *, from_status: DriveStatus | None = None) -> None:
+        """Command a relative move. The resulting target (from the current *target*) is
+        checked against the soft limits before anything is sent."""
+        st = from_status or self.status()
+        self.limits.check(st.az_target + daz_steps, st.el_target + del_steps, "jog result")
+        self._send_jog(daz_steps, del_steps)
+
+    def wait_in_position(self, timeout_s: float, poll_s: float = 0.02,
+                         sleep=time.sleep, clock=time.monotonic) -> DriveStatus:
+        """Poll status until both axes are in position. Raises ActuatorFault on latched
+        faults and LinkError-free :class:`DriveError` on timeout."""
+        deadline = clock() + timeout_s
+        while True:
+            st = self.status()
+            if st.faults:
+                raise ActuatorFault(
+                    f"unit {self.unit}: actuator fault {', '.join(st.faults)} at "
+                    f"az={st.az_steps} el={st.el_steps}", list(st.faults))
+            if st.in_position:
+                return st
+            if clock() >= deadline:
+                raise DriveError(
+                    f"unit {self.unit}: not in position after {timeout_s:.1f} s "
+                    f"(az {st.az_steps}->{st.az_target}, el {st.el_steps}->{st.el_target})")
+            sleep(poll_s)
+
+    def move_and_wait(self, az_steps: int, el_steps: int, timeout_s: float,
+                      poll_s: float = 0.02) -> DriveStatus:
+        """Move, then wait until in position; verifies the final position equals the target."""
+        self.move_abs(az_steps, el_steps)
+        st = self.wait_in_position(timeout_s, poll_s)
+        if (st.az_steps, st.el_steps) != (az_steps, el_steps):
+            raise DriveError(f"unit {self.unit}: ended at ({st.az_steps}, {st.el_steps}), "
+                             f"commanded ({az_steps}, {el_steps})")
+        return st

@@ -1,0 +1,62 @@
+"""Open drives from configuration links, sharing each physical link between its units.
+
+Several heliostat controllers share one RS-485 bus (serial) or one Modbus TCP gateway, so
+a :class:`LinkPool` opens each bus or connection once and hands out one :class:`Drive` per
+bus address / unit id. The caller never needs to know which link a heliostat has.
+"""
+
+from __future__ import annotations
+
+from controller.config import Link, ModbusRtuLink, ModbusTcpLink, SerialLink
+from controller.devices.drive import Drive, DriveLimits
+
+
+class LinkPool:
+    """Owns the open buses and connections; close it to release them all."""
+
+    def __init__(self, *, timeout_s: float | None = None, retries: int | None = None) -> None:
+        self._timeout = timeout_s
+        self._retries = retries
+        self._links: dict[tuple, object] = {}
+
+    def _opts(self) -> dict:
+        opts = {}
+        if self._timeout is not None:
+            opts["timeout_s"] = self._timeout
+        if self._retries is not None:
+            opts["retries"] = self._retries
+        return opts
+
+    def drive(self, link: Link, limits: DriveLimits) -> Drive:
+        """A drive for ``link``; opens the underlying bus/connection on first use."""
+        if isinstance(link, SerialLink):
+            from controller.devices.serial_drive import SerialBus, SerialDrive
+
+            key = ("serial", link.device)
+            if key not in self._links:
+                self._links[key] = SerialBus(link.device, link.baud, **self._opts())
+            return SerialDrive(self._links[key], link.address, limits)
+        from controller.devices.modbus_drive import ModbusDrive, ModbusLink
+
+        if isinstance(link, ModbusTcpLink):
+            key = ("modbus-tcp", link.host, link.port)
+            if key not in self._links:
+                self._links[key] = ModbusLink.tcp(link.host, link.port, **self._opts())
+        elif isinstance(link, ModbusRtuLink):
+            key = ("modbus-rtu", link.device)
+            if key not in self._links:
+                self._links[key] = ModbusLink.rtu(link.device, link.baud, **self._opts())
+        else:  # pragma: no cover - pydantic's discriminated union admits nothing else
+            raise TypeError(f"unknown link {link!r}")
+        return ModbusDrive(self._links[key], link.unit, limits)
+
+    def close(self) -> None:
+        for link in self._links.values():
+            link.close()
+        self._links.clear()
+
+    def __enter__(self) -> LinkPool:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

@@ -1,0 +1,32 @@
+"""Exceptions shared by every layer, and how the CLI maps them to exit codes.
+
+``HeliocalError`` and its subclasses carry a message that already names the file, key or
+byte at fault. The CLI prints it on one line and exits with ``exit_code`` (2 for bad input),
+never with a traceback.
+"""
+
+from __future__ import annotations
+
+
+class HeliocalError(Exception):
+    """Base class of all errors the CLI reports cleanly. Exit status 1 unless overridden."""
+
+    exit_code = 1
+
+
+class InputError(HeliocalError):
+    """Bad input from the user: a file, a key, a value or an option. Exit status 2."""
+
+    exit_code = 2
+
+
+class ConfigError(InputError):
+    """The plant configuration is unreadable or invalid. The message names file and key."""
+
+
+class LimitError(InputError):
+    """A requested position is outside an axis' soft limits. Nothing was sent."""
+
+
+class DeviceError(HeliocalError):
+    """A device (drive, camera) failed or answered with an error. Exit status 1."""

@@ -1,0 +1,1 @@
+"""Pure imaging maths: camera response, weighting functions, HDR merge, beam analysis, moments."""

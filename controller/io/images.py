@@ -1,0 +1,79 @@
+"""Reading and writing images at the edges of the pipeline.
+
+Supported inputs: 8- or 16-bit grey PNG/TIFF (colour converted to grey), 32-bit float TIFF,
+and ``.npy`` arrays (2-D, any real dtype). Arrays are (rows, cols): x = column, y = row.
+Every failure raises :class:`controller.errors.InputError` naming the file.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from controller.errors import InputError
+
+
+def read_image(path: str | Path) -> np.ndarray:
+    """Read a 2-D grey image. Integer files keep their dtype; float data come back float32/64."""
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(f"{p}: image file not found")
+    if p.suffix.lower() == ".npy":
+        try:
+            img = np.load(p, allow_pickle=False)
+        except (ValueError, OSError, EOFError) as exc:
+            raise InputError(f"{p}: not a readable .npy array ({exc})") from None
+    else:
+        img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+        if img is None:
+            raise InputError(f"{p}: not a readable image (corrupt file or unsupported format)")
+        if img.ndim == 3:
+            if img.shape[2] == 4:
+                img = cv2.cvtColor(img, cv2.COLOR_BGRA2GRAY)
+            elif img.shape[2] == 3:
+                img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+            else:
+                img = img[:, :, 0]
+    if img.ndim != 2:
+        raise InputError(f"{p}: expected a 2-D grey image, got shape {img.shape}")
+    if img.size == 0:
+        raise InputError(f"{p}: image is empty")
+    if not (np.issubdtype(img.dtype, np.integer) or np.issubdtype(img.dtype, np.floating)):
+        raise InputError(f"{p}: unsupported pixel type {img.dtype}")
+    if np.issubdtype(img.dtype, np.floating) and not np.all(np.isfinite(img)):
+        raise InputError(f"{p}: image contains NaN or infinite values")
+    return img
+
+
+def write_atomic(path: str | Path, writer) -> None:
+    """Call ``writer(tmp_path)`` then rename onto ``path``, so nothing half-written remains."""
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{p.stem}.", suffix=p.suffix, dir=p.parent)
+    os.close(fd)
+    try:
+        writer(Path(tmp))
+        os.replace(tmp, p)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def write_float_image(path: str | Path, img: np.ndarray) -> None:
+    """Write a float image as ``.npy`` (float32) or ``.tif``/``.tiff`` (32-bit float)."""
+    p = Path(path)
+    data = np.ascontiguousarray(img, dtype=np.float32)
+    ext = p.suffix.lower()
+    if ext == ".npy":
+        write_atomic(p, lambda t: np.save(t, data))
+    elif ext in (".tif", ".tiff"):
+        def _w(t: Path) -> None:
+            if not cv2.imwrite(str(t), data):
+                raise InputError(f"{p}: could not write 32-bit float TIFF")
+        write_atomic(p, _w)
+    else:
+        raise InputError(f"{p}: output must end in .npy or .tiff, not {ext or '(none)'}")

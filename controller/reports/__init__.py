@@ -1,0 +1,1 @@
+"""Reports people read: Markdown/HTML, CSV and plots (matplotlib, Agg backend)."""

@@ -1,0 +1,1 @@
+"""Calibration records in SQLite (WAL, versioned schema, transactions) and exports."""
