@@ -191,6 +191,12 @@ class Calibration(_Model):
     target: str = Field(description="id of the calibration target")
     thresholds: tuple[float, ...] = (0.45, 0.5, 0.55, 0.6, 0.65, 0.7, 0.75, 0.8, 0.85, 0.9)
     threshold: float = Field(default=0.5, gt=0, lt=1, description="beam segmentation fraction")
+    centroid_threshold: float = Field(default=0.05, gt=0, lt=1,
+                                      description="fraction of the peak above which pixels weigh in "
+                                                  "the pointing centroid (all lobes)")
+    settle_s: float = Field(default=0.5, ge=0, le=60, description="settling time after a move, s")
+    pipeline_depth: int = Field(default=6, ge=1, le=64,
+                                description="heliostats in their cycle at once (slewing to standby)")
     tolerance_mrad: float = Field(default=0.5, gt=0, le=50)
     max_iterations: int = Field(default=4, ge=1, le=50)
     standby_offset_m: float = Field(default=15.0, gt=0, le=200,
@@ -225,25 +231,27 @@ class PlantConfig(_Model):
 
     @model_validator(mode="after")
     def _references(self) -> PlantConfig:
+        # Messages start with the key path: pydantic reports model-level errors at the top level.
         for kind, items in (("targets", self.targets), ("light_sources", self.light_sources),
                             ("heliostats", self.heliostats)):
             ids = [i.id for i in items]
-            dup = sorted({i for i in ids if ids.count(i) > 1})
-            if dup:
-                raise ValueError(f"{kind}: duplicate id {dup[0]!r}")
+            for index, item_id in enumerate(ids):
+                if item_id in ids[:index]:
+                    raise ValueError(f"{kind}[{index}].id: duplicate id {item_id!r}")
         if self.calibration.light_source not in {s.id for s in self.light_sources}:
-            raise ValueError(f"calibration.light_source {self.calibration.light_source!r} "
+            raise ValueError(f"calibration.light_source: {self.calibration.light_source!r} "
                              "is not the id of any entry of light_sources")
         if self.calibration.target not in {t.id for t in self.targets}:
-            raise ValueError(f"calibration.target {self.calibration.target!r} "
+            raise ValueError(f"calibration.target: {self.calibration.target!r} "
                              "is not the id of any entry of targets")
         seen: dict[tuple, str] = {}
-        for h in self.heliostats:
+        for index, h in enumerate(self.heliostats):
             link = h.link
             key = (link.kind, getattr(link, "device", None) or f"{link.host}:{link.port}",
                    getattr(link, "address", None) or link.unit)
             if key in seen:
-                raise ValueError(f"heliostats {seen[key]!r} and {h.id!r} share the link {key}")
+                raise ValueError(f"heliostats[{index}].link: heliostats {seen[key]!r} and {h.id!r} "
+                                 f"share the link {key}")
             seen[key] = h.id
         return self
 
@@ -292,6 +300,8 @@ def parse_config(data: object, source: str = "<config>") -> PlantConfig:
         elif err["type"] == "missing":
             rule = "required key is missing"
         more = f" (and {len(exc.errors()) - 1} more problems)" if len(exc.errors()) > 1 else ""
+        if not err["loc"] and err["type"] == "value_error":
+            raise ConfigError(f"{source}: {rule}{more}") from None  # the rule names its key path
         raise ConfigError(f"{source}: {_key_path(err['loc'])}: {rule}{more}") from None
 
 

@@ -28,7 +28,13 @@ def read_image(path: str | Path) -> np.ndarray:
         except (ValueError, OSError, EOFError) as exc:
             raise InputError(f"{p}: not a readable .npy array ({exc})") from None
     else:
-        img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+        # OpenCV logs its own warnings for corrupt files on stderr; our InputError says it once.
+        level = cv2.utils.logging.getLogLevel()
+        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
+        try:
+            img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+        finally:
+            cv2.utils.logging.setLogLevel(level)
         if img is None:
             raise InputError(f"{p}: not a readable image (corrupt file or unsupported format)")
         if img.ndim == 3:

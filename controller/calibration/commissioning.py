@@ -1,0 +1,174 @@
+"""Field commissioning of one heliostat: jog, capture and look, store reference cases, verify.
+
+The steps (used by ``heliocal commission``, interactive or one flag per step):
+
+* :meth:`Commissioning.status`, :meth:`jog`, :meth:`move`, :meth:`aim` (to the target centre,
+  with the heliostat's fitted model when a database gives one), :meth:`park` (standby);
+* :meth:`capture`: one double-CCD pair → HDR merge → beam analysis; :meth:`save_png` writes
+  the HDR frame as an 8-bit PNG (scaled to its peak) for a person to look at;
+* :meth:`store_reference`: saves the HDR frame (``.npy``) and adds it to an error library
+  YAML as a reference case with a label (features from its Hu moments, sha256 of the file),
+  and appends it to the library's manifest CSV so a rebuild
+  (``heliocal library build``) includes it and recalibrates the unknown threshold;
+* :meth:`verify`: capture and report the reflected-beam pointing error against the aim point
+  (the beam centroid on the target, mrad) and whether it is within the tolerance.
+
+Nothing here knows whether the drive or camera is simulated.
+"""
+
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from controller.calibration.campaign import BeamChain, GeometryPointing
+from controller.calibration.machine import BeamNotFound, Observation, pointing_error_mrad
+from controller.config import PlantConfig
+from controller.errors import InputError
+from controller.io.images import write_atomic, write_float_image
+
+
+@dataclass
+class Capture:
+    frame: object  # FramePair
+    hdr: np.ndarray
+    observation: Observation | None
+    problem: str | None = None  # why there is no observation
+
+    def to_json(self, aim_point, heliostat_pos) -> dict:
+        o = self.observation
+        if o is None:
+            return {"beam": False, "problem": self.problem, "exposures": list(self.frame.exposures)}
+        return {"beam": True, "centroid_px": list(o.centroid_px), "centroid_enu_m": list(o.centroid_enu),
+                "error_mrad": pointing_error_mrad(heliostat_pos, aim_point, o.centroid_enu),
+                "peak": o.peak, "exposures": list(self.frame.exposures)}
+
+
+class Commissioning:
+    """One heliostat's commissioning session over a drive and a camera."""
+
+    def __init__(self, cfg: PlantConfig, heliostat_id: str, drive, camera, *, library=None,
+                 model=None, move_timeout_s: float = 300.0) -> None:
+        self.cfg = cfg
+        self.h = cfg.heliostat(heliostat_id)
+        self.drive = drive
+        self.camera = camera
+        self.chain = BeamChain(cfg, library)
+        st = drive.status()
+        self.pointing = GeometryPointing(self.h, cfg.target(), cfg.light_source(), self.chain.frame,
+                                         cfg.calibration.standby_offset_m, (st.az_steps, st.el_steps))
+        self.model = model
+        self.move_timeout_s = move_timeout_s
+        self.last: Capture | None = None
+
+    # -- motion ---------------------------------------------------------------------------------
+    def status(self) -> dict:
+        return self.drive.status().to_json()
+
+    def move(self, az_steps: int, el_steps: int) -> dict:
+        st = self.drive.move_and_wait(int(az_steps), int(el_steps), self.move_timeout_s)
+        return st.to_json()
+
+    def jog(self, daz_steps: int, del_steps: int) -> dict:
+        self.drive.jog(int(daz_steps), int(del_steps))
+        return self.drive.wait_in_position(self.move_timeout_s).to_json()
+
+    def aim(self) -> dict:
+        """Park at standby first (approach from standby), then move onto the aim point."""
+        self.park()
+        az, el = self.pointing.aim_steps(self.model)
+        return self.move(az, el)
+
+    def park(self) -> dict:
+        st = self.drive.status()
+        standby = self.pointing.standby_steps(self.model)
+        out = st.to_json()
+        for wp in self.pointing.path_to((st.az_steps, st.el_steps), standby):
+            out = self.move(*wp)
+        return out
+
+    # -- camera ---------------------------------------------------------------------------------
+    def capture(self) -> Capture:
+        frame = self.camera.capture()
+        hdr = self.chain.merge(frame)
+        try:
+            obs, problem = self.chain.analyze(hdr), None
+        except BeamNotFound as exc:
+            obs, problem = None, str(exc)
+        self.last = Capture(frame, hdr, obs, problem)
+        return self.last
+
+    @staticmethod
+    def save_png(hdr: np.ndarray, path: str | Path) -> Path:
+        """The HDR frame as an 8-bit grey PNG scaled to its 99.9th percentile (for a person)."""
+        import cv2
+
+        p = Path(path)
+        if p.suffix.lower() != ".png":
+            raise InputError(f"{p}: the frame preview must be a .png file")
+        top = float(np.percentile(hdr, 99.9)) or 1.0
+        img = np.clip(hdr / top * 255.0, 0, 255).astype(np.uint8)
+
+        def w(t: Path) -> None:
+            if not cv2.imwrite(str(t), img):
+                raise InputError(f"{p}: could not write PNG")
+        write_atomic(p, w)
+        return p
+
+    def store_reference(self, label: str, library_path: str | Path, capture: Capture | None = None) -> dict:
+        """Add the (last) captured frame to the library as a reference case ``label``."""
+        from controller.calibration.library import (
+            Entry,
+            Library,
+            hu_features,
+            load_library,
+            save_library,
+            sha256_file,
+        )
+
+        if not label or any(c in label for c in ",\n"):
+            raise InputError(f"reference label must be a non-empty word without commas, got {label!r}")
+        cap = capture or self.last or self.capture()
+        if cap.observation is None:
+            raise InputError(f"cannot store a reference case: {cap.problem}")
+        lib_path = Path(library_path)
+        lib = load_library(lib_path) if lib_path.is_file() else Library(
+            features="log-hu", threshold=self.cfg.calibration.threshold, entries=[])
+        img_dir = lib_path.parent / "references"
+        n = sum(1 for e in lib.entries if e.label == label)
+        img = img_dir / f"{self.h.id}-{label}-{n:02d}.npy"
+        write_float_image(img, cap.hdr)
+        feats = hu_features(cap.observation.hu, lib.features)
+        entry = Entry(label=label, features=feats, sha256=sha256_file(img), image=str(img))
+        lib.entries.append(entry)
+        save_library(lib, lib_path)
+        manifest = lib_path.with_name(lib_path.stem + "-manifest.csv")
+        rows = []
+        if manifest.is_file():
+            with open(manifest, newline="", encoding="utf-8") as f:
+                rows = list(csv.reader(f))[1:]
+        rows.append([str(img.relative_to(manifest.parent)), label, "", ""])
+
+        def w(t: Path) -> None:
+            with open(t, "w", newline="", encoding="utf-8") as f:
+                cw = csv.writer(f)
+                cw.writerow(["image", "label", "az_deg", "el_deg"])
+                cw.writerows(rows)
+        write_atomic(manifest, w)
+        return {"label": label, "image": str(img), "sha256": entry.sha256, "library": str(lib_path),
+                "entries": len(lib.entries), "manifest": str(manifest)}
+
+    def verify(self) -> dict:
+        """Capture and score the pointing error against the aim point (target centre)."""
+        cap = self.capture()
+        out = cap.to_json(self.pointing.aim_point, self.pointing.heliostat_pos)
+        tol = self.cfg.calibration.tolerance_mrad
+        out["tolerance_mrad"] = tol
+        out["ok"] = bool(out.get("beam")) and out["error_mrad"] <= tol
+        if cap.observation is not None and self.chain.matcher is not None:
+            m = self.chain.match(cap.observation.hu)
+            out["match"] = {"label": "unknown" if m.unknown else m.label, "distance": m.distance}
+        return out

@@ -1,0 +1,122 @@
+"""``heliocal report confusion --library LIB.yaml --test MANIFEST --out DIR``: recognition report.
+
+Matches every test image against the library and writes into DIR: ``confusion.csv`` (rows true,
+columns predicted, plus an ``unknown`` column), ``confusion.md`` (like the paper's Table 4, with
+TP, FN, recall and FNR under it), ``confusion.png`` (heatmap) and ``report.json``. ``--json``
+prints ``{"labels", "matrix", "recall", "fnr", "recognition_rate" (percent), "per_class"}``
+(plus ``tp``, ``fn``, ``n``, ``features``); an unknown prediction counts as a miss.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import io
+import json
+from pathlib import Path
+
+import numpy as np
+
+from controller.calibration.confusion import UNKNOWN, Confusion, confusion
+from controller.calibration.library import hu_features, load_library, read_manifest
+from controller.commands._common import _plain, add_json_option, existing_file, print_json
+from controller.commands.library import progress
+from controller.errors import InputError
+from controller.imaging.beam import analyze
+from controller.io.images import read_image, write_atomic
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("confusion", help="confusion matrix of error-case recognition",
+                              description=__doc__.splitlines()[0])
+    p.add_argument("--library", required=True, metavar="LIB.yaml",
+                   help="library from 'heliocal library build'")
+    p.add_argument("--test", required=True, metavar="MANIFEST", help="test manifest CSV image,label,...")
+    p.add_argument("--out", required=True, metavar="DIR", help="report directory")
+    add_json_option(p)
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    lib = load_library(existing_file(args.library, "library"))
+    rows = read_manifest(existing_file(args.test, "test manifest"))
+    matcher = lib.matcher()
+    true, pred = [], []
+    with progress("matching test views", not args.json) as update:
+        for i, row in enumerate(rows):
+            try:
+                hu = analyze(read_image(row.image), threshold=lib.threshold, background="auto").hu
+            except InputError as exc:
+                raise InputError(f"{args.test}:{row.line}: {exc}") from None
+            m = matcher.match(hu_features(hu, lib.features))
+            true.append(row.label)
+            pred.append(UNKNOWN if m.unknown else m.label)
+            update(i + 1, len(rows))
+    conf = confusion(true, pred, list(dict.fromkeys(lib.labels)))
+    report = conf.as_dict() | {"features": lib.features}
+    write_report(conf, report, Path(args.out))
+    if args.json:
+        print_json(report)
+    else:
+        print(f"recognition rate {conf.recognition_rate:.4f} % (TP {conf.tp}, FN {conf.fn}, "
+              f"recall {conf.recall:.4f}, FNR {conf.fnr:.4f}); report in {args.out}")
+    return 0
+
+
+def confusion_csv(conf: Confusion) -> str:
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(["true\\predicted", *conf.labels, UNKNOWN])
+    for i, lab in enumerate(conf.labels):
+        w.writerow([lab, *conf.matrix[i].tolist(), int(conf.unknown[i])])
+    return buf.getvalue()
+
+
+def confusion_markdown(conf: Confusion, features: str) -> str:
+    """Table 4 style: one row per true case, predicted cases as columns, totals underneath."""
+    head = "| true \\ predicted | " + " | ".join(conf.labels) + f" | {UNKNOWN} |"
+    sep = "|---|" + "---:|" * (len(conf.labels) + 1)
+    lines = [f"# Confusion matrix ({features} features)", "", head, sep]
+    for i, lab in enumerate(conf.labels):
+        cells = [f"**{v}**" if j == i else str(v) for j, v in enumerate(conf.matrix[i].tolist())]
+        lines.append(f"| {lab} | " + " | ".join(cells) + f" | {int(conf.unknown[i])} |")
+    lines += [
+        "",
+        "| TP | FN | Recall | FNR | Recognition rate |",
+        "|---:|---:|---:|---:|---:|",
+        f"| {conf.tp} | {conf.fn} | {conf.recall:.4f} | {conf.fnr:.4f} | {conf.recognition_rate:.4f} % |",
+        "",
+        "Rows: true case; columns: predicted case. An unknown prediction counts as a false negative.",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def write_report(conf: Confusion, report: dict, out: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out.mkdir(parents=True, exist_ok=True)
+    csv_text = confusion_csv(conf)
+    md_text = confusion_markdown(conf, report.get("features", ""))
+    json_text = json.dumps(_plain(report), indent=2) + "\n"
+    k = len(conf.labels)
+    full = np.column_stack([conf.matrix, conf.unknown])
+    fig, ax = plt.subplots(figsize=(1.1 * k + 3, 0.9 * k + 2))
+    im = ax.imshow(full, cmap="Blues")
+    ax.set_xticks(range(k + 1), [*conf.labels, UNKNOWN], rotation=35, ha="right")
+    ax.set_yticks(range(k), conf.labels)
+    ax.set_xlabel("predicted")
+    ax.set_ylabel("true")
+    for (i, j), v in np.ndenumerate(full):
+        ax.text(j, i, str(v), ha="center", va="center", color="white" if v > full.max() / 2 else "black")
+    ax.set_title(f"recognition rate {conf.recognition_rate:.2f} % ({report.get('features', '')})")
+    fig.colorbar(im, ax=ax, shrink=0.8)
+    fig.tight_layout()
+    write_atomic(out / "confusion.png", lambda t: fig.savefig(t, dpi=100, format="png"))
+    plt.close(fig)
+    write_atomic(out / "confusion.csv", lambda t: t.write_text(csv_text, encoding="utf-8"))
+    write_atomic(out / "confusion.md", lambda t: t.write_text(md_text, encoding="utf-8"))
+    write_atomic(out / "report.json", lambda t: t.write_text(json_text, encoding="utf-8"))

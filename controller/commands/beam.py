@@ -1,0 +1,100 @@
+"""``heliocal beam IMAGE``: beam-spot analysis (centroid, peak, total, ellipse, d90, Hu moments).
+
+JSON (``--json``): ``{"centroid_px": [x, y], "peak", "total", "pixels", "hu": [7],
+"ellipse": {"major_px", "minor_px", "angle_deg"}, "d90_px"}``; x = column, y = row, (0, 0) the
+centre of the top-left pixel. ``--plot DIR`` writes one PNG per intermediate step.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from controller.commands._common import add_json_option, existing_file, print_json
+from controller.errors import InputError
+from controller.imaging.beam import BeamResult, analyze
+from controller.io.images import read_image, write_atomic
+
+
+def add_threshold_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--threshold", type=float, default=0.5, metavar="F",
+                        help="segmentation threshold as a fraction of the peak (default 0.5)")
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("beam", help="analyse a beam spot image",
+                              description=__doc__.splitlines()[0])
+    p.add_argument("image", metavar="IMAGE", help="8/16-bit grey PNG/TIFF, float .npy/.tiff")
+    add_threshold_option(p)
+    p.add_argument("--background", default="auto", metavar="auto|none|FILE",
+                   help="background: auto (sigma-clipped plane), none, or a null image (default auto)")
+    p.add_argument("--mask", metavar="FILE", help="target mask image (non-zero = on target)")
+    p.add_argument("--plot", metavar="DIR", help="write the intermediate steps as PNGs into DIR")
+    add_json_option(p)
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    image = read_image(existing_file(args.image, "image"))
+    background = args.background
+    if background not in ("auto", "none"):
+        background = read_image(existing_file(background, "background image"))
+    mask = read_image(existing_file(args.mask, "mask image")) if args.mask else None
+    result = analyze(image, threshold=args.threshold, background=background, mask=mask,
+                     keep_steps=bool(args.plot))
+    if args.plot:
+        plot_steps(result, Path(args.plot))
+    if args.json:
+        print_json(result.as_dict())
+    else:
+        d = result.as_dict()
+        print(f"centroid (x, y) = ({d['centroid_px'][0]:.3f}, {d['centroid_px'][1]:.3f}) px, "
+              f"peak {d['peak']:.4g}, total {d['total']:.4g}, {d['pixels']} px")
+        e = d["ellipse"]
+        print(f"ellipse {e['major_px']:.2f} x {e['minor_px']:.2f} px at {e['angle_deg']:.1f} deg, "
+              f"d90 {d['d90_px']:.2f} px")
+        print("hu " + " ".join(f"{v:.6g}" for v in d["hu"]))
+    return 0
+
+
+def plot_steps(result: BeamResult, out: Path) -> list[Path]:
+    """One PNG per step of the chain (input, background, subtracted, mask, threshold, spot with
+    centroid, ellipse and d90 circle). Written atomically; returns the paths."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Circle
+    from matplotlib.patches import Ellipse as EllipsePatch
+
+    if not result.steps:
+        raise InputError("no intermediate steps kept; call analyze(..., keep_steps=True)")
+    out.mkdir(parents=True, exist_ok=True)
+    titles = {
+        "input": "1 input", "background": "2 background model", "subtracted": "3 background subtracted",
+        "mask": "4 target mask", "threshold": f"5 above threshold ({result.threshold_level:.4g})",
+        "spot": "6 segmented spot, centroid, ellipse, d90",
+    }
+    paths = []
+    for i, (key, title) in enumerate(titles.items(), start=1):
+        img = np.asarray(result.steps[key], dtype=float)
+        fig, ax = plt.subplots(figsize=(6, 5))
+        im = ax.imshow(img, cmap="inferno" if key != "mask" else "gray", interpolation="nearest")
+        fig.colorbar(im, ax=ax, shrink=0.8)
+        if key == "spot":
+            cx, cy = result.centroid_px
+            ax.plot([cx], [cy], "c+", ms=14, mew=2)
+            e = result.ellipse
+            ax.add_patch(EllipsePatch((cx, cy), e.major_px, e.minor_px, angle=e.angle_deg, fill=False,
+                                      ec="cyan", lw=1.2))
+            ax.add_patch(Circle((cx, cy), result.d90_px / 2, fill=False, ec="lime", ls="--", lw=1.2))
+        ax.set_title(title)
+        ax.set_xlabel("x (column) px")
+        ax.set_ylabel("y (row) px")
+        path = out / f"{i}-{key}.png"
+        write_atomic(path, lambda t, f=fig: f.savefig(t, dpi=100, format="png"))
+        plt.close(fig)
+        paths.append(path)
+    return paths

@@ -1,0 +1,202 @@
+"""``heliocal commission --config C --heliostat H``: commissioning steps for one heliostat.
+
+Without step flags it asks for steps interactively. Each step also has a flag, so scripts can
+drive it; flags run in this order: ``--status``, ``--move AZ EL``, ``--aim``, ``--jog-az/--jog-el``,
+``--capture PNG``, ``--store-reference LABEL --library LIB``, ``--verify``, ``--park``.
+The camera is ``--camera-manifest M`` (recorded pairs) or ``--simulate`` (embedded simulated
+plant, one heliostat; its firmware starts at stow). See docs/commissioning.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+from pathlib import Path
+
+from controller.commands._common import add_config_option, add_json_option, print_json
+from controller.errors import HeliocalError, InputError
+
+HELP = """steps:
+  s | status                 drive status
+  m AZ EL | move AZ EL       absolute move (steps), wait
+  a | aim                    park at standby, then aim at the target centre
+  j dAZ dEL | jog dAZ dEL    relative move (steps), wait
+  c FILE.png | capture FILE  capture a pair, merge, analyse, write a PNG preview
+  r LABEL | reference LABEL  store the last frame as reference case LABEL in --library
+  v | verify                 capture and score the pointing error
+  p | park                   move to the standby point
+  q | quit"""
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "commission",
+        help="commissioning steps for one heliostat",
+        description=__doc__.splitlines()[0],
+        epilog=HELP,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    add_config_option(p)
+    p.add_argument("--heliostat", required=True, metavar="H", help="heliostat id")
+    p.add_argument("--status", action="store_true", help="print the drive status")
+    p.add_argument("--move", nargs=2, type=int, metavar=("AZ", "EL"), help="absolute move in steps")
+    p.add_argument("--aim", action="store_true", help="approach from standby and aim at the target centre")
+    p.add_argument("--jog-az", type=int, default=0, metavar="STEPS", help="jog azimuth by STEPS")
+    p.add_argument("--jog-el", type=int, default=0, metavar="STEPS", help="jog elevation by STEPS")
+    p.add_argument("--capture", metavar="PNG", help="capture a frame pair and write the HDR frame as PNG")
+    p.add_argument("--store-reference", metavar="LABEL", help="store the frame as reference case LABEL")
+    p.add_argument("--library", metavar="LIB", help="error library YAML for --store-reference / matching")
+    p.add_argument("--verify", action="store_true", help="capture and score the pointing error")
+    p.add_argument("--park", action="store_true", help="move to the standby point")
+    p.add_argument("--camera-manifest", metavar="FILE", help="replay frame pairs (FileCamera)")
+    p.add_argument("--simulate", action="store_true", help="use the embedded simulated plant")
+    p.add_argument("--seed", type=int, default=None, help="simulation seed")
+    p.add_argument("--run-dir", default=None, metavar="DIR", help="simulation run directory (ptys)")
+    add_json_option(p)
+    p.set_defaults(func=run)
+
+
+def _steps(args) -> list[tuple[str, tuple]]:
+    steps: list[tuple[str, tuple]] = []
+    if args.status:
+        steps.append(("status", ()))
+    if args.move:
+        steps.append(("move", tuple(args.move)))
+    if args.aim:
+        steps.append(("aim", ()))
+    if args.jog_az or args.jog_el:
+        steps.append(("jog", (args.jog_az, args.jog_el)))
+    if args.capture:
+        steps.append(("capture", (args.capture,)))
+    if args.store_reference:
+        if not args.library:
+            raise InputError("--store-reference needs --library LIB.yaml")
+        steps.append(("reference", (args.store_reference,)))
+    if args.verify:
+        steps.append(("verify", ()))
+    if args.park:
+        steps.append(("park", ()))
+    return steps
+
+
+def run(args: argparse.Namespace) -> int:
+    from controller.config import load_config
+
+    cfg = load_config(args.config)
+    cfg.heliostat(args.heliostat)
+    steps = _steps(args)
+    if not args.simulate and not args.camera_manifest:
+        raise InputError("commission: no camera; pass --camera-manifest FILE or --simulate")
+    library = None
+    if args.library and Path(args.library).is_file():
+        from controller.calibration.library import load_library
+
+        library = load_library(args.library)
+    if args.simulate:
+        return _with_simulated(cfg, args, steps, library)
+    from controller.devices.drive import DriveLimits
+    from controller.devices.factory import LinkPool
+    from controller.devices.file_camera import FileCamera
+
+    h = cfg.heliostat(args.heliostat)
+    with LinkPool() as pool:
+        drive = pool.drive(h.link, DriveLimits.from_axes(h.axes))
+        return _session(cfg, args, steps, drive, FileCamera(args.camera_manifest), library)
+
+
+def _with_simulated(cfg, args, steps, library) -> int:
+    import tempfile
+
+    from controller.devices.drive import DriveLimits
+    from controller.devices.factory import LinkPool
+    from controller.sim.plant import SimulatedPlant, load_config_data
+
+    seed = cfg.simulation.seed if args.seed is None else args.seed
+    run_dir = Path(args.run_dir) if args.run_dir else Path(tempfile.mkdtemp(prefix="heliocal-commission-"))
+    with SimulatedPlant(
+        load_config_data(args.config), run_dir, heliostat_ids=[args.heliostat], seed=seed, source=args.config
+    ) as plant:
+        pcfg = plant.start()
+        h = pcfg.heliostat(args.heliostat)
+        with LinkPool() as pool:
+            drive = pool.drive(h.link, DriveLimits.from_axes(h.axes))
+            return _session(pcfg, args, steps, drive, plant.camera, library)
+
+
+def _do(c, name: str, params: tuple, args) -> dict:
+    if name == "status":
+        return c.status()
+    if name == "move":
+        return c.move(*params)
+    if name == "aim":
+        return c.aim()
+    if name == "jog":
+        return c.jog(*params)
+    if name == "park":
+        return c.park()
+    if name == "capture":
+        cap = c.capture()
+        c.save_png(cap.hdr, params[0])
+        out = cap.to_json(c.pointing.aim_point, c.pointing.heliostat_pos)
+        out["png"] = params[0]
+        return out
+    if name == "reference":
+        if not args.library:
+            raise InputError("storing a reference case needs --library LIB.yaml")
+        return c.store_reference(params[0], args.library)
+    if name == "verify":
+        return c.verify()
+    raise InputError(f"unknown step {name!r}")
+
+
+def _session(cfg, args, steps, drive, camera, library) -> int:
+    from controller.calibration.commissioning import Commissioning
+
+    c = Commissioning(cfg, args.heliostat, drive, camera, library=library)
+    if steps:
+        results = {name: _do(c, name, params, args) for name, params in steps}
+        if args.json:
+            print_json({"heliostat": args.heliostat, "ok": True, "steps": results})
+        else:
+            for name, res in results.items():
+                print(f"{name}: {res}")
+        return 0
+    return _interactive(c, args)
+
+
+_ALIASES = {
+    "s": "status",
+    "m": "move",
+    "a": "aim",
+    "j": "jog",
+    "c": "capture",
+    "r": "reference",
+    "v": "verify",
+    "p": "park",
+}
+
+
+def _interactive(c, args) -> int:
+    print(f"commissioning {args.heliostat}; 'h' for help", file=sys.stderr)
+    while True:
+        try:
+            line = input("commission> ")
+        except EOFError:
+            return 0
+        words = shlex.split(line)
+        if not words:
+            continue
+        cmd = _ALIASES.get(words[0], words[0])
+        if cmd in ("q", "quit", "exit"):
+            return 0
+        if cmd in ("h", "help", "?"):
+            print(HELP)
+            continue
+        try:
+            params: tuple = tuple(int(w) for w in words[1:]) if cmd in ("move", "jog") else tuple(words[1:])
+            print(_do(c, cmd, params, args))
+        except (ValueError, TypeError) as exc:
+            print(f"error: bad arguments for {cmd}: {exc}")
+        except HeliocalError as exc:
+            print(f"error: {exc}")

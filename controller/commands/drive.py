@@ -1,0 +1,164 @@
+"""``heliocal drive``: talk to one heliostat drive controller over any link.
+
+Contract (docs/serial-link.md, scripts depend on it)::
+
+    heliocal drive --serial PATH --unit N [--baud B] [--timeout S] [--retries K] status --json
+        -> {"unit": N, "az_steps": a, "el_steps": e, "moving": false, "in_position": true, "faults": []}
+    heliocal drive --serial PATH --unit N move --az-steps A --el-steps E [--wait] --json
+    heliocal drive --serial PATH --unit N jog --az-steps dA --el-steps dE [--wait] --json
+        -> {"ok": true, "az_steps": a, "el_steps": e, "retries": r}
+
+``--modbus-tcp HOST:PORT`` or ``--modbus-rtu PATH`` replace ``--serial``; the JSON is the same.
+Targets are checked against the configuration's soft limits *and* the firmware's (GET_LIMITS)
+before anything is sent; out of range exits 2. Failures print ``{"ok": false, "error": ...}``.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from controller.commands._common import DEFAULT_CONFIG, add_json_option, print_json
+from controller.commands._links import add_link_options, heliostat_for, link_model, load_plant
+from controller.devices.drive import AxisLimits, DriveError, DriveLimits, MoveResult
+from controller.errors import DeviceError, HeliocalError, InputError
+
+_WIDE = DriveLimits(AxisLimits(-(2**31), 2**31 - 1), AxisLimits(-(2**31), 2**31 - 1))
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("drive", help="status, move or jog one heliostat drive",
+                              description=__doc__.split("\n\n")[0])
+    add_link_options(p, "--serial")
+    p.add_argument("--unit", type=int, required=True, help="bus address / Modbus unit id (1..247)")
+    p.add_argument("--baud", type=int, default=115200, help="serial baud rate (default 115200)")
+    p.add_argument("--timeout", type=float, default=0.2, metavar="S",
+                   help="reply timeout per attempt, s (default 0.2)")
+    p.add_argument("--retries", type=int, default=3, metavar="K",
+                   help="retransmissions after the first attempt (default 3)")
+    p.add_argument("--config", default=None, metavar="FILE",
+                   help=f"plant configuration for the soft limits (default {DEFAULT_CONFIG} if present)")
+    # --json belongs after the action (contract); accepted before it too.
+    p.add_argument("--json", dest="json_first", action="store_true", help=argparse.SUPPRESS)
+    sub = p.add_subparsers(dest="drive_command", metavar="ACTION", required=True)
+    for name, help_text in (("status", "read positions, motion and faults"),
+                            ("info", "firmware version and hard ranges"),
+                            ("limits", "soft limits: configuration and firmware"),
+                            ("stop", "stop both axes"), ("home", "move to the home position"),
+                            ("stow", "move to the stow position"),
+                            ("clear-fault", "clear latched faults")):
+        add_json_option(sub.add_parser(name, help=help_text))
+    for name, help_text, unit in (("move", "absolute move, motor steps", "steps"),
+                                  ("jog", "relative move, motor steps", "steps to add")):
+        a = sub.add_parser(name, help=help_text)
+        a.add_argument("--az-steps", type=int, required=True, help=f"azimuth {unit}")
+        a.add_argument("--el-steps", type=int, required=True, help=f"elevation {unit}")
+        a.add_argument("--wait", action="store_true", help="wait until in position and verify it")
+        a.add_argument("--wait-timeout", type=float, default=120.0, metavar="S",
+                       help="give up waiting after S seconds (default 120)")
+        add_json_option(a)
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from controller.devices.factory import LinkPool
+
+    args.json = args.json or args.json_first
+    if args.timeout <= 0 or args.retries < 0:
+        raise InputError("--timeout must be > 0 and --retries >= 0")
+    link = link_model(args, args.unit, args.baud)
+    motion = args.drive_command in ("move", "jog")
+    plant = load_plant(args.config, required=False)
+    heliostat = None
+    if plant is not None:
+        heliostat, matched = heliostat_for(plant, link)
+        cfg_limits = DriveLimits.from_axes(heliostat.axes)
+        source = f"configuration heliostat {heliostat.id}" + ("" if matched else " (first heliostat)")
+    else:
+        cfg_limits, source = None, None
+    pool = LinkPool(timeout_s=args.timeout, retries=args.retries)
+    try:
+        drive = pool.drive(link, cfg_limits or _WIDE)
+        result = _act(args, drive, cfg_limits, source) if motion else _query(args, drive, cfg_limits,
+                                                                               source)
+    except HeliocalError:
+        raise
+    except ModuleNotFoundError as exc:
+        raise DeviceError(f"this link is not available: {exc}") from None
+    except Exception as exc:  # the CLI boundary: any driver failure becomes one clean line
+        raise DeviceError(f"{type(exc).__name__}: {exc}") from None
+    finally:
+        pool.close()
+    if args.json:
+        print_json(result)
+    else:
+        print(" ".join(f"{k}={v}" for k, v in result.items()))
+    return 0
+
+
+def _firmware_limits(drive) -> DriveLimits | None:
+    get = getattr(drive, "get_limits", None)
+    return get() if get is not None else None
+
+
+def _act(args, drive, cfg_limits: DriveLimits | None, source: str | None) -> dict:
+    fw_limits = _firmware_limits(drive)
+    status = drive.status() if args.drive_command == "jog" else None
+    if status is not None:
+        target = (status.az_target + args.az_steps, status.el_target + args.el_steps)
+        what = "jog result"
+    else:
+        target = (args.az_steps, args.el_steps)
+        what = "target"
+    # Both sets of limits are checked before anything that moves is sent.
+    if cfg_limits is not None:
+        cfg_limits.check(*target, f"{what} ({source})")
+    if fw_limits is not None:
+        fw_limits.check(*target, f"{what} (firmware)")
+    drive.limits = _intersect(cfg_limits, fw_limits)
+    if status is not None:
+        drive.jog(args.az_steps, args.el_steps, from_status=status)
+        target = getattr(drive, "last_targets", None) or target
+    else:
+        drive.move_abs(*target)
+    az, el = target
+    if args.wait:
+        st = drive.wait_in_position(args.wait_timeout)
+        if (st.az_steps, st.el_steps) != target:
+            raise DriveError(f"unit {drive.unit}: ended at ({st.az_steps}, {st.el_steps}), "
+                             f"commanded ({target[0]}, {target[1]})")
+        az, el = st.az_steps, st.el_steps
+    return MoveResult(True, az, el, retries=drive.retries_used).to_json()
+
+
+def _query(args, drive, cfg_limits: DriveLimits | None, source: str | None) -> dict:
+    cmd = args.drive_command
+    if cmd == "status":
+        return drive.status().to_json()
+    if cmd == "info":
+        info = drive.info()
+        return {"unit": drive.unit, "firmware_version": info.firmware_version,
+                "protocol_version": info.protocol_version, "axes": info.axes,
+                "hard_limits": _limits_json(info.hard_limits)}
+    if cmd == "limits":
+        fw = _firmware_limits(drive)
+        return {"unit": drive.unit, "config": _limits_json(cfg_limits), "config_source": source,
+                "firmware": _limits_json(fw)}
+    {"stop": drive.stop, "home": drive.home, "stow": drive.stow,
+     "clear-fault": drive.clear_fault}[cmd]()
+    return {"ok": True, "unit": drive.unit, "action": cmd, "retries": drive.retries_used}
+
+
+def _limits_json(lim: DriveLimits | None) -> dict | None:
+    if lim is None:
+        return None
+    return {"az": [lim.az.min_steps, lim.az.max_steps], "el": [lim.el.min_steps, lim.el.max_steps]}
+
+
+def _intersect(a: DriveLimits | None, b: DriveLimits | None) -> DriveLimits:
+    if a is None or b is None:
+        return a or b or _WIDE
+
+    def one(x: AxisLimits, y: AxisLimits) -> AxisLimits:
+        return AxisLimits(max(x.min_steps, y.min_steps), min(x.max_steps, y.max_steps))
+
+    return DriveLimits(one(a.az, b.az), one(a.el, b.el))

@@ -1,0 +1,48 @@
+"""``heliocal export --db DB --format paint --out DIR``: calibration records as PAINT JSON."""
+
+from __future__ import annotations
+
+import argparse
+
+from controller.commands._common import add_json_option, print_json
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "export",
+        help="export calibration measurements (PAINT-style JSON)",
+        description="Write one PAINT-style calibration-properties JSON per measurement.",
+    )
+    p.add_argument("--db", required=True, metavar="DB", help="campaign database (SQLite)")
+    p.add_argument("--format", required=True, choices=["paint"], help="record format")
+    p.add_argument("--out", required=True, metavar="DIR", help="output directory")
+    p.add_argument(
+        "--campaign", type=int, default=None, metavar="ID", help="only this campaign (default: all)"
+    )
+    p.add_argument(
+        "--config",
+        default=None,
+        metavar="FILE",
+        help="plant config giving the site origin (default: stored with the campaign)",
+    )
+    add_json_option(p)
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from controller.storage.db import open_existing
+    from controller.storage.paint import export_paint
+
+    site = None
+    if args.config:
+        from controller.config import load_config
+
+        s = load_config(args.config).site
+        site = (s.latitude_deg, s.longitude_deg, s.elevation_m)
+    with open_existing(args.db) as store:
+        paths = export_paint(store, args.out, site, args.campaign)
+    if args.json:
+        print_json({"records": len(paths), "out": args.out})
+    else:
+        print(f"wrote {len(paths)} PAINT-style records into {args.out}")
+    return 0

@@ -1,0 +1,264 @@
+"""``heliocal flux``: irradiance map of a Lambertian target from a sun image (PHLUX).
+
+Contract (docs/flux.md)::
+
+    heliocal flux RECEIVER --sun SUN --dni W_M2 --reflectivity RHO [--ambient AMBIENT]
+         [--sun-transmittance T] [--exposure-ratio R] [--sun-angle-mrad 9.3]
+         [--distance M --view-angle-deg A] --out FLUX.npy [--png FLUX.png] --json
+
+Double-CCD pairs replace RECEIVER (and AMBIENT) with ``--receiver-pair LOW HIGH
+--exposures T_LOW T_HIGH [--ambient-pair LOW HIGH]``; the pair is merged to counts per second,
+so the sun exposure must be given (``--sun-exposure T``) instead of ``--exposure-ratio``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from controller.commands._common import add_json_option, existing_file, print_json
+from controller.errors import InputError
+from controller.flux import phlux
+from controller.flux.sun_disc import SunDiscError, find_sun_disc
+from controller.io.images import read_image, write_atomic, write_float_image
+
+HDR_DARK_OFFSET = 8.0
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "flux", help="flux map (W/m²) of a Lambertian target from a sun image (PHLUX)",
+        description="Irradiance map of a Lambertian target calibrated by a sun image taken with the "
+                    "same camera (Ho & Khalsa 2012). See docs/flux.md.")
+    p.add_argument("receiver", nargs="?", metavar="RECEIVER", help="target image (beam on)")
+    p.add_argument("--sun", required=True, metavar="SUN", help="sun image, same camera, through an ND filter")
+    p.add_argument("--dni", required=True, type=float, metavar="W_M2", help="DNI at the sun image, W/m²")
+    p.add_argument("--reflectivity", required=True, type=float, metavar="RHO",
+                   help="Lambertian reflectivity of the target (0-1]")
+    p.add_argument("--ambient", metavar="AMBIENT", help="same view with the beam off, subtracted")
+    p.add_argument("--dark-offset", type=float, default=0.0, metavar="DN",
+                   help="dark level subtracted from RECEIVER when no --ambient is given (default 0)")
+    p.add_argument("--sun-transmittance", type=float, default=1.0, metavar="T",
+                   help="ND transmittance in front of the camera for the sun image (default 1)")
+    p.add_argument("--receiver-transmittance", type=float, default=1.0, metavar="T",
+                   help="ND transmittance for the receiver image (default 1)")
+    p.add_argument("--exposure-ratio", type=float, default=None, metavar="R",
+                   help="(receiver exposure) / (sun exposure) (default 1)")
+    p.add_argument("--sun-angle-mrad", type=float, default=phlux.SUN_ANGLE_RAD * 1e3, metavar="MRAD",
+                   help="full angle subtended by the Sun (default 9.3)")
+    p.add_argument("--sun-center", type=float, nargs=2, metavar=("X", "Y"),
+                   help="manual sun disc centre, pixels (with --sun-radius)")
+    p.add_argument("--sun-radius", type=float, metavar="PX", help="manual sun disc radius, pixels")
+    p.add_argument("--saturation-level", type=float, metavar="DN",
+                   help="sun-image clipping level (default: dtype maximum; needed for float images)")
+    p.add_argument("--distance", type=float, metavar="M",
+                   help="camera-target distance, m (gives total power)")
+    p.add_argument("--view-angle-deg", type=float, metavar="A",
+                   help="angle between target normal and line of sight, degrees (default 0)")
+    p.add_argument("--tube-axes-px", type=float, nargs="+", metavar="X",
+                   help="tube panel: x (column) of each tube axis, px; power uses tube surface areas")
+    p.add_argument("--tube-radius-px", type=float, metavar="R", help="tube panel: tube radius as imaged, px")
+    p.add_argument("--known-power-w", type=float, metavar="P",
+                   help="beam power on the target (DNI·A·ρ_mirror·cos i, no spillage): adds "
+                        "reflectivity_calibrated to the JSON")
+    p.add_argument("--receiver-pair", nargs=2, metavar=("LOW", "HIGH"), help="double-CCD receiver pair")
+    p.add_argument("--ambient-pair", nargs=2, metavar=("LOW", "HIGH"), help="double-CCD ambient pair")
+    p.add_argument("--exposures", type=float, nargs=2, metavar=("T_LOW", "T_HIGH"),
+                   help="pair exposure times, seconds")
+    p.add_argument("--sun-exposure", type=float, metavar="S", help="sun exposure time, seconds (with pairs)")
+    p.add_argument("--hotspots", type=int, default=5, metavar="N",
+                   help="number of hot spots listed (default 5)")
+    p.add_argument("--out", required=True, metavar="FLUX.npy",
+                   help="irradiance map, W/m², float32 (.npy/.tiff)")
+    p.add_argument("--png", metavar="FLUX.png", help="false-colour map with colour bar in kW/m²")
+    add_json_option(p)
+    p.set_defaults(func=run)
+
+
+def _positive(value: float | None, option: str, upper: float | None = None) -> None:
+    if value is None:
+        return
+    if not (math.isfinite(value) and value > 0) or (upper is not None and value > upper):
+        bound = f"in (0, {upper:g}]" if upper is not None else "> 0"
+        raise InputError(f"{option} must be {bound}, got {value:g}")
+
+
+def _check_args(args: argparse.Namespace) -> None:
+    _positive(args.dni, "--dni")
+    _positive(args.reflectivity, "--reflectivity", 1.0)
+    _positive(args.sun_transmittance, "--sun-transmittance", 1.0)
+    _positive(args.receiver_transmittance, "--receiver-transmittance", 1.0)
+    _positive(args.exposure_ratio, "--exposure-ratio")
+    _positive(args.sun_angle_mrad, "--sun-angle-mrad")
+    _positive(args.distance, "--distance")
+    _positive(args.sun_radius, "--sun-radius")
+    _positive(args.sun_exposure, "--sun-exposure")
+    if (args.sun_center is None) != (args.sun_radius is None):
+        raise InputError("--sun-center and --sun-radius go together")
+    if args.view_angle_deg is not None:
+        if args.distance is None:
+            raise InputError("--view-angle-deg needs --distance")
+        if not 0 <= args.view_angle_deg < 90:
+            raise InputError(f"--view-angle-deg must be in [0, 90), got {args.view_angle_deg:g}")
+    _positive(args.tube_radius_px, "--tube-radius-px")
+    _positive(args.known_power_w, "--known-power-w")
+    if (args.tube_axes_px is None) != (args.tube_radius_px is None):
+        raise InputError("--tube-axes-px and --tube-radius-px go together")
+    if (args.tube_axes_px or args.known_power_w) and args.distance is None:
+        raise InputError("--tube-axes-px and --known-power-w need --distance")
+    if args.tube_axes_px and args.view_angle_deg:
+        raise InputError("a tube panel must be viewed along its normal (--view-angle-deg 0)")
+    if args.hotspots < 0:
+        raise InputError(f"--hotspots must be >= 0, got {args.hotspots}")
+    if args.receiver_pair:
+        if args.receiver:
+            raise InputError("give RECEIVER or --receiver-pair, not both")
+        if not args.exposures or not args.sun_exposure:
+            raise InputError("--receiver-pair needs --exposures T_LOW T_HIGH and --sun-exposure S")
+        if args.exposure_ratio is not None or args.ambient:
+            raise InputError("with --receiver-pair use --ambient-pair, and no --exposure-ratio "
+                             "(the merged pair is in counts per second)")
+        for t in args.exposures:
+            _positive(t, "--exposures")
+    elif not args.receiver:
+        raise InputError("no receiver image: give RECEIVER or --receiver-pair LOW HIGH")
+    elif args.ambient_pair or args.exposures:
+        raise InputError("--ambient-pair and --exposures go with --receiver-pair")
+    if Path(args.out).suffix.lower() not in (".npy", ".tif", ".tiff"):
+        raise InputError(f"--out {args.out}: must end in .npy or .tiff")
+    if args.png and Path(args.png).suffix.lower() != ".png":
+        raise InputError(f"--png {args.png}: must end in .png")
+
+
+def _same_shape(images: dict[str, np.ndarray]) -> None:
+    shapes = {name: img.shape for name, img in images.items()}
+    if len(set(shapes.values())) > 1:
+        listed = ", ".join(f"{name} {s[1]}x{s[0]}" for name, s in shapes.items())
+        raise InputError(f"image sizes differ (same camera expected): {listed}")
+
+
+def _merge_pair(paths: list[str], exposures: tuple[float, float]) -> np.ndarray:
+    """Merged pair in counts per second above the dark offset, shape (rows, cols)."""
+    try:
+        from controller.imaging.hdr import HdrMerger, merge_pair
+    except ImportError as exc:
+        raise InputError(f"double-CCD pairs need controller.imaging.hdr ({exc})") from None
+    low, high = (read_image(existing_file(p, "image")) for p in paths)
+    _same_shape({paths[0]: low, paths[1]: high})
+    merger = HdrMerger(exposures=tuple(exposures), crf=None, weighting="raised-cosine",
+                       dark_offset=HDR_DARK_OFFSET)
+    merged = np.asarray(merger.merge(low, high), dtype=np.float64)
+    # With crf=None the merge uses I(z) = z, dark offset included. Eq. (1) and its rules for
+    # uncovered pixels are linear in I, so the offset's share per pixel is the same merge of
+    # I(z) = 1 (Σ w t / Σ w t², or 1/t where a single exposure is used), times the offset.
+    ones = np.ones_like(merger.inverse[0])
+    share, _ = merge_pair(low.astype(np.intp), high.astype(np.intp), merger.exposures, ones, ones,
+                          *merger.weights, merger.dark_offset)
+    return merged - HDR_DARK_OFFSET * share
+
+
+def _target_values(args: argparse.Namespace) -> tuple[np.ndarray, dict[str, np.ndarray], int]:
+    """Ambient-subtracted target counts, the images to size-check, and the saturated-pixel count."""
+    if args.receiver_pair:
+        merged = _merge_pair(args.receiver_pair, args.exposures)
+        shapes = {args.receiver_pair[0]: merged}
+        if args.ambient_pair:
+            ambient = _merge_pair(args.ambient_pair, args.exposures)
+            shapes[args.ambient_pair[0]] = ambient
+            _same_shape(shapes)
+            merged = merged - ambient
+        return merged, shapes, 0
+    receiver = read_image(existing_file(args.receiver, "receiver image"))
+    shapes = {args.receiver: receiver}
+    n_sat = 0
+    if np.issubdtype(receiver.dtype, np.integer):
+        n_sat = int(np.count_nonzero(receiver >= np.iinfo(receiver.dtype).max))
+    values = receiver.astype(np.float64)
+    if args.ambient:
+        ambient = read_image(existing_file(args.ambient, "ambient image"))
+        shapes[args.ambient] = ambient
+        _same_shape(shapes)
+        values -= ambient
+    else:
+        values -= args.dark_offset
+    return values, shapes, n_sat
+
+
+def _write_png(path: str, flux: np.ndarray) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.4, 4.8), dpi=100)
+    im = ax.imshow(flux / 1e3, cmap="inferno", origin="upper")
+    fig.colorbar(im, ax=ax, label="irradiance, kW/m²")
+    ax.set_xlabel("x (column), px")
+    ax.set_ylabel("y (row), px")
+    ax.set_title(f"PHLUX flux map, peak {flux.max() / 1e3:.1f} kW/m²")
+    fig.tight_layout()
+    try:
+        write_atomic(path, lambda t: fig.savefig(t, format="png"))
+    finally:
+        plt.close(fig)
+
+
+def run(args: argparse.Namespace) -> int:
+    _check_args(args)
+    sun_path = existing_file(args.sun, "sun image")
+    sun = read_image(sun_path)
+    values, shapes, n_sat = _target_values(args)
+    _same_shape({**shapes, str(sun_path): sun})
+    try:
+        disc = find_sun_disc(sun, saturation_level=args.saturation_level,
+                             center_px=tuple(args.sun_center) if args.sun_center else None,
+                             radius_px=args.sun_radius)
+    except SunDiscError as exc:
+        raise SunDiscError(f"{sun_path}: {exc}") from None
+    gamma = args.sun_angle_mrad * 1e-3
+    if args.receiver_pair:
+        exposure_ratio = 1.0 / args.sun_exposure
+    else:
+        exposure_ratio = args.exposure_ratio or 1.0
+    flux = phlux.irradiance_from_sun_image(
+        values, disc.sum_counts, disc.radius_px, args.dni, args.reflectivity, sun_angle_rad=gamma,
+        sun_transmittance=args.sun_transmittance, target_transmittance=args.receiver_transmittance,
+        exposure_ratio=exposure_ratio)
+    result = {
+        "peak_w_m2": float(flux.max()),
+        "mean_w_m2": float(flux.mean()),
+        "sun_radius_px": disc.radius_px,
+        "sun_center_px": [disc.center_px[0], disc.center_px[1]],
+    }
+    if args.distance is not None:
+        if args.tube_axes_px:
+            area = phlux.tube_panel_area_map(flux.shape, np.asarray(args.tube_axes_px), args.tube_radius_px,
+                                             args.distance, disc.radius_px, gamma)
+        else:
+            area = phlux.pixel_area_m2(args.distance, math.radians(args.view_angle_deg or 0.0),
+                                       disc.radius_px, gamma)
+        result["total_power_w"] = phlux.total_power_w(flux, area)
+        if args.known_power_w:
+            # E ∝ 1/ρ: the reflectivity that makes the measured power equal the known one
+            power_at_unit_rho = args.reflectivity * result["total_power_w"]
+            result["reflectivity_calibrated"] = power_at_unit_rho / args.known_power_w
+    result["hotspots"] = [{"x": h.x, "y": h.y, "w_m2": h.w_m2}
+                          for h in phlux.find_hotspots(flux, count=args.hotspots)] if args.hotspots else []
+    write_float_image(args.out, flux)
+    if args.png:
+        _write_png(args.png, flux)
+    if n_sat:
+        print(f"heliocal flux: warning: {n_sat} receiver pixels saturated; flux there is a lower bound",
+              file=sys.stderr)
+    if args.json:
+        print_json(result)
+    else:
+        print(f"peak {result['peak_w_m2'] / 1e3:.2f} kW/m², mean {result['mean_w_m2'] / 1e3:.3f} kW/m², "
+              f"sun r={disc.radius_px:.2f} px at ({disc.center_px[0]:.2f}, {disc.center_px[1]:.2f})")
+        if "total_power_w" in result:
+            print(f"total power {result['total_power_w'] / 1e3:.3f} kW")
+        print(f"wrote {args.out}" + (f" and {args.png}" if args.png else ""))
+    return 0

@@ -1,0 +1,57 @@
+"""``heliocal match IMAGE --library LIB.yaml``: recognise a beam image's error case.
+
+JSON (``--json``): ``{"label", "distance", "runner_up": {"label", "distance"}, "az_deg",
+"el_deg", "unknown": false}``, plus ``"correction"`` when the entry has one. When the image is
+farther than the library's unknown threshold from every entry, ``label`` is ``"unknown"``,
+``unknown`` is true, az/el/correction are null and ``nearest`` names the closest case.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from controller.calibration.library import Library, hu_features, load_library
+from controller.commands._common import add_json_option, existing_file, print_json
+from controller.imaging.beam import analyze
+from controller.io.images import read_image
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("match", help="match a beam image against the error library",
+                              description=__doc__.splitlines()[0])
+    p.add_argument("image", metavar="IMAGE", help="beam image (HDR .npy/.tiff or grey PNG/TIFF)")
+    p.add_argument("--library", required=True, metavar="LIB.yaml",
+                   help="library from 'heliocal library build'")
+    add_json_option(p)
+    p.set_defaults(func=run)
+
+
+def match_image(lib: Library, image) -> dict:
+    """Analyse ``image`` with the library's threshold and match it; returns the JSON contract."""
+    feats = hu_features(analyze(image, threshold=lib.threshold, background="auto").hu, lib.features)
+    m = lib.matcher().match(feats)
+    entry = lib.entries[m.index]
+    out = {
+        "label": "unknown" if m.unknown else m.label,
+        "distance": m.distance,
+        "runner_up": {"label": m.runner_up_label, "distance": m.runner_up_distance},
+        "az_deg": None if m.unknown else entry.az_deg,
+        "el_deg": None if m.unknown else entry.el_deg,
+        "unknown": m.unknown,
+        "nearest": m.label,
+    }
+    if entry.correction is not None:
+        out["correction"] = None if m.unknown else entry.correction
+    return out
+
+
+def run(args: argparse.Namespace) -> int:
+    lib = load_library(existing_file(args.library, "library"))
+    result = match_image(lib, read_image(existing_file(args.image, "image")))
+    if args.json:
+        print_json(result)
+    else:
+        ru = result["runner_up"]
+        ru_txt = f"{ru['label']} at {ru['distance']:.4g}" if ru["label"] else "none"
+        print(f"{result['label']} (distance {result['distance']:.4g}; runner-up {ru_txt})")
+    return 0

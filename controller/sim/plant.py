@@ -1,0 +1,567 @@
+"""The embedded simulated plant behind ``heliocal demo`` (and the campaign tests).
+
+What it runs, all in this process but reachable only through the real wire protocols:
+
+* one :class:`firmware_proto.physics.SimController` per heliostat, on a **plant clock**
+  (:class:`PlantClock`) that may run ``simulation.clock_speedup`` times faster than real time;
+* per serial bus of the config, :class:`firmware_proto.serial_sim.SerialSimFirmware` on a pty,
+  symlinked inside the run directory (the config's device paths are rewritten to it);
+* the Modbus TCP heliostats behind :class:`firmware_proto.modbus_sim.ModbusSimServer` on
+  127.0.0.1, an ephemeral port (written back into the links); Modbus RTU on a pty;
+* hidden per-heliostat tracking errors (:class:`controller.geometry.error_model.TrackingErrorParams`,
+  each parameter ~ N(0, (``tracking_error_mrad``/2)²), seeded) and an injected error *case*
+  from the error set (its mirror shape: deformation, focus, wind rocking), so that the
+  morning report can score the Hu-moment recognition against the truth;
+* a simulated double-CCD camera (:class:`PlantCamera`) looking at the target under the lamp.
+  Its scene is the sum of the beams of every heliostat whose reflected central ray lands
+  within the view (plus margin), each ray traced from the TRUE normal: the error model
+  evaluated at the rods' true positions (``SimController.output_steps``, backlash included).
+
+The plant clock stands still while the simulator renders a scene (that is the simulator's
+work, not the plant's) and advances by the exposure time instead; the controller's own image
+processing runs on the plant clock like everything else.
+
+Truth for the report: the reflected-beam pointing error of a heliostat, i.e. the angle
+between the reflection of the lamp direction about its true normal at the mirror centre and
+the direction from the mirror centre to the calibration target's centre, in mrad.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import copy
+import threading
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from controller.config import PlantConfig, parse_config
+from controller.devices.camera import DoubleCcdCamera, FramePair
+from controller.geometry.error_model import TrackingErrorParams, actual_normal
+from controller.geometry.kinematics import HeliostatKinematics
+from controller.geometry.vectors import unit
+from controller.sim.errorset import CASES, ErrorCase
+from controller.sim.optics import MirrorSurface, TargetGrid, render_spot
+from firmware_proto.physics import SimController, axis_params_from_config
+
+RENDER_RAYS = 80_000
+RENDER_PITCH_M = 0.075  # ray-tracing grid pitch (then interpolated to the camera's)
+TRUTH_RAYS = 100_000
+# A worn gear rocks across its dead band when gusts push the mirror (the error set renders the
+# full band). Calibration nights are calm: the plant lets the mirror sweep this fraction of it.
+NIGHT_ROCK_FRACTION = 0.1
+
+
+class PlantClock:
+    """Plant time in seconds: ``speedup`` x wall time, which :meth:`frozen` can stop."""
+
+    def __init__(self, speedup: float = 1.0, start: float = 0.0) -> None:
+        self.speedup = float(speedup)
+        self._lock = threading.Lock()
+        self._base = start
+        self._wall0 = time.monotonic()
+        self._frozen = 0
+        self._frozen_at = start
+        self._realtime = 0
+
+    def __call__(self) -> float:
+        with self._lock:
+            if self._frozen:
+                return self._frozen_at
+            return self._base + (time.monotonic() - self._wall0) * self._rate()
+
+    @contextlib.contextmanager
+    def frozen(self, advance_s: float = 0.0):
+        """Stop plant time inside the block; afterwards continue ``advance_s`` later."""
+        with self._lock:
+            if not self._frozen:
+                self._frozen_at = self._base + (time.monotonic() - self._wall0) * self._rate()
+            self._frozen += 1
+        try:
+            yield
+        finally:
+            with self._lock:
+                self._frozen -= 1
+                if not self._frozen:
+                    self._base = self._frozen_at + advance_s
+                    self._wall0 = time.monotonic()
+
+    @contextlib.contextmanager
+    def realtime(self):
+        """Inside the block plant time runs at 1x: the controller's own computing costs the
+        plant what it would cost on site, whatever the speedup (nestable, any thread)."""
+        with self._lock:
+            self._rebase()
+            self._realtime += 1
+        try:
+            yield
+        finally:
+            with self._lock:
+                self._rebase()
+                self._realtime -= 1
+
+    def _rebase(self) -> None:
+        if not self._frozen:
+            now = time.monotonic()
+            self._base += (now - self._wall0) * self._rate()
+            self._wall0 = now
+
+    def _rate(self) -> float:
+        return 1.0 if self._realtime else self.speedup
+
+    def sleep(self, plant_seconds: float) -> None:
+        """Sleep for ``plant_seconds`` of plant time (in wall time: divided by the speedup)."""
+        time.sleep(max(0.0, plant_seconds) / self.speedup)
+
+
+@dataclass
+class HiddenHeliostat:
+    """The simulated truth of one heliostat (what the controller must find out)."""
+
+    heliostat_id: str
+    kin: HeliostatKinematics
+    params: TrackingErrorParams
+    case: ErrorCase
+    mirror: MirrorSurface
+    controller: SimController
+
+
+def field_selection(cfg: PlantConfig, n: int) -> list[str]:
+    """``n`` heliostat ids, taken round-robin over the links (bus/connection) in config order,
+    so that a small demo still exercises every link of the field."""
+    groups: dict[tuple, list[str]] = {}
+    for h in cfg.heliostats:
+        link = h.link
+        groups.setdefault((link.kind, getattr(link, "device", None) or f"{link.host}:{link.port}"),
+                          []).append(h.id)
+    out: list[str] = []
+    lists = list(groups.values())
+    while len(out) < min(n, len(cfg.heliostats)):
+        for g in lists:
+            if g and len(out) < n:
+                out.append(g.pop(0))
+    order = {h.id: i for i, h in enumerate(cfg.heliostats)}
+    return sorted(out, key=order.__getitem__)
+
+
+class SimulatedPlant:
+    """Start with :meth:`start` (returns the rewritten config), stop with :meth:`stop`."""
+
+    def __init__(self, cfg_data: dict, run_dir: str | Path, *, heliostat_ids: list[str] | None = None,
+                 seed: int | None = None, cases: int = 6, source: str = "<config>",
+                 clock_start: float = 0.0) -> None:
+        self.run_dir = Path(run_dir)
+        self.data = copy.deepcopy(cfg_data)
+        cfg = parse_config(self.data, source)
+        self.cfg = cfg
+        self.ids = heliostat_ids or [h.id for h in cfg.heliostats]
+        sim = cfg.simulation
+        self.seed = sim.seed if seed is None else seed
+        self.clock = PlantClock(sim.clock_speedup, start=clock_start)
+        self.hidden: dict[str, HiddenHeliostat] = {}
+        scale = sim.tracking_error_mrad * 1e-3 / 2.0
+        names = ("az_offset", "el_offset", "tilt_north", "tilt_east", "base_yaw", "non_orthogonality",
+                 "mirror_offset")
+        index = {h.id: i for i, h in enumerate(cfg.heliostats)}
+        for hid in self.ids:
+            h = cfg.heliostat(hid)
+            # One generator per heliostat: its truth does not depend on which others are in the run.
+            rng = np.random.default_rng([self.seed, 7, index[hid]])
+            case = CASES[int(rng.integers(0, cases))]
+            draws = rng.normal(0.0, scale, len(names))
+            base = case.params
+            params = TrackingErrorParams(**{n: getattr(base, n) + float(d) for n, d in zip(names, draws,
+                                                                                            strict=True)})
+            mirror = replace(MirrorSurface.from_config(h.mirror), deformation=case.deformation,
+                             focal_length_m=h.mirror.focal_length_m / case.focus_factor)
+            ctl = SimController(unit=getattr(h.link, "address", None) or h.link.unit,
+                                az=axis_params_from_config(h.axes.azimuth),
+                                el=axis_params_from_config(h.axes.elevation), clock=self.clock)
+            kin = HeliostatKinematics.from_config(h)
+            self.hidden[hid] = HiddenHeliostat(hid, kin, params, case, mirror, ctl)
+        self.serial: dict[str, object] = {}
+        self.modbus = None
+        self.safety = BeamSafetyMonitor(self)
+        self.camera: PlantCamera | None = None
+        self.config: PlantConfig | None = None
+
+    # -- lifecycle -------------------------------------------------------------------------------
+    def start(self) -> PlantConfig:
+        """Start firmware and servers; return the config with links rewritten to them."""
+        from firmware_proto.modbus_sim import ModbusSimServer
+        from firmware_proto.serial_sim import SerialSimFirmware
+
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        dev_dir = self.run_dir / "dev"
+        dev_dir.mkdir(exist_ok=True)
+        serial_groups: dict[str, dict[int, SimController]] = {}
+        tcp_units: dict[int, SimController] = {}
+        rtu_groups: dict[str, dict[int, SimController]] = {}
+        for hid in self.ids:
+            link = self.cfg.heliostat(hid).link
+            ctl = self.hidden[hid].controller
+            if link.kind == "serial":
+                serial_groups.setdefault(link.device, {})[link.address] = ctl
+            elif link.kind == "modbus-tcp":
+                tcp_units[link.unit] = ctl
+            else:
+                rtu_groups.setdefault(link.device, {})[link.unit] = ctl
+        new_paths: dict[str, str] = {}
+        for device, ctls in serial_groups.items():
+            path = str(dev_dir / Path(device).name)
+            fw = SerialSimFirmware(ctls, link_path=path)
+            fw.start()
+            self.serial[device] = fw
+            new_paths[device] = path
+        port = None
+        if tcp_units or rtu_groups:
+            if len(rtu_groups) > 1:
+                raise ValueError("the simulated plant serves one Modbus RTU bus")
+            self.modbus = ModbusSimServer({**tcp_units, **next(iter(rtu_groups.values()), {})})
+            if tcp_units:
+                port = self.modbus.start_tcp("127.0.0.1", 0)
+            for device in rtu_groups:
+                new_paths[device] = self.modbus.start_rtu(str(dev_dir / Path(device).name))
+        for h in self.data["heliostats"]:
+            link = h["link"]
+            if link.get("device") in new_paths:
+                link["device"] = new_paths[link["device"]]
+            if link.get("kind") == "modbus-tcp" and port is not None:
+                link["host"], link["port"] = "127.0.0.1", port
+        self.config = parse_config(self.data, str(self.run_dir / "plant.yaml"))
+        self.camera = PlantCamera(self, self.config, seed=self.seed)
+        if not self.config.camera.crf_file:
+            # The simulated sensors are non-linear: hand the controller their response, as an
+            # integrating-sphere calibration would (controller.imaging.crf file format).
+            crf_path = self.run_dir / "crf.yaml"
+            self.camera.true_crf().save(crf_path)
+            self.data["camera"]["crf_file"] = str(crf_path)
+            self.config = parse_config(self.data, str(self.run_dir / "plant.yaml"))
+        self.safety.start()
+        return self.config
+
+    def stop(self) -> None:
+        self.safety.stop()
+        for fw in self.serial.values():
+            fw.stop()
+        self.serial.clear()
+        if self.modbus is not None:
+            self.modbus.stop()
+            self.modbus = None
+
+    def __enter__(self) -> SimulatedPlant:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    # -- fault hooks (tests) -------------------------------------------------------------------------
+    def serial_firmware(self, heliostat_id: str):
+        return self.serial[self.cfg.heliostat(heliostat_id).link.device]
+
+    # -- truth --------------------------------------------------------------------------------------
+    def true_normal(self, hid: str) -> np.ndarray:
+        hh = self.hidden[hid]
+        az, el = hh.controller.output_steps()
+        return actual_normal(hh.kin, hh.params, az, el)
+
+    def beam_normals(self, hid: str) -> list[np.ndarray]:
+        """True normal(s) of ``hid`` now: one, or the poses a rocking (worn) gear sweeps."""
+        hh = self.hidden[hid]
+        if not hh.case.rock_az_rad:
+            return [self.true_normal(hid)]
+        from controller.geometry.error_model import actual_normal_from_angles
+
+        az, el = hh.controller.output_steps()
+        alpha, eps = hh.kin.angles(az, el)
+        band = hh.case.rock_az_rad * NIGHT_ROCK_FRACTION
+        return [actual_normal_from_angles(replace(hh.params, az_offset=hh.params.az_offset + d), alpha, eps)
+                for d in np.linspace(-0.5, 0.5, 5) * band]
+
+    def true_error_mrad(self, hid: str) -> float:
+        """Reflected-beam pointing error of ``hid`` against the target centre, mrad.
+
+        The beam's direction is that of its energy centroid on the target plane, from a
+        noise-free ray trace of the true mirror (deformation included) on a 12 m grid about
+        the central ray; for an undeformed mirror this is the reflected central ray."""
+        hh = self.hidden[hid]
+        pos = hh.kin.position
+        tgt = self.cfg.target()
+        c, nrm = np.asarray(tgt.center_enu_m, float), unit(np.asarray(tgt.normal, float))
+        lamp = np.asarray(self.cfg.light_source().position_enu_m, float)
+        s = unit(lamp - pos)
+        with self.clock.frozen():
+            normals = self.beam_normals(hid)
+            n = unit(np.mean(normals, axis=0))
+            beam = 2.0 * (s @ n) * n - s
+            hit = pos + float(nrm @ (c - pos)) / float(nrm @ beam) * beam
+            base = camera_grid(self.cfg)
+            # Bilinear splatting keeps every ray's first moment, so a coarse grid gives the
+            # exact energy centroid of the traced rays.
+            grid = TargetGrid(hit, nrm, base.u_axis, base.v_axis, 12.0, 12.0, (64, 64))
+            diameter = float(self.cfg.light_source().diameter_m) / float(np.linalg.norm(lamp - pos))
+            img = sum(render_spot(pos, nn, lamp, diameter, hh.mirror, grid, rng=np.random.default_rng(1),
+                                  n_rays=TRUTH_RAYS // len(normals)) for nn in normals)
+        yy, xx = np.mgrid[0:64, 0:64]
+        tot = float(img.sum())
+        spot = grid.pixel_to_enu(float((img * xx).sum() / tot), float((img * yy).sum() / tot))
+        a, b = unit(spot - pos), unit(c - pos)
+        return float(1e3 * np.arccos(np.clip(a @ b, -1.0, 1.0)))
+
+    def truth_label(self, hid: str) -> str:
+        return self.hidden[hid].case.label
+
+    def _source_dir(self, pos: np.ndarray) -> np.ndarray:
+        src = self.cfg.light_source()
+        if getattr(src, "kind", "") == "lamp":
+            return unit(np.asarray(src.position_enu_m, float) - pos)
+        raise ValueError("the simulated plant renders the lamp only (nightly campaigns)")
+
+    # -- the scene ------------------------------------------------------------------------------------
+    def scene(self, grid: TargetGrid, rng: np.random.Generator) -> np.ndarray:
+        """Irradiance on ``grid`` (W/m² per W/m² of lamp irradiance) of every beam in view.
+
+        Rays are traced onto a grid of about ``RENDER_PITCH_M`` pitch (:func:`coarse_grid`)
+        and the result is interpolated up to the camera's: the Monte Carlo noise per pixel of
+        a large defocused spot would otherwise dwarf the sensor noise (a simulation artefact)."""
+        import cv2
+
+        src = self.cfg.light_source()
+        lamp = np.asarray(src.position_enu_m, float)
+        rows, cols = grid.shape
+        coarse = coarse_grid(grid)
+        img = np.zeros(coarse.shape)
+        half = np.array([grid.width_m, grid.height_m]) / 2 + 1.5  # margin for the spot size
+        for hid, hh in self.hidden.items():
+            n = self.true_normal(hid)
+            pos = hh.kin.position
+            s = unit(lamp - pos)
+            beam = 2.0 * (s @ n) * n - s
+            denom = float(grid.normal @ beam)
+            if abs(denom) < 1e-9:
+                continue
+            t = float(grid.normal @ (grid.center - pos)) / denom
+            if t <= 0:
+                continue
+            rel = pos + t * beam - grid.center
+            if abs(rel @ grid.u_axis) > half[0] or abs(rel @ grid.v_axis) > half[1]:
+                continue
+            diameter = float(src.diameter_m) / float(np.linalg.norm(lamp - pos))
+            normals = self.beam_normals(hid)
+            for nn in normals:
+                img += render_spot(pos, nn, lamp, diameter, hh.mirror, coarse, rng=rng,
+                                   n_rays=RENDER_RAYS // len(normals)) / len(normals)
+        if coarse.shape == grid.shape:
+            return img
+        # Pixel centres of both grids span the same plane area: resize maps them consistently.
+        return cv2.resize(img.astype(np.float32), (cols, rows), interpolation=cv2.INTER_LINEAR).astype(float)
+
+
+class BeamSafetyMonitor:
+    """Watches the plant's truth: whose reflected central ray is on the target right now.
+
+    Samples every ``period_s`` of wall time; ``violations`` counts samples with more than
+    one beam on the target (the controller must never cause one), ``report()`` summarises."""
+
+    def __init__(self, plant: SimulatedPlant, period_s: float = 0.02) -> None:
+        self.plant = plant
+        self.period_s = period_s
+        self.samples = 0
+        self.violations = 0
+        self.max_on_target = 0
+        self.offenders: set[tuple[str, ...]] = set()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def on_target(self) -> list[str]:
+        p = self.plant
+        tgt = p.cfg.target()
+        c, nrm = np.asarray(tgt.center_enu_m, float), unit(np.asarray(tgt.normal, float))
+        base = camera_grid(p.cfg)
+        lamp = np.asarray(p.cfg.light_source().position_enu_m, float)
+        out = []
+        for hid, hh in p.hidden.items():
+            n = p.true_normal(hid)
+            pos = hh.kin.position
+            s = unit(lamp - pos)
+            beam = 2.0 * (s @ n) * n - s
+            den = float(nrm @ beam)
+            if abs(den) < 1e-9:
+                continue
+            t = float(nrm @ (c - pos)) / den
+            if t <= 0:
+                continue
+            rel = pos + t * beam - c
+            if abs(rel @ base.u_axis) <= tgt.width_m / 2 and abs(rel @ base.v_axis) <= tgt.height_m / 2:
+                out.append(hid)
+        return out
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.period_s):
+            on = self.on_target()
+            self.samples += 1
+            self.max_on_target = max(self.max_on_target, len(on))
+            if len(on) > 1:
+                self.violations += 1
+                self.offenders.add(tuple(sorted(on)))
+
+    def start(self) -> None:
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name="beam-safety", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+            self._thread = None
+
+    def report(self) -> dict:
+        return {"samples": self.samples, "violations": self.violations,
+                "max_beams_on_target": self.max_on_target,
+                "offenders": sorted(" + ".join(o) for o in self.offenders)}
+
+
+def coarse_grid(grid: TargetGrid) -> TargetGrid:
+    """The ray-tracing grid over the same area: pixels binned to about ``RENDER_PITCH_M``."""
+    rows, cols = grid.shape
+    k = max(1, int(RENDER_PITCH_M / max(grid.pixel_size_m)))
+    return TargetGrid(grid.center, grid.normal, grid.u_axis, grid.v_axis, grid.width_m, grid.height_m,
+                      (max(1, rows // k), max(1, cols // k)))
+
+
+def camera_grid(cfg: PlantConfig) -> TargetGrid:
+    """The camera's rectified view: square pixels, the whole target in view, centred."""
+    from controller.calibration.campaign import TargetFrame
+
+    cam = cfg.camera
+    f = TargetFrame.from_config(cfg.target(), (cam.height_px, cam.width_px))
+    return TargetGrid(f.center, f.normal, f.u, f.v, f.width_m, f.height_m, f.shape)
+
+
+class PlantCamera(DoubleCcdCamera):
+    """The plant's double-CCD camera: :class:`controller.devices.sim_camera.SimulatedCamera`
+    (two sensors with their own non-linear responses and gains) over :meth:`SimulatedPlant.scene`.
+
+    The lamp brightness is set once so that a nominal spot of the first heliostat at the
+    target centre peaks at 1.6x the HIGH sensor's full scale (HIGH saturates in the core,
+    LOW does not), as in the error set. A capture stops the plant clock while it is simulated
+    and advances it by the HIGH exposure. :meth:`inject_failure` makes the next captures
+    raise :class:`CameraError` (fault tests).
+    """
+
+    def __init__(self, plant: SimulatedPlant, cfg: PlantConfig, seed: int = 0) -> None:
+        from controller.devices.sim_camera import SimulatedCamera
+
+        cam = cfg.camera
+        self.plant = plant
+        self.grid = camera_grid(cfg)
+        self._scene_rng = np.random.default_rng([seed, 11])
+        t_high = cam.sensors[1].exposure_s
+        span = (1 << cam.bit_depth) - 1 - cam.dark_offset_counts
+        self.counts_per_s = 1.6 * span / t_high / max(self._nominal_peak(), 1e-12)
+        rows, cols = self.grid.shape
+        yy, xx = np.mgrid[0:rows, 0:cols]
+        # Stray light on the target: a dim pedestal (0.25 % of the nominal peak) with a gradient.
+        self._ambient = (0.0025 + 0.0012 * xx / cols) * 1.6 * span / t_high
+        self.sim = SimulatedCamera(cam, self._scene, seed=seed, clock=plant.clock)
+        self.captures = 0
+
+    def _nominal_peak(self) -> float:
+        p = self.plant
+        hid = p.ids[0]
+        hh = p.hidden[hid]
+        lamp = np.asarray(p.cfg.light_source().position_enu_m, float)
+        pos = hh.kin.position
+        n = unit(unit(lamp - pos) + unit(self.grid.center - pos))
+        d = float(p.cfg.light_source().diameter_m) / float(np.linalg.norm(lamp - pos))
+        nominal = MirrorSurface.from_config(p.cfg.heliostat(hid).mirror)
+        coarse = coarse_grid(self.grid)
+        return float(render_spot(pos, n, lamp, d, nominal, coarse, rng=np.random.default_rng(0),
+                                 n_rays=RENDER_RAYS).max())
+
+    def _scene(self) -> np.ndarray:
+        return self.plant.scene(self.grid, self._scene_rng) * self.counts_per_s + self._ambient
+
+    def true_crf(self):
+        """The sensors' exact inverse responses (stand-in for an integrating-sphere CRF fit)."""
+        return self.sim.true_crf()
+
+    def inject_failure(self, count: int = 1) -> None:
+        self.sim.inject_failure(count)
+
+    @property
+    def exposures(self) -> tuple[float, float]:
+        return self.sim.exposures
+
+    def set_exposures(self, t_low: float, t_high: float) -> None:
+        self.sim.set_exposures(t_low, t_high)
+
+    def capture(self) -> FramePair:
+        with self.plant.clock.frozen(advance_s=self.sim.exposures[1]):
+            frame = self.sim.capture()
+        self.captures += 1
+        return frame
+
+
+def load_config_data(path: str | Path) -> dict:
+    """The raw YAML mapping of a config file (validated by :func:`controller.config.load_config` first)."""
+    return yaml.safe_load(Path(path).read_text(encoding="utf-8"))
+
+
+def write_reference_set(cfg_data: dict, out_dir: str | Path, heliostat_ids: list[str], *, seed: int = 0,
+                        cases: int = 6, source: str = "<config>") -> Path:
+    """Render the error library's reference views through the plant's own camera.
+
+    For every reference heliostat and each of the first ``cases`` error-set cases: the
+    heliostat with only that case (its pointing part and mirror shape, no random errors) aimed
+    at the target centre with the nominal model, one frame pair, merged with the camera's true
+    CRF, saved as ``images/<heliostat>-<case>.npy`` (float32 HDR). Several heliostats give each
+    case several entries, so the nearest-neighbour match sees how the spot shape changes
+    across the field. Returns the manifest ``library.csv`` (``image,label,az_deg,el_deg``).
+    """
+    import csv
+
+    from controller.imaging.hdr import HdrMerger
+    from controller.io.images import write_atomic, write_float_image
+
+    out = Path(out_dir)
+    plant = SimulatedPlant(cfg_data, out / "plant", heliostat_ids=list(heliostat_ids), seed=seed,
+                           source=source)
+    cfg = plant.cfg
+    plant.camera = camera = PlantCamera(plant, cfg, seed=seed)
+    cam = cfg.camera
+    merger = HdrMerger(camera.exposures, camera.true_crf(), "raised-cosine", cam.dark_offset_counts,
+                       bit_depth=cam.bit_depth, read_noise=cam.read_noise_counts,
+                       full_well=cam.full_well_electrons)
+    src = cfg.light_source()
+    rows = []
+    for hid in heliostat_ids:
+        hh = plant.hidden[hid]
+        h = cfg.heliostat(hid)
+        s = unit(np.asarray(src.position_enu_m, float) - hh.kin.position)
+        aim = hh.kin.aim(s, np.asarray(cfg.target().center_enu_m, float))
+        stow = hh.controller
+        for case in CASES[:cases]:
+            hh.case, hh.params = case, case.params
+            hh.mirror = replace(MirrorSurface.from_config(h.mirror), deformation=case.deformation,
+                                focal_length_m=h.mirror.focal_length_m / case.focus_factor)
+            hh.controller = SimController(unit=stow.unit, az=stow.az, el=stow.el, clock=plant.clock,
+                                          initial_steps=aim)
+            frame = camera.capture()
+            name = f"images/{hid}-{case.label}.npy"
+            write_float_image(out / name, merger.merge(frame.low, frame.high))
+            rows.append((name, case.label, "", ""))
+        hh.controller = stow
+
+    def writer(tmp: Path) -> None:
+        with open(tmp, "w", newline="", encoding="utf-8") as f:
+            w = csv.writer(f)
+            w.writerow(["image", "label", "az_deg", "el_deg"])
+            w.writerows(rows)
+
+    write_atomic(out / "library.csv", writer)
+    return out / "library.csv"

@@ -1,0 +1,97 @@
+"""Export measurements as PAINT-style calibration-properties JSON records.
+
+One file per measurement, ``<heliostat>-c<campaign>-m<measurement>-calibration-properties.json``,
+with the keys of the PAINT database's records (see shared/data/real/paint/):
+
+* ``motor_position.axis_1_motor_position`` = elevation actuator steps and
+  ``axis_2_motor_position`` = azimuth actuator steps (PAINT/ARTIST actuator order);
+* ``target_name``;
+* ``focal_spot.heliocal`` = measured beam centroid as WGS84 [lat_deg, lon_deg, alt_m],
+  converted from plant ENU about the site origin (controller.geometry.frames.enu_to_wgs84);
+* ``sun_azimuth`` / ``sun_elevation`` = the light source's direction seen from the heliostat,
+  degrees, with PAINT's azimuth convention: **from south, positive towards east**,
+  ``sun_azimuth = 180 - azimuth_from_north_clockwise`` folded into (-180, 180]. For a lamp
+  the "sun" keys hold the lamp direction (``heliocal.light_source`` says which).
+
+A ``heliocal`` object adds what PAINT has no key for (ids, ENU centroid, error, match).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from controller.errors import InputError
+from controller.geometry.frames import enu_to_wgs84
+from controller.io.images import write_atomic
+from controller.storage.db import CampaignStore
+
+
+def paint_azimuth(azimuth_north_deg: float) -> float:
+    """Our azimuth (clockwise from north) to PAINT's (from south, positive east), (-180, 180]."""
+    a = (180.0 - float(azimuth_north_deg)) % 360.0
+    return a - 360.0 if a > 180.0 else a
+
+
+def paint_record(m, site: tuple[float, float, float]) -> dict:
+    """The PAINT-style record of one measurement row (``CampaignStore.measurements``)."""
+    rec = {
+        "motor_position": {
+            "axis_1_motor_position": int(m["el_steps"]),
+            "axis_2_motor_position": int(m["az_steps"]),
+        },
+        "target_name": m["target"],
+        "sun_elevation": float(m["source_el_deg"]),
+        "sun_azimuth": paint_azimuth(m["source_az_deg"]),
+    }
+    if m["centroid_e"] is not None:
+        lat, lon, alt = enu_to_wgs84([m["centroid_e"], m["centroid_n"], m["centroid_u"]], *site)
+        rec["focal_spot"] = {"heliocal": [float(lat), float(lon), float(alt)]}
+    rec["heliocal"] = {
+        "heliostat_id": m["heliostat_id"],
+        "campaign_id": int(m["campaign_id"]),
+        "measurement_id": int(m["id"]),
+        "iteration": int(m["iteration"]),
+        "light_source": m["light_source"],
+        "light_source_direction_enu": [m["source_e"], m["source_n"], m["source_u"]],
+        "focal_spot_enu_m": None
+        if m["centroid_e"] is None
+        else [m["centroid_e"], m["centroid_n"], m["centroid_u"]],
+        "error_mrad": m["error_mrad"],
+        "matched_label": m["matched_label"],
+        "match_distance": m["match_distance"],
+        "measured_utc": m["measured_utc"],
+        "method": "heliocal HDR double-CCD centroid",
+    }
+    return rec
+
+
+def export_paint(
+    store: CampaignStore,
+    out_dir: str | Path,
+    site: tuple[float, float, float] | None = None,
+    campaign_id: int | None = None,
+) -> list[Path]:
+    """Write one record per measurement (of one campaign, or all); returns the paths.
+
+    ``site`` (lat_deg, lon_deg, elevation_m) is the ENU origin; by default it is taken from the
+    campaign's stored metadata."""
+    out = Path(out_dir)
+    rows = store.measurements(campaign_id=campaign_id)
+    paths = []
+    sites: dict[int, tuple[float, float, float]] = {}
+    for m in rows:
+        cid = int(m["campaign_id"])
+        if site is None and cid not in sites:
+            meta = json.loads(store.campaign(cid)["meta_json"] or "{}")
+            if "site" not in meta:
+                raise InputError(
+                    f"{store.path}: campaign {cid} has no site origin stored; pass --config to give it"
+                )
+            sites[cid] = tuple(meta["site"])
+        rec = paint_record(m, site or sites[cid])
+        p = out / f"{m['heliostat_id']}-c{cid}-m{m['id']}-calibration-properties.json"
+        text = json.dumps(rec, indent=4) + "\n"
+        write_atomic(p, lambda t, text=text: t.write_text(text, encoding="utf-8"))
+        paths.append(p)
+    return paths

@@ -1,0 +1,250 @@
+"""The calibration state machine: table, diagram, convergence, faults, timeouts, beam safety."""
+
+from __future__ import annotations
+
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+from controller.calibration.machine import (
+    FINAL_STATES,
+    STATES,
+    TRANSITIONS,
+    Match,
+    TargetGate,
+    state_machine_markdown,
+)
+
+REPO = Path(__file__).resolve().parents[2]
+MATCH = Match("wind-load", 0.4, "gravity-sag", 1.3)
+
+
+def run_in_thread(fn):
+    out: dict = {}
+    t = threading.Thread(target=lambda: out.setdefault("r", fn()), daemon=True)
+    t.start()
+    return t, out
+
+
+def test_diagram_doc_is_current():
+    doc = (REPO / "docs" / "state-machine.md").read_text(encoding="utf-8")
+    assert doc == state_machine_markdown(), "regenerate: python -m controller.calibration.machine"
+    assert "stateDiagram-v2" in doc
+
+
+def test_table_is_complete():
+    names = [s for s, _, _ in STATES]
+    required = {"idle", "preparing", "slewing", "settling", "capturing", "merging", "analysing", "matching",
+                "correcting", "verifying", "done", "standby", "fault", "stowed", "aborted"}
+    assert set(names) == required and len(names) == len(required)
+    assert all(t > 0 for _, t, _ in STATES), "every state has a timeout"
+    for trig, src, dst in TRANSITIONS:
+        for s in (src if isinstance(src, tuple) else (src,)):
+            assert s in names, (trig, s)
+        assert dst in names
+    # every non-final state can fail into fault and can time out
+    fail_src = next(s for t, s, _ in TRANSITIONS if t == "fail")
+    assert set(names) - set(FINAL_STATES) - {"fault"} == set(fail_src)
+
+
+def test_converges_and_parks(make_cycle):
+    # hidden offset (150, -90) steps -> 30 mm / 22.5 mm on the target: about 0.64 mrad
+    cyc, plant, drive = make_cycle(match=MATCH)
+    rec = cyc.run()
+    assert rec.status == "calibrated" and rec.final_state == "done"
+    assert rec.true_error_before_mrad > 0.5
+    assert rec.error_after_mrad <= 0.3 and rec.true_error_after_mrad <= 0.3
+    assert rec.iterations == len(rec.measurements) >= 2
+    assert [c.kind for c in rec.corrections] == ["fine"] * (rec.iterations - 1)
+    # the exact Jacobian fixes the hidden offset in one correction: (-150, +90) steps
+    assert (rec.corrections[0].daz_steps, rec.corrections[0].del_steps) == (-150, 90)
+    assert rec.matched_label == "wind-load" and rec.truth_label == "wind-load"
+    assert rec.model is not None and np.allclose(rec.model.params["steps"], [-150, 90], atol=1)
+    # the beam was parked off the target at the end, and the target handed back
+    assert (drive.status().az_steps, drive.status().el_steps) == plant.standby
+    assert cyc.ctx.gate.holder is None and not cyc.ctx.gate.blocked
+
+
+def test_fitted_model_gives_the_next_aim(make_cycle):
+    cyc, _, _ = make_cycle()
+    model = cyc.run().model
+    cyc2, _, _ = make_cycle(model=model)
+    rec = cyc2.run()
+    assert rec.iterations == 1 and rec.true_error_before_mrad < 0.05
+
+
+def test_coarse_correction_from_the_library(make_cycle):
+    m = Match("gear-backlash", 0.2, "wind-load", 0.9, correction_deg=(-0.15, 0.09))
+    cyc, _, _ = make_cycle(match=m)
+    rec = cyc.run()
+    assert rec.corrections[0].kind == "coarse" and rec.corrections[0].daz_steps == -150
+    assert all(c.kind == "fine" for c in rec.corrections[1:])
+    assert rec.status == "calibrated"
+
+
+def test_unknown_match_gets_no_coarse_correction(make_cycle):
+    m = Match("gear-backlash", 9.0, "wind-load", 9.5, unknown=True, correction_deg=(1.0, 1.0))
+    rec = make_cycle(match=m)[0].run()
+    assert rec.matched_label == "unknown" and {c.kind for c in rec.corrections} == {"fine"}
+
+
+def test_max_iterations(make_cycle):
+    # 1 mm of measurement noise (~0.02 mrad) never gets below a 0.001 mrad tolerance
+    cyc, plant, _ = make_cycle(tolerance_mrad=1e-3, max_iterations=3)
+    plant.noise_m = 1e-3
+    rec = cyc.run()
+    assert rec.status == "not_converged" and rec.iterations == 3 and rec.final_state == "done"
+
+
+def test_camera_fails(make_cycle):
+    cyc, plant, drive = make_cycle()
+    plant.camera_fail = 1
+    rec = cyc.run()
+    assert rec.status == "failed" and rec.fault_state == "capturing"
+    assert "CameraError" in rec.fault_cause and "ccd2" in rec.fault_cause
+    assert rec.final_state == "done"  # made safe: parked at standby
+    assert (drive.status().az_steps, drive.status().el_steps) == plant.standby
+    assert cyc.ctx.gate.holder is None and not cyc.ctx.gate.blocked
+
+
+def test_actuator_stalls_mid_move(make_cycle):
+    cyc, plant, drive = make_cycle()
+    def stall():
+        while cyc.state != "slewing":
+            time.sleep(0.001)
+        time.sleep(0.01)
+        plant.ctl.inject_stall("az")
+    t = threading.Thread(target=stall, daemon=True)
+    t.start()
+    rec = cyc.run()
+    t.join(2)
+    assert rec.status == "failed" and rec.fault_state == "slewing"
+    assert "stall_az" in rec.fault_cause
+    assert "clear_fault" in drive.calls and rec.final_state == "done"
+    assert (drive.status().az_steps, drive.status().el_steps) == plant.standby
+
+
+def test_firmware_power_cycles_mid_move(make_cycle):
+    cyc, plant, drive = make_cycle()
+    def cycle_power():
+        while cyc.state != "slewing":
+            time.sleep(0.001)
+        time.sleep(0.01)
+        plant.ctl.power_cycle()
+    t = threading.Thread(target=cycle_power, daemon=True)
+    t.start()
+    rec = cyc.run()
+    t.join(2)
+    assert rec.status == "failed" and rec.fault_state == "slewing"
+    assert "power_cycle" in rec.fault_cause
+    assert rec.final_state == "done" and plant.ctl.faults == 0  # cleared, then parked
+    assert (drive.status().az_steps, drive.status().el_steps) == plant.standby
+
+
+def test_link_lost_mid_move_aborts_and_blocks_the_target(make_cycle):
+    gate = TargetGate()
+    cyc, plant, drive = make_cycle(gate=gate)
+    def cut():
+        while cyc.state != "slewing":
+            time.sleep(0.001)
+        drive.link_lost = True
+    t = threading.Thread(target=cut, daemon=True)
+    t.start()
+    rec = cyc.run()
+    t.join(2)
+    assert rec.status == "failed" and rec.final_state == "aborted" and rec.fault_state == "slewing"
+    assert "LinkError" in rec.fault_cause and "stow failed" in rec.fault_cause
+    # the beam may still be on the target: nobody else gets it
+    assert gate.blocked
+    assert gate.acquire(1, lambda: False) is False
+
+
+def test_link_back_before_the_fault_handler_parks(make_cycle):
+    cyc, plant, drive = make_cycle()
+    def blip():
+        while cyc.state != "slewing":
+            time.sleep(0.001)
+        drive.link_lost = True
+        while cyc.state != "fault":
+            time.sleep(0.0005)
+        drive.link_lost = False
+    t = threading.Thread(target=blip, daemon=True)
+    t.start()
+    rec = cyc.run()
+    t.join(2)
+    assert rec.status == "failed" and "LinkError" in rec.fault_cause
+    assert rec.final_state in ("done", "stowed") and not cyc.ctx.gate.blocked
+
+
+def test_state_timeout_leads_to_fault(make_cycle):
+    cyc, plant, drive = make_cycle(timeouts={"capturing": 0.15})
+    plant.camera_block_s = 0.4  # the capture call blocks longer than the state may last
+    rec = cyc.run()
+    assert rec.status == "failed" and rec.fault_cause == "timeout in state capturing"
+    assert rec.final_state == "done"
+    assert (drive.status().az_steps, drive.status().el_steps) == plant.standby
+
+
+def test_gate_serves_tickets_in_order():
+    gate = TargetGate()
+    order: list[int] = []
+    def take(ticket, hold):
+        assert gate.acquire(ticket, lambda: False)
+        order.append(ticket)
+        time.sleep(hold)
+        gate.release(ticket)
+    threads = [threading.Thread(target=take, args=(t, 0.02)) for t in (2, 1, 0)]
+    for th in threads:
+        th.start()
+        time.sleep(0.01)
+    for th in threads:
+        th.join(2)
+    assert order == [0, 1, 2]
+
+
+def test_only_one_beam_on_the_target(make_cycle):
+    """Three cycles in parallel share one gate: their on-target intervals never overlap."""
+    gate = TargetGate()
+    cycles = [make_cycle(gate=gate, ticket=i, hidden=(100 * (i + 1), -50))[0] for i in range(3)]
+    runs = [run_in_thread(c.run) for c in cycles]
+    for t, _ in runs:
+        t.join(30)
+    recs = sorted((out["r"] for _, out in runs), key=lambda r: r.on_target_s)
+    assert all(r.status == "calibrated" for r in recs)
+    # each cycle has its own plant clock; compare wall order instead through the gate's order
+    assert [c.ctx.ticket for c in cycles] == [0, 1, 2]
+    assert gate.holder is None and not gate.blocked
+
+
+def test_operator_abort_parks_the_beam(make_cycle):
+    cyc, plant, drive = make_cycle()
+    def interrupt():
+        while cyc.state != "settling":
+            time.sleep(0.001)
+        cyc.request_abort("interrupted by the operator")
+    t = threading.Thread(target=interrupt, daemon=True)
+    t.start()
+    rec = cyc.run()
+    t.join(2)
+    assert rec.status == "failed" and rec.fault_cause == "interrupted by the operator"
+    assert rec.fault_state == "settling" and rec.final_state == "done"
+    assert (drive.status().az_steps, drive.status().el_steps) == plant.standby
+
+
+def test_emergency_abort_stops_where_it_is(make_cycle):
+    cyc, plant, drive = make_cycle()
+    def stop():
+        while cyc.state != "slewing":
+            time.sleep(0.001)
+        time.sleep(0.005)
+        cyc.request_abort("emergency stop", safe=False)
+    t = threading.Thread(target=stop, daemon=True)
+    t.start()
+    rec = cyc.run()
+    t.join(2)
+    assert rec.final_state == "aborted" and rec.status == "failed" and "stop" in drive.calls
+    st = drive.status()
+    assert not st.moving and (st.az_steps, st.el_steps) != plant.standby
+    assert cyc.ctx.gate.blocked  # the beam may be on the target: nobody else gets it

@@ -1,0 +1,96 @@
+"""Campaign geometry glue: camera frame mapping, slew times, beam-safe paths to standby."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from controller.calibration.campaign import (
+    GeometryPointing,
+    TargetFrame,
+    UnsafePath,
+    order_queue,
+    slew_time_s,
+)
+from controller.config import load_config
+from controller.sim.optics import TargetGrid
+
+
+@pytest.fixture(scope="module")
+def cfg():
+    from pathlib import Path
+
+    return load_config(Path(__file__).resolve().parents[2] / "configs" / "demo.yaml")
+
+
+def test_frame_corners_by_hand(cfg):
+    # 8 m x 7 m north-facing target at (0, 0, 30), 1024 x 768 camera: pitch = max(8/1024, 7/768)
+    f = TargetFrame.from_config(cfg.target(), (768, 1024))
+    p = 7.0 / 768
+    assert f.width_m == pytest.approx(1024 * p) and f.height_m == pytest.approx(7.0)
+    # u = up x n = west, v = u x n = down: the outer corner of pixel (0, 0) is east and up
+    np.testing.assert_allclose(f.pixel_to_enu(-0.5, -0.5), [1024 * p / 2, 0.0, 33.5], atol=1e-12)
+    np.testing.assert_allclose(f.pixel_to_enu(1023.5, 767.5), [-1024 * p / 2, 0.0, 26.5], atol=1e-12)
+    np.testing.assert_allclose(f.pixel_to_enu(511.5, 383.5), [0.0, 0.0, 30.0], atol=1e-12)
+
+
+def test_frame_agrees_with_the_simulators_grid(cfg):
+    f = TargetFrame.from_config(cfg.target(), (192, 256))
+    g = TargetGrid(f.center, f.normal, f.u, f.v, f.width_m, f.height_m, f.shape)
+    rng = np.random.default_rng(0)
+    for x, y in rng.uniform(-0.5, 255.5, (20, 2)):
+        np.testing.assert_allclose(f.pixel_to_enu(x, y), g.pixel_to_enu(x, y), atol=1e-12)
+
+
+@pytest.mark.parametrize(
+    "steps, expected", [(10000, 10000 / 1540 + 1540 / 3000), (100, 2 * (100 / 3000) ** 0.5), (0, 0.0)]
+)
+def test_slew_time(steps, expected):
+    # trapezoid: d/v + v/a above the ramp distance v^2/a = 790.5 steps, else triangle 2 sqrt(d/a)
+    assert slew_time_s(steps, 1540.0, 3000.0) == pytest.approx(expected)
+
+
+def _pointing(cfg, hid, current):
+    return GeometryPointing(
+        cfg.heliostat(hid),
+        cfg.target(),
+        cfg.light_source(),
+        TargetFrame.from_config(cfg.target(), (768, 1024)),
+        8.0,
+        current,
+    )
+
+
+@pytest.mark.parametrize("hid", ["H01", "H04", "H10", "H16"])
+def test_path_from_stow_never_crosses_the_target(cfg, hid):
+    p = _pointing(cfg, hid, (500, 500))
+    standby = p.standby_steps(None)
+    assert not p.beam_on_target(*standby, margin_m=0.0)
+    assert p.beam_on_target(*p.aim_steps(None), margin_m=0.0)
+    path = p.path_to((500, 500), standby)
+    assert path[-1] == standby
+    # independent check: sample every leg with each axis at its own speed
+    pts, start = [], np.array([500.0, 500.0])
+    for wp in path:
+        end = np.array(wp, float)
+        dur = np.abs(end - start) / 1540.0
+        for t in np.linspace(0, dur.max(), 400):
+            pts.append(start + np.minimum(1, t / np.maximum(dur, 1e-12)) * (end - start))
+        start = end
+    assert not any(p.beam_on_target(*q, margin_m=0.0) for q in pts)
+
+
+def test_path_across_the_target_is_refused(cfg):
+    p = _pointing(cfg, "H04", None)
+    west = p.kin.aim(p.source_dir, p.aim_point + 8.0 * np.array([-1.0, 0.0, 0.0]))
+    east = p.kin.aim(p.source_dir, p.aim_point + 8.0 * np.array([1.0, 0.0, 0.0]))
+    with pytest.raises(UnsafePath, match="off the target"):
+        p.path_to(west, east)
+
+
+def test_queue_shortest_slew_first(cfg):
+    ids = ["H01", "H02", "H03"]
+    pts = {h: _pointing(cfg, h, (500, 500)) for h in ids}
+    current = {h: pts[h].standby_steps(None) for h in ids}
+    current["H02"] = (500, 500)  # far away: goes last
+    assert order_queue(cfg, ids, current, pts)[-1] == "H02"
