@@ -99,13 +99,18 @@ def run(args) -> int:
         except ModuleNotFoundError as exc:
             raise HeliocalError(f"the Modbus simulator is not available: {exc}") from None
         server = ModbusSimServer(controllers)
-        if args.modbus_tcp:
-            host, port = host_port(args.modbus_tcp)
-            bound = server.start_tcp(host, port)
-            ready = {"ok": True, "link": f"{host}:{bound}", "port": bound, "units": units}
-        else:
-            device = server.start_rtu(args.modbus_rtu)
-            ready = {"ok": True, "link": args.modbus_rtu, "device": device, "units": units}
+        try:
+            if args.modbus_tcp:
+                host, port = host_port(args.modbus_tcp)
+                bound = server.start_tcp(host, port)
+                ready = {"ok": True, "link": f"{host}:{bound}", "port": bound, "units": units}
+            else:
+                device = server.start_rtu(args.modbus_rtu)
+                ready = {"ok": True, "link": args.modbus_rtu, "device": device, "units": units}
+        except OSError as exc:
+            server.stop()
+            option = "--modbus-tcp" if args.modbus_tcp else "--modbus-rtu"
+            raise InputError(f"{option} {args.modbus_tcp or args.modbus_rtu}: {exc}") from None
     try:
         if args.json:
             print_json(ready)

@@ -35,7 +35,6 @@ from pathlib import Path
 
 import numpy as np
 import yaml
-from scipy.optimize import lsq_linear
 
 from controller.errors import InputError
 from controller.io.images import write_atomic
@@ -201,6 +200,9 @@ def fit_sensor(name: str, exposure_value: np.ndarray, pixel_mean: np.ndarray, bi
     basis = _bernstein(x / x_max, degree)
     # β = L δ with L lower-triangular ones: δ_0 = β_0, δ_k = β_k - β_{k-1} >= 0.
     design = basis @ np.tril(np.ones((degree + 1, degree + 1)))
+    # Imported here: scipy.optimize costs ~0.4 s, which every CLI start would otherwise pay.
+    from scipy.optimize import lsq_linear
+
     sol = lsq_linear(design, z, bounds=(0.0, np.inf))
     beta = np.cumsum(sol.x)
     grid = np.linspace(0.0, 1.0, 4001)

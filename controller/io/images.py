@@ -63,6 +63,10 @@ def write_atomic(path: str | Path, writer) -> None:
     os.close(fd)
     try:
         writer(Path(tmp))
+        # mkstemp creates 0600; give the file the mode a plain open() would (umask applied).
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)
         os.replace(tmp, p)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)

@@ -11,7 +11,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 REPO = Path(__file__).resolve().parents[2]
-REAL = REPO.parent / "shared" / "data" / "real"
+REAL = REPO / "tests" / "data" / "real"  # copy of shared/data/real (see its README)
 PAINT = REAL / "paint"
 TOWER = REAL / "aa39" / "tower-measurements.json"
 

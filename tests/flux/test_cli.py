@@ -366,10 +366,9 @@ def test_tube_panel_total_power(capsys, tmp_path, camera, rng):
     assert res["total_power_w"] == pytest.approx(500e3 * 4 * np.pi * r_m * length, rel=0.01)
 
 
-REAL = Path("/work/shared/data/real/paint")
+REAL = Path(__file__).resolve().parents[1] / "data" / "real" / "paint"
 
 
-@pytest.mark.skipif(not REAL.is_dir(), reason="real PAINT data not available at /work/shared/data/real/paint")
 @pytest.mark.parametrize(
     "sun, words",
     [

@@ -13,8 +13,8 @@ from controller.geometry.frames import paint_azimuth_to_north, wgs84_to_enu
 from controller.geometry.kinematics import HeliostatKinematics
 from controller.geometry.vectors import azel_to_vector
 
-REAL = Path("/work/shared/data/real")
 REPO = Path(__file__).resolve().parents[2]
+REAL = REPO / "tests" / "data" / "real"  # copy of shared/data/real (see its README)
 
 
 def _load(path: Path) -> dict:
