@@ -24,7 +24,7 @@ from controller.commands._common import add_json_option, existing_file, print_js
 from controller.errors import InputError
 from controller.flux import phlux
 from controller.flux.sun_disc import SunDiscError, find_sun_disc
-from controller.io.images import read_image, write_atomic, write_float_image
+from controller.io.images import read_image, save_figure, write_float_image
 
 HDR_DARK_OFFSET = 8.0
 
@@ -200,10 +200,7 @@ def _write_png(path: str, flux: np.ndarray) -> None:
     ax.set_ylabel("y (row), px")
     ax.set_title(f"PHLUX flux map, peak {flux.max() / 1e3:.1f} kW/m²")
     fig.tight_layout()
-    try:
-        write_atomic(path, lambda t: fig.savefig(t, format="png"))
-    finally:
-        plt.close(fig)
+    save_figure(fig, path)
 
 
 def run(args: argparse.Namespace) -> int:

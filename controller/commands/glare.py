@@ -22,7 +22,7 @@ from controller.errors import InputError
 from controller.flux import glare
 from controller.flux.phlux import SUN_ANGLE_RAD
 from controller.flux.sun_disc import SunDiscError, find_sun_disc, saturation_level_for
-from controller.io.images import read_image, write_atomic
+from controller.io.images import read_image, save_figure
 
 ZONE_COLOURS = {"green": "#4caf50", "yellow": "#ffc107", "red": "#e53935"}
 
@@ -248,10 +248,7 @@ def _write_png(path: str, th: glare.HazardThresholds, points: tuple[np.ndarray, 
         ax2.legend(fontsize=7)
         ax2.set_title("retinal irradiance and zone vs distance")
     fig.tight_layout()
-    try:
-        write_atomic(path, lambda t: fig.savefig(t, format="png"))
-    finally:
-        plt.close(fig)
+    save_figure(fig, path)
 
 
 def run(args: argparse.Namespace) -> int:

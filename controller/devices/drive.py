@@ -71,6 +71,17 @@ class DriveLimits:
 
 
 @dataclass(frozen=True)
+class FirmwareInfo:
+    """Firmware identification (serial GET_INFO, Modbus identification registers):
+    protocol version, axes, hard step ranges, firmware version string."""
+
+    protocol_version: int
+    axes: int
+    hard_limits: DriveLimits
+    firmware_version: str
+
+
+@dataclass(frozen=True)
 class DriveStatus:
     """One status reading. ``faults`` holds the names from :func:`firmware_proto.faults.fault_names`."""
 

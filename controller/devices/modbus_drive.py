@@ -38,10 +38,10 @@ from controller.devices.drive import (
     DriveError,
     DriveLimits,
     DriveStatus,
+    FirmwareInfo,
     LinkError,
     NakError,
 )
-from controller.devices.serial_drive import FirmwareInfo
 from controller.errors import LimitError
 from firmware_proto.faults import Reject, fault_names
 from firmware_proto.registers import RegisterMap, load_register_map

@@ -19,7 +19,6 @@ import select
 import termios
 import threading
 import time
-from dataclasses import dataclass
 
 import serial
 
@@ -29,6 +28,7 @@ from controller.devices.drive import (
     DriveError,
     DriveLimits,
     DriveStatus,
+    FirmwareInfo,
     LinkError,
     NakError,
 )
@@ -218,16 +218,6 @@ class SerialBus:
                     self._last_rx = time.monotonic()
                     return frame
                 self.stale_frames += 1
-
-
-@dataclass(frozen=True)
-class FirmwareInfo:
-    """GET_INFO reply: protocol version, axes, hard step ranges, firmware version string."""
-
-    protocol_version: int
-    axes: int
-    hard_limits: DriveLimits
-    firmware_version: str
 
 
 class SerialDrive(Drive):

@@ -87,3 +87,13 @@ def write_float_image(path: str | Path, img: np.ndarray) -> None:
         write_atomic(p, _w)
     else:
         raise InputError(f"{p}: output must end in .npy or .tiff, not {ext or '(none)'}")
+
+
+def save_figure(fig, path: str | Path, **savefig_kw) -> None:
+    """Save a matplotlib figure as PNG atomically, then close it (also on failure)."""
+    try:
+        write_atomic(path, lambda t: fig.savefig(t, format="png", **savefig_kw))
+    finally:
+        import matplotlib.pyplot as plt
+
+        plt.close(fig)
