@@ -127,6 +127,7 @@ class Commissioning:
             load_library,
             save_library,
             sha256_file,
+            write_manifest,
         )
 
         if not label or any(c in label for c in ",\n"):
@@ -151,13 +152,7 @@ class Commissioning:
             with open(manifest, newline="", encoding="utf-8") as f:
                 rows = list(csv.reader(f))[1:]
         rows.append([str(img.relative_to(manifest.parent)), label, "", ""])
-
-        def w(t: Path) -> None:
-            with open(t, "w", newline="", encoding="utf-8") as f:
-                cw = csv.writer(f)
-                cw.writerow(["image", "label", "az_deg", "el_deg"])
-                cw.writerows(rows)
-        write_atomic(manifest, w)
+        write_manifest(manifest, rows)
         return {"label": label, "image": str(img), "sha256": entry.sha256, "library": str(lib_path),
                 "entries": len(lib.entries), "manifest": str(manifest)}
 

@@ -123,6 +123,18 @@ def _opt_float(value: str | None, where: str, key: str) -> float | None:
     return v
 
 
+def write_manifest(path: str | Path, rows: list[tuple[str, str, str, str]] | list[list[str]]) -> None:
+    """Write a manifest CSV (``image,label,az_deg,el_deg``, paths relative to it) atomically."""
+
+    def writer(tmp: Path) -> None:
+        with open(tmp, "w", newline="", encoding="utf-8") as f:
+            w = csv.writer(f)
+            w.writerow(["image", "label", "az_deg", "el_deg"])
+            w.writerows(rows)
+
+    write_atomic(path, writer)
+
+
 def read_manifest(path: str | Path) -> list[ManifestRow]:
     """Read a manifest CSV; errors name the file and line."""
     p = Path(path)

@@ -36,19 +36,19 @@ x 0.8-1.25), rotation (grid axes turned about the target normal by 0-360°), exp
 
 from __future__ import annotations
 
-import csv
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
+from controller.calibration.library import write_manifest
 from controller.config import PlantConfig
 from controller.geometry.error_model import TrackingErrorParams, actual_normal_from_angles
 from controller.geometry.kinematics import HeliostatKinematics, angles_from_normal
 from controller.geometry.vectors import unit, vector_to_azel
 from controller.imaging.hdr import HdrMerger
-from controller.io.images import write_atomic, write_float_image
+from controller.io.images import write_float_image
 from controller.sim.optics import MirrorSurface, TargetGrid, render_spot
 from controller.sim.sensor import SensorModel
 
@@ -263,15 +263,5 @@ def write_errorset(out: str | Path, scene: Scene, seed: int = 0, cases: int = 6,
             if progress:
                 progress(done, total)
     for fname, rows in (("library.csv", lib_rows), ("test.csv", test_rows)):
-        _write_manifest(out / fname, rows)
+        write_manifest(out / fname, rows)
     return ErrorSet(out / "library.csv", out / "test.csv", [c.label for c in chosen], done)
-
-
-def _write_manifest(path: Path, rows: list[tuple[str, str, str, str]]) -> None:
-    def writer(tmp: Path) -> None:
-        with open(tmp, "w", newline="", encoding="utf-8") as f:
-            w = csv.writer(f)
-            w.writerow(["image", "label", "az_deg", "el_deg"])
-            w.writerows(rows)
-
-    write_atomic(path, writer)
