@@ -10,9 +10,11 @@ being the rods' positions (backlash included) plus a hidden offset.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from controller.calibration.machine import (
     CalibrationCycle,
@@ -212,3 +214,17 @@ class _Axis:
 class _Axes:
     azimuth = _Axis()
     elevation = _Axis()
+
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture
+def small_config(tmp_path) -> Path:
+    """The demo plant with a 256×192 camera and a 50× plant clock, to keep tests quick."""
+    data = yaml.safe_load((REPO / "configs" / "demo.yaml").read_text())
+    data["camera"]["width_px"], data["camera"]["height_px"] = 256, 192
+    data["simulation"]["clock_speedup"] = 50.0
+    p = tmp_path / "small.yaml"
+    p.write_text(yaml.safe_dump(data))
+    return p

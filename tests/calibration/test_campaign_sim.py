@@ -15,23 +15,10 @@ import threading
 import time
 from pathlib import Path
 
-import pytest
-import yaml
-
 from controller.config import load_config
 
 REPO = Path(__file__).resolve().parents[2]
 IDS = ["H02", "H08", "H14"]  # serial bus1, serial bus2, Modbus TCP
-
-
-@pytest.fixture
-def small_config(tmp_path) -> Path:
-    data = yaml.safe_load((REPO / "configs" / "demo.yaml").read_text())
-    data["camera"]["width_px"], data["camera"]["height_px"] = 256, 192
-    data["simulation"]["clock_speedup"] = 50.0
-    p = tmp_path / "small.yaml"
-    p.write_text(yaml.safe_dump(data))
-    return p
 
 
 def _heliocal(*args, **kw):

@@ -7,20 +7,9 @@ import subprocess
 import sys
 from pathlib import Path
 
-import yaml
-
 from controller.calibration.library import load_library
 
 REPO = Path(__file__).resolve().parents[2]
-
-
-def _config(tmp_path) -> Path:
-    data = yaml.safe_load((REPO / "configs" / "demo.yaml").read_text())
-    data["camera"]["width_px"], data["camera"]["height_px"] = 256, 192
-    data["simulation"]["clock_speedup"] = 50.0
-    p = tmp_path / "small.yaml"
-    p.write_text(yaml.safe_dump(data))
-    return p
 
 
 def _run(*args):
@@ -33,8 +22,8 @@ def _run(*args):
     )
 
 
-def test_commission_steps(tmp_path):
-    cfg = _config(tmp_path)
+def test_commission_steps(small_config, tmp_path):
+    cfg = small_config
     lib = tmp_path / "lib" / "lib.yaml"
     r = _run(
         "--config",
@@ -74,8 +63,8 @@ def test_commission_steps(tmp_path):
     )
 
 
-def test_commission_bad_input(tmp_path):
-    cfg = _config(tmp_path)
+def test_commission_bad_input(small_config, tmp_path):
+    cfg = small_config
     r = _run("--config", str(cfg), "--heliostat", "H02", "--simulate", "--store-reference", "x", "--json")
     assert r.returncode == 2 and "--library" in json.loads(r.stdout)["error"]
     r = _run("--config", str(cfg), "--heliostat", "H99", "--simulate", "--status")
