@@ -23,7 +23,7 @@ from controller.commands._common import _plain, add_json_option, existing_file, 
 from controller.commands.library import progress
 from controller.errors import InputError
 from controller.imaging.beam import analyze
-from controller.io.images import read_image, write_atomic
+from controller.io.images import read_image, save_figure, write_atomic
 
 
 def register(subparsers) -> None:
@@ -115,8 +115,7 @@ def write_report(conf: Confusion, report: dict, out: Path) -> None:
     ax.set_title(f"recognition rate {conf.recognition_rate:.2f} % ({report.get('features', '')})")
     fig.colorbar(im, ax=ax, shrink=0.8)
     fig.tight_layout()
-    write_atomic(out / "confusion.png", lambda t: fig.savefig(t, dpi=100, format="png"))
-    plt.close(fig)
+    save_figure(fig, out / "confusion.png", dpi=100)
     write_atomic(out / "confusion.csv", lambda t: t.write_text(csv_text, encoding="utf-8"))
     write_atomic(out / "confusion.md", lambda t: t.write_text(md_text, encoding="utf-8"))
     write_atomic(out / "report.json", lambda t: t.write_text(json_text, encoding="utf-8"))

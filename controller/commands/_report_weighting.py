@@ -34,7 +34,7 @@ import numpy as np
 
 from controller.commands._common import add_config_option, add_json_option, print_json
 from controller.errors import InputError
-from controller.io.images import write_atomic
+from controller.io.images import save_figure, write_atomic
 
 THRESHOLDS = tuple(round(0.45 + 0.05 * i, 2) for i in range(10))
 TARGET_PX = 200  # target window side in pixels; the frame adds a dark border around it
@@ -175,8 +175,7 @@ def _plots(out: Path, study: dict) -> None:
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    write_atomic(out / "rms_vs_threshold.png", lambda t: fig.savefig(t, dpi=110, format="png"))
-    plt.close(fig)
+    save_figure(fig, out / "rms_vs_threshold.png", dpi=110)
 
     fig, ax = plt.subplots(figsize=(6.4, 4.2))
     z = np.arange(256)
@@ -189,8 +188,7 @@ def _plots(out: Path, study: dict) -> None:
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    write_atomic(out / "weighting_functions.png", lambda t: fig.savefig(t, dpi=110, format="png"))
-    plt.close(fig)
+    save_figure(fig, out / "weighting_functions.png", dpi=110)
 
     low, high, hdr = study["first_pair"]
     row = int(np.argmax(hdr.max(axis=1)))
@@ -207,8 +205,7 @@ def _plots(out: Path, study: dict) -> None:
     lines2 = ax2.get_legend_handles_labels()
     ax.legend(lines[0] + lines2[0], lines[1] + lines2[1], fontsize=8, loc="upper left")
     fig.tight_layout()
-    write_atomic(out / "profiles.png", lambda t: fig.savefig(t, dpi=110, format="png"))
-    plt.close(fig)
+    save_figure(fig, out / "profiles.png", dpi=110)
 
 
 def _write_csv(out: Path, study: dict) -> None:

@@ -15,7 +15,7 @@ import numpy as np
 from controller.commands._common import add_json_option, existing_file, print_json
 from controller.errors import InputError
 from controller.imaging.beam import BeamResult, analyze
-from controller.io.images import read_image, write_atomic
+from controller.io.images import read_image, save_figure
 
 
 def add_threshold_option(parser: argparse.ArgumentParser) -> None:
@@ -94,7 +94,6 @@ def plot_steps(result: BeamResult, out: Path) -> list[Path]:
         ax.set_xlabel("x (column) px")
         ax.set_ylabel("y (row) px")
         path = out / f"{i}-{key}.png"
-        write_atomic(path, lambda t, f=fig: f.savefig(t, dpi=100, format="png"))
-        plt.close(fig)
+        save_figure(fig, path, dpi=100)
         paths.append(path)
     return paths

@@ -25,19 +25,12 @@ from pathlib import Path
 import numpy as np
 
 from controller.calibration.campaign import summarize
-from controller.io.images import write_atomic
+from controller.io.images import save_figure, write_atomic
 from controller.storage.db import CampaignStore
 
 
 def _fmt(v, nd: int = 3) -> str:
     return "–" if v is None else f"{v:.{nd}f}"
-
-
-def _save_fig(fig, path: Path) -> None:
-    import matplotlib.pyplot as plt
-
-    write_atomic(path, lambda t: fig.savefig(t, dpi=110, bbox_inches="tight", format="png"))
-    plt.close(fig)
 
 
 def _plots(store: CampaignStore, cid: int, runs, out: Path, simulated: bool) -> list[tuple[str, str]]:
@@ -57,7 +50,7 @@ def _plots(store: CampaignStore, cid: int, runs, out: Path, simulated: bool) -> 
     ax.set_xlabel("reflected-beam pointing error, mrad (measured)")
     ax.set_ylabel("heliostats")
     ax.legend()
-    _save_fig(fig, out / "errors_hist.png")
+    save_figure(fig, out / "errors_hist.png", dpi=110, bbox_inches="tight")
     figs.append(("Pointing error before / after", "errors_hist.png"))
 
     meas = store.measurements(campaign_id=cid)
@@ -87,7 +80,7 @@ def _plots(store: CampaignStore, cid: int, runs, out: Path, simulated: bool) -> 
     ax.set_xlabel("horizontal offset on the target, m (+ = right as seen from the field)")
     ax.set_ylabel("vertical offset, m (up = +)")
     ax.legend(fontsize=8)
-    _save_fig(fig, out / "centroids.png")
+    save_figure(fig, out / "centroids.png", dpi=110, bbox_inches="tight")
     figs.append(("Beam centroids on the target (relative to the aim point)", "centroids.png"))
 
     fig, ax = plt.subplots(figsize=(7, 3.6))
@@ -102,7 +95,7 @@ def _plots(store: CampaignStore, cid: int, runs, out: Path, simulated: bool) -> 
     ax.set_xticks(pos, ids, rotation=60, fontsize=8)
     ax.set_ylabel("plant time, s")
     ax.legend(fontsize=8)
-    _save_fig(fig, out / "time_per_heliostat.png")
+    save_figure(fig, out / "time_per_heliostat.png", dpi=110, bbox_inches="tight")
     figs.append(("Time per heliostat (plant clock)", "time_per_heliostat.png"))
     return figs
 
@@ -139,7 +132,7 @@ def _confusion(runs, out: Path) -> tuple[dict, str] | None:
             ax.text(j, i, int(cm.matrix[i, j]), ha="center", va="center", fontsize=8)
     ax.set_xlabel("matched case")
     ax.set_ylabel("injected truth")
-    _save_fig(fig, out / "confusion.png")
+    save_figure(fig, out / "confusion.png", dpi=110, bbox_inches="tight")
     unknown = {lab: int(u) for lab, u in zip(labels, cm.unknown, strict=True)}
     return {"labels": labels, "matrix": cm.matrix.tolist(), "unknown": unknown,
             "recognition_rate": 100.0 * cm.tp / len(pairs), "n": len(pairs)}, "confusion.png"
