@@ -17,8 +17,8 @@ import time
 
 from controller.devices.drive import AxisLimits, DriveLimits
 from controller.devices.modbus_drive import ModbusDrive, ModbusLink
-from firmware_proto.modbus_sim import ModbusSimServer
-from firmware_proto.physics import AxisParams, SimController
+from simplant.firmware.modbus import ModbusSimServer
+from simplant.firmware.physics import AxisParams, SimController
 
 _LIMITS = DriveLimits(AxisLimits(500, 74800), AxisLimits(500, 68200))
 

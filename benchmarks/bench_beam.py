@@ -27,8 +27,8 @@ import time
 import cv2
 import numpy as np
 
-from controller.calibration.library import hu_features
-from controller.calibration.matching import Matcher
+from controller.recognition.library import hu_features
+from controller.recognition.matching import Matcher
 from controller.imaging.beam import analyze
 from controller.imaging.moments import hu_moments
 

@@ -16,9 +16,12 @@ import argparse
 import importlib
 import json
 import pkgutil
+import signal
 import sys
+import threading
 
 from controller import __version__, commands
+from controller.commands._common import resolve_config
 from controller.errors import HeliocalError
 
 
@@ -37,12 +40,29 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _terminate(signum, frame) -> None:
+    # SIGTERM (a scheduler, systemd) takes the same safe path as Ctrl-C: heliostats in motion
+    # are parked or stopped, and the outcome is recorded.
+    raise KeyboardInterrupt
+
+
 def main(argv: list[str] | None = None) -> int:
+    if threading.current_thread() is not threading.main_thread():
+        return _main(argv)  # signal handlers belong to the main thread
+    previous = signal.signal(signal.SIGTERM, _terminate)
+    try:
+        return _main(argv)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _main(argv: list[str] | None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
+    resolve_config(args)
     try:
         return int(args.func(args) or 0)
     except HeliocalError as exc:

@@ -16,14 +16,15 @@ rule broken.
 
 from __future__ import annotations
 
+import hashlib
 import math
 from pathlib import Path
 from typing import Annotated, Literal
 
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from controller.errors import ConfigError
+from controller.errors import ConfigError, InputError
+from controller.io.yaml_files import parse_yaml, read_text
 
 Vec3 = tuple[float, float, float]
 
@@ -189,7 +190,6 @@ class Camera(_Model):
 class Calibration(_Model):
     light_source: str = Field(description="id of the light source used for calibration")
     target: str = Field(description="id of the calibration target")
-    thresholds: tuple[float, ...] = (0.45, 0.5, 0.55, 0.6, 0.65, 0.7, 0.75, 0.8, 0.85, 0.9)
     threshold: float = Field(default=0.5, gt=0, lt=1, description="beam segmentation fraction")
     centroid_threshold: float = Field(default=0.05, gt=0, lt=1,
                                       description="fraction of the peak above which pixels weigh in "
@@ -203,22 +203,6 @@ class Calibration(_Model):
                                     description="standby aim point distance beside the target")
     library: str | None = Field(default=None, description="error library YAML; None: built")
 
-    @field_validator("thresholds")
-    @classmethod
-    def _fractions(cls, v: tuple[float, ...]) -> tuple[float, ...]:
-        if not v or any(not 0 < t < 1 for t in v):
-            raise ValueError("every threshold must be a fraction in (0, 1)")
-        return v
-
-
-class Simulation(_Model):
-    """Settings of the embedded simulated plant (used by ``heliocal demo`` and ``sim``)."""
-
-    clock_speedup: float = Field(default=1.0, gt=0, le=1000)
-    seed: int = 0
-    tracking_error_mrad: float = Field(default=3.0, ge=0, le=50,
-                                       description="scale of hidden per-heliostat errors")
-
 
 class PlantConfig(_Model):
     site: Site
@@ -227,7 +211,6 @@ class PlantConfig(_Model):
     heliostats: tuple[Heliostat, ...] = Field(min_length=1)
     camera: Camera
     calibration: Calibration
-    simulation: Simulation = Simulation()
 
     @model_validator(mode="after")
     def _references(self) -> PlantConfig:
@@ -283,8 +266,32 @@ def _key_path(loc: tuple) -> str:
     return out or "(top level)"
 
 
+def _field_names(model: type[BaseModel], seen: set[type] | None = None) -> set[str]:
+    """Every key name the configuration schema knows (all nested models)."""
+    seen = seen if seen is not None else set()
+    if model in seen:
+        return set()
+    seen.add(model)
+    names = set(model.model_fields)
+    for f in model.model_fields.values():
+        for arg in (f.annotation, *getattr(f.annotation, "__args__", ())):
+            for inner in (arg, *getattr(arg, "__args__", ())):
+                if isinstance(inner, type) and issubclass(inner, BaseModel):
+                    names |= _field_names(inner, seen)
+    return names
+
+
+def _did_you_mean(key: str) -> str:
+    import difflib
+
+    close = difflib.get_close_matches(key, sorted(_field_names(PlantConfig)), n=1, cutoff=0.75)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
 def parse_config(data: object, source: str = "<config>") -> PlantConfig:
     """Validate an already-parsed YAML document; errors name ``source`` and the key path."""
+    if data is None:
+        raise ConfigError(f"{source}: the configuration is empty (see docs/configuration.md)")
     if not isinstance(data, dict):
         raise ConfigError(f"{source}: (top level): must be a mapping of sections, "
                           f"got {type(data).__name__}")
@@ -296,13 +303,22 @@ def parse_config(data: object, source: str = "<config>") -> PlantConfig:
         err = exc.errors()[0]
         rule = err["msg"].removeprefix("Value error, ")
         if err["type"] == "extra_forbidden":
-            rule = "unknown key"
+            rule = "unknown key" + _did_you_mean(str(err["loc"][-1]))
         elif err["type"] == "missing":
             rule = "required key is missing"
         more = f" (and {len(exc.errors()) - 1} more problems)" if len(exc.errors()) > 1 else ""
         if not err["loc"] and err["type"] == "value_error":
             raise ConfigError(f"{source}: {rule}{more}") from None  # the rule names its key path
         raise ConfigError(f"{source}: {_key_path(err['loc'])}: {rule}{more}") from None
+
+
+def config_sha256(path: str | Path) -> str:
+    """SHA-256 of a configuration file's bytes: which configuration a campaign was started with."""
+    p = Path(path)
+    try:
+        return hashlib.sha256(p.read_bytes()).hexdigest()
+    except OSError as exc:
+        raise ConfigError(f"{p}: cannot read configuration: {exc.strerror or exc}") from None
 
 
 def load_config(path: str | Path) -> PlantConfig:
@@ -312,14 +328,7 @@ def load_config(path: str | Path) -> PlantConfig:
     """
     p = Path(path)
     try:
-        text = p.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ConfigError(f"{p}: cannot read configuration: {exc.strerror or exc}") from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark else ""
-        problem = getattr(exc, "problem", None) or str(exc)
-        raise ConfigError(f"{p}: {where}invalid YAML: {problem}") from None
+        data = parse_yaml(read_text(p, "configuration"), str(p))
+    except InputError as exc:
+        raise ConfigError(str(exc)) from None
     return parse_config(data, str(p))

@@ -53,11 +53,20 @@ def test_sun_readable_line(capsys):
     assert len(out.splitlines()) == 1 and "azimuth 194.3402" in out and "zenith 50.1116" in out
 
 
-def test_sun_naive_time_is_utc(capsys):
-    assert main([*SPA_ARGS[:2], "2003-10-17T19:30:30", *SPA_ARGS[3:], "--json"]) == 0
+def test_sun_naive_time_needs_utc_flag(capsys):
+    assert main([*SPA_ARGS[:2], "2003-10-17T19:30:30", *SPA_ARGS[3:], "--json"]) == 2
+    assert "has no UTC offset" in json.loads(capsys.readouterr().out)["error"]
+    assert main([*SPA_ARGS[:2], "2003-10-17T19:30:30", *SPA_ARGS[3:], "--utc", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["azimuth_deg"] == pytest.approx(194.34024, abs=3e-4)
     assert main([*SPA_ARGS[:2], "2003-10-17T19:30:30Z", *SPA_ARGS[3:], "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["azimuth_deg"] == pytest.approx(194.34024, abs=3e-4)
+
+
+def test_sun_human_output_names_hemispheres(capsys):
+    assert main(SPA_ARGS) == 0
+    assert "39.742476°N 105.178600°W" in capsys.readouterr().out
+    assert main(["sun", "--time", "now", "--lat", "-33", "--lon", "18", "--json"]) == 0
+    assert 0 <= json.loads(capsys.readouterr().out)["azimuth_deg"] < 360
 
 
 def test_sun_defaults_to_config_site(capsys):
@@ -76,6 +85,7 @@ def test_sun_defaults_to_config_site(capsys):
     (["--time", "2003-10-17", "--lat", "1", "--lon", "2", "--pressure", "0"], "--pressure: 0 is outside"),
     (["--time", "2003-10-17", "--lat", "1", "--lon", "2", "--delta-t", "nan"], "--delta-t: nan is outside"),
     (["--time", "2003-10-17", "--lat", "1"], "--lat and --lon must be given together"),
+    (["--time", "2003-10-17", "--lat", "1", "--lon", "2"], "--time: '2003-10-17' has no UTC offset"),
 ])
 def test_sun_bad_input_exits_2(capsys, args, fragment):
     assert main(["sun", *args]) == 2

@@ -67,6 +67,9 @@ CASES = [
      "heliostats[0].axes.azimuth", "must lie inside the hard range [0, 75308]"),
     ("non-unit normal", _set("targets.0.normal", [0, 2, 0]), "targets[0].normal", "must be a unit vector"),
     ("unknown source kind", _set("light_sources.1.kind", "laser"), "light_sources[1]", "'laser'"),
+    ("typo", _set("calibration.tolerence_mrad", 1.0), "calibration.tolerence_mrad",
+     "unknown key (did you mean 'tolerance_mrad'?)"),
+    ("simulation is not plant config", _set("simulation", {"seed": 1}), "simulation", "unknown key"),
 ]
 
 
@@ -90,11 +93,17 @@ def test_bad_config_via_demo_cli(tmp_path, capsys, case, edit, key, rule):
     ("site: [unclosed\n", "line 2, column 1: invalid YAML"),
     ("site:\n\tname: x\n", "line 2, column 1: invalid YAML"),
     ("- a\n- b\n", "(top level): must be a mapping of sections, got list"),
-    ("", "(top level): must be a mapping of sections, got NoneType"),
+    ("", "the configuration is empty"),
+    ("site: " + "[" * 3000 + "\n", "line 1: nested deeper than 32 levels"),
+    ("site:\n" + "".join("  " * i + f"k{i}:\n" for i in range(1, 60)), "nested deeper than 32 levels"),
+    (b"\x89PNG\r\n\x1a\n\x00\xff", "not a text configuration (byte 0 is not UTF-8)"),
 ])
 def test_unparsable_yaml(tmp_path, capsys, text, fragment):
     bad = tmp_path / "bad.yaml"
-    bad.write_text(text)
+    if isinstance(text, bytes):
+        bad.write_bytes(text)
+    else:
+        bad.write_text(text)
     assert main(["demo", "--config", str(bad)]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and str(bad) in err and fragment in err

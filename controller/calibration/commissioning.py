@@ -18,17 +18,18 @@ Nothing here knows whether the drive or camera is simulated.
 
 from __future__ import annotations
 
-import csv
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from controller.calibration.campaign import BeamChain, GeometryPointing
-from controller.calibration.machine import BeamNotFound, Observation, pointing_error_mrad
+from controller.calibration.beam_chain import BeamChain
+from controller.calibration.observations import BeamNotFound, Observation
+from controller.calibration.pointing import GeometryPointing
 from controller.config import PlantConfig
-from controller.errors import InputError
-from controller.io.images import write_atomic, write_float_image
+from controller.errors import HeliocalError, InputError
+from controller.geometry.aiming import pointing_error_mrad
+from controller.io.images import write_atomic
 
 
 @dataclass
@@ -63,18 +64,24 @@ class Commissioning:
         self.model = model
         self.move_timeout_s = move_timeout_s
         self.last: Capture | None = None
+        # Whether this session moved the heliostat away from where it parked it last: an
+        # operator command must not end with the beam wherever the session left it.
+        self.needs_parking = False
 
     # -- motion ---------------------------------------------------------------------------------
     def status(self) -> dict:
         return self.drive.status().to_json()
 
     def move(self, az_steps: int, el_steps: int) -> dict:
-        st = self.drive.move_and_wait(int(az_steps), int(el_steps), self.move_timeout_s)
+        self.needs_parking = True
+        st = self.drive.move_and_wait(int(az_steps), int(el_steps), timeout_s=self.move_timeout_s)
         return st.to_json()
 
     def jog(self, daz_steps: int, del_steps: int) -> dict:
-        self.drive.jog(int(daz_steps), int(del_steps))
-        return self.drive.wait_in_position(self.move_timeout_s).to_json()
+        """Relative move from the present target, sent as the absolute move it amounts to (so
+        the soft-limit check and the wait are those of :meth:`move`)."""
+        st = self.drive.status()
+        return self.move(st.az_target + int(daz_steps), st.el_target + int(del_steps))
 
     def aim(self) -> dict:
         """Park at standby first (approach from standby), then move onto the aim point."""
@@ -88,7 +95,21 @@ class Commissioning:
         out = st.to_json()
         for wp in self.pointing.path_to((st.az_steps, st.el_steps), standby):
             out = self.move(*wp)
+        self.needs_parking = False
         return out
+
+    def make_safe(self) -> dict:
+        """End of session: park at standby along a beam-safe path; if that fails, stop the
+        axes where they are. Returns what was done (``action``: parked / stopped / failed)."""
+        try:
+            return {"action": "parked", **self.park()}
+        except HeliocalError as exc:
+            try:
+                self.drive.stop()
+                return {"action": "stopped", "reason": f"standby failed: {exc}",
+                        **self.drive.status().to_json()}
+            except HeliocalError as second:
+                return {"action": "failed", "reason": f"standby failed: {exc}; stop failed: {second}"}
 
     # -- camera ---------------------------------------------------------------------------------
     def capture(self) -> Capture:
@@ -120,41 +141,13 @@ class Commissioning:
 
     def store_reference(self, label: str, library_path: str | Path, capture: Capture | None = None) -> dict:
         """Add the (last) captured frame to the library as a reference case ``label``."""
-        from controller.calibration.library import (
-            Entry,
-            Library,
-            hu_features,
-            load_library,
-            save_library,
-            sha256_file,
-            write_manifest,
-        )
+        from controller.recognition.library_io import add_reference
 
-        if not label or any(c in label for c in ",\n"):
-            raise InputError(f"reference label must be a non-empty word without commas, got {label!r}")
         cap = capture or self.last or self.capture()
         if cap.observation is None:
             raise InputError(f"cannot store a reference case: {cap.problem}")
-        lib_path = Path(library_path)
-        lib = load_library(lib_path) if lib_path.is_file() else Library(
-            features="log-hu", threshold=self.cfg.calibration.threshold, entries=[])
-        img_dir = lib_path.parent / "references"
-        n = sum(1 for e in lib.entries if e.label == label)
-        img = img_dir / f"{self.h.id}-{label}-{n:02d}.npy"
-        write_float_image(img, cap.hdr)
-        feats = hu_features(cap.observation.hu, lib.features)
-        entry = Entry(label=label, features=feats, sha256=sha256_file(img), image=str(img))
-        lib.entries.append(entry)
-        save_library(lib, lib_path)
-        manifest = lib_path.with_name(lib_path.stem + "-manifest.csv")
-        rows = []
-        if manifest.is_file():
-            with open(manifest, newline="", encoding="utf-8") as f:
-                rows = list(csv.reader(f))[1:]
-        rows.append([str(img.relative_to(manifest.parent)), label, "", ""])
-        write_manifest(manifest, rows)
-        return {"label": label, "image": str(img), "sha256": entry.sha256, "library": str(lib_path),
-                "entries": len(lib.entries), "manifest": str(manifest)}
+        return add_reference(library_path, label, cap.hdr, cap.observation.hu, source=self.h.id,
+                             threshold=self.cfg.calibration.threshold)
 
     def verify(self) -> dict:
         """Capture and score the pointing error against the aim point (target centre)."""
@@ -163,7 +156,7 @@ class Commissioning:
         tol = self.cfg.calibration.tolerance_mrad
         out["tolerance_mrad"] = tol
         out["ok"] = bool(out.get("beam")) and out["error_mrad"] <= tol
-        if cap.observation is not None and self.chain.matcher is not None:
+        if cap.observation is not None and self.chain.library is not None:
             m = self.chain.match(cap.observation.hu)
             out["match"] = {"label": "unknown" if m.unknown else m.label, "distance": m.distance}
         return out

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 from pathlib import Path
 from typing import Any
 
@@ -12,14 +13,33 @@ import numpy as np
 
 from controller.errors import InputError
 
-DEFAULT_CONFIG = "configs/demo.yaml"
+# The demo plant's configuration ships inside the package, so every command works from any
+# folder; configs/demo.yaml in the repository is the same file.
+PACKAGED_CONFIG = str(Path(__file__).resolve().parents[1] / "data" / "demo.yaml")
+CONFIG_ENV = "HELIOCAL_CONFIG"
+DEFAULT_CONFIG = os.environ.get(CONFIG_ENV) or PACKAGED_CONFIG
 
 
 def add_config_option(parser: argparse.ArgumentParser) -> None:
+    """``--config FILE``; without it ``$HELIOCAL_CONFIG``, else the packaged demo plant
+    (:func:`resolve_config` fills it in and says which)."""
     parser.add_argument(
-        "--config", default=DEFAULT_CONFIG, metavar="FILE",
-        help=f"plant configuration YAML (default: {DEFAULT_CONFIG})",
+        "--config", default=None, metavar="FILE",
+        help=f"plant configuration YAML (default: ${CONFIG_ENV}, else the packaged demo plant)",
     )
+
+
+def resolve_config(args: argparse.Namespace) -> None:
+    """Fill in an omitted ``--config`` and say on stderr which configuration is used (not for
+    a command that sets ``config_if_needed`` and reads :data:`DEFAULT_CONFIG` only when needed)."""
+    import sys
+
+    if "config" not in vars(args) or args.config is not None or getattr(args, "config_if_needed", False):
+        return
+    env = os.environ.get(CONFIG_ENV)
+    args.config = env or PACKAGED_CONFIG
+    origin = f"${CONFIG_ENV}" if env else "the packaged demo plant"
+    print(f"heliocal: using configuration {args.config} ({origin}; --config FILE to choose)", file=sys.stderr)
 
 
 def add_json_option(parser: argparse.ArgumentParser) -> None:
@@ -51,4 +71,25 @@ def existing_file(path: str | Path, what: str = "file") -> Path:
     p = Path(path)
     if not p.is_file():
         raise InputError(f"{what} not found: {p}")
+    return p
+
+
+def output_dir(path: str | Path, option: str = "--out") -> Path:
+    """Check an output folder before any work: it may exist (as a folder) or be created in an
+    existing, writable parent. InputError (exit 2) names the option and the path otherwise;
+    nothing is created here."""
+    import os
+
+    p = Path(path)
+    if p.exists():
+        if not p.is_dir():
+            raise InputError(f"{option} {p}: exists and is not a folder")
+        if not os.access(p, os.W_OK | os.X_OK):
+            raise InputError(f"{option} {p}: folder is not writable")
+        return p
+    parent = p.parent
+    if not parent.is_dir():
+        raise InputError(f"{option} {p}: parent folder {parent} does not exist (create it first)")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise InputError(f"{option} {p}: cannot create it, {parent} is not writable")
     return p

@@ -51,8 +51,11 @@ def register(subparsers) -> None:
     p.add_argument("--park", action="store_true", help="move to the standby point")
     p.add_argument("--camera-manifest", metavar="FILE", help="replay frame pairs (FileCamera)")
     p.add_argument("--simulate", action="store_true", help="use the embedded simulated plant")
-    p.add_argument("--seed", type=int, default=None, help="simulation seed")
+    p.add_argument("--seed", type=int, default=0, help="simulation seed (with --simulate; default 0)")
     p.add_argument("--run-dir", default=None, metavar="DIR", help="simulation run directory (ptys)")
+    p.add_argument("--leave-in-place", action="store_true",
+                   help="do not park at standby when the session ends (by default every exit parks a "
+                        "heliostat this session moved: normal end, error, Ctrl-C, SIGTERM)")
     add_json_option(p)
     p.set_defaults(func=run)
 
@@ -90,7 +93,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("commission: no camera; pass --camera-manifest FILE or --simulate")
     library = None
     if args.library and Path(args.library).is_file():
-        from controller.calibration.library import load_library
+        from controller.recognition.library_io import load_library
 
         library = load_library(args.library)
     if args.simulate:
@@ -110,13 +113,12 @@ def _with_simulated(cfg, args, steps, library) -> int:
 
     from controller.devices.drive import DriveLimits
     from controller.devices.factory import LinkPool
-    from controller.sim.plant import SimulatedPlant, load_config_data
+    from simplant.plant import SimulatedPlant, load_config_data
+    from simplant.settings import SimulationSettings
 
-    seed = cfg.simulation.seed if args.seed is None else args.seed
     run_dir = Path(args.run_dir) if args.run_dir else Path(tempfile.mkdtemp(prefix="heliocal-commission-"))
-    with SimulatedPlant(
-        load_config_data(args.config), run_dir, heliostat_ids=[args.heliostat], seed=seed, source=args.config
-    ) as plant:
+    with SimulatedPlant(load_config_data(args.config), run_dir, heliostat_ids=[args.heliostat],
+                        settings=SimulationSettings(seed=args.seed), source=args.config) as plant:
         pcfg = plant.start()
         h = pcfg.heliostat(args.heliostat)
         with LinkPool() as pool:
@@ -154,15 +156,70 @@ def _session(cfg, args, steps, drive, camera, library) -> int:
     from controller.calibration.commissioning import Commissioning
 
     c = Commissioning(cfg, args.heliostat, drive, camera, library=library)
-    if steps:
-        results = {name: _do(c, name, params, args) for name, params in steps}
-        if args.json:
-            print_json({"heliostat": args.heliostat, "ok": True, "steps": results})
-        else:
-            for name, res in results.items():
-                print(f"{name}: {res}")
-        return 0
-    return _interactive(c, args)
+    results: dict = {}
+    try:
+        if not steps:
+            return _interactive(c, args)
+        for name, params in steps:
+            results[name] = _do(c, name, params, args)
+    finally:
+        # Whatever ends the session, the beam is not left where the session put it.
+        if c.needs_parking and not args.leave_in_place:
+            results["exit"] = done = c.make_safe()
+            print(f"heliocal commission: {args.heliostat} {_said(done)}", file=sys.stderr)
+        elif c.needs_parking:
+            print(f"heliocal commission: {args.heliostat} left in place (--leave-in-place)", file=sys.stderr)
+    if args.json:
+        print_json({"heliostat": args.heliostat, "ok": True, "steps": results})
+    else:
+        for name, res in results.items():
+            print(f"{name}: {res}")
+    return 0
+
+
+def _said(done: dict) -> str:
+    if done["action"] == "parked":
+        return f"parked at standby (az {done['az_steps']}, el {done['el_steps']})"
+    if done["action"] == "stopped":
+        return f"stopped where it is (az {done['az_steps']}, el {done['el_steps']}): {done['reason']}"
+    return f"could NOT be made safe: {done['reason']}; check the heliostat"
+
+
+# name -> (usage, argument kinds); every prompt command is checked against it before it runs.
+_USAGE = {
+    "status": ("status", ()),
+    "move": ("move AZ EL   (motor steps, integers)", (int, int)),
+    "aim": ("aim", ()),
+    "jog": ("jog dAZ dEL   (motor steps, integers)", (int, int)),
+    "capture": ("capture FILE.png", (str,)),
+    "reference": ("reference LABEL", (str,)),
+    "verify": ("verify", ()),
+    "park": ("park", ()),
+}
+
+
+def parse_prompt(line: str) -> tuple[str, tuple] | None:
+    """One prompt line as (command, arguments); None for an empty line. InputError carries the
+    usage of the command when its arguments do not fit."""
+    try:
+        words = shlex.split(line)
+    except ValueError as exc:
+        raise InputError(f"cannot read the line: {exc}") from None
+    if not words:
+        return None
+    cmd = _ALIASES.get(words[0], words[0])
+    if cmd in ("q", "quit", "exit", "h", "help", "?"):
+        return cmd, ()
+    if cmd not in _USAGE:
+        raise InputError(f"unknown command {words[0]!r}; 'h' lists the commands")
+    usage, kinds = _USAGE[cmd]
+    args = words[1:]
+    if len(args) != len(kinds):
+        raise InputError(f"usage: {usage}")
+    try:
+        return cmd, tuple(kind(a) for kind, a in zip(kinds, args, strict=True))
+    except ValueError:
+        raise InputError(f"usage: {usage}") from None
 
 
 _ALIASES = {
@@ -184,19 +241,19 @@ def _interactive(c, args) -> int:
             line = input("commission> ")
         except EOFError:
             return 0
-        words = shlex.split(line)
-        if not words:
-            continue
-        cmd = _ALIASES.get(words[0], words[0])
-        if cmd in ("q", "quit", "exit"):
-            return 0
-        if cmd in ("h", "help", "?"):
-            print(HELP)
-            continue
         try:
-            params: tuple = tuple(int(w) for w in words[1:]) if cmd in ("move", "jog") else tuple(words[1:])
+            parsed = parse_prompt(line)
+            if parsed is None:
+                continue
+            cmd, params = parsed
+            if cmd in ("q", "quit", "exit"):
+                return 0
+            if cmd in ("h", "help", "?"):
+                print(HELP)
+                continue
+            if cmd in ("move", "jog", "aim", "park"):  # motion takes a while: say it started
+                c.needs_parking = True  # from here on, an interruption must park
+                print(f"{cmd} {' '.join(map(str, params))} …".replace("  ", " "), file=sys.stderr, flush=True)
             print(_do(c, cmd, params, args))
-        except (ValueError, TypeError) as exc:
-            print(f"error: bad arguments for {cmd}: {exc}")
         except HeliocalError as exc:
             print(f"error: {exc}")

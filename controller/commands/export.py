@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from controller.commands._common import add_json_option, print_json
+from controller.commands._common import add_json_option, output_dir, print_json
 
 
 def register(subparsers) -> None:
@@ -17,7 +17,7 @@ def register(subparsers) -> None:
     p.add_argument("--format", required=True, choices=["paint"], help="record format")
     p.add_argument("--out", required=True, metavar="DIR", help="output directory")
     p.add_argument(
-        "--campaign", type=int, default=None, metavar="ID", help="only this campaign (default: all)"
+        "--campaign", default=None, metavar="NAME|ID", help="only this campaign, by name or id (default: all)"
     )
     p.add_argument(
         "--config",
@@ -39,8 +39,10 @@ def run(args: argparse.Namespace) -> int:
 
         s = load_config(args.config).site
         site = (s.latitude_deg, s.longitude_deg, s.elevation_m)
+    output_dir(args.out)
     with open_existing(args.db) as store:
-        paths = export_paint(store, args.out, site, args.campaign)
+        cid = None if args.campaign is None else store.find_campaign(args.campaign).id
+        paths = export_paint(store, args.out, site, cid)
     if args.json:
         print_json({"records": len(paths), "out": args.out})
     else:

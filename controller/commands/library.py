@@ -15,9 +15,10 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from controller.calibration.library import FEATURE_KINDS, build_library, save_library
 from controller.commands._common import add_json_option, existing_file, print_json
 from controller.commands.beam import add_threshold_option
+from controller.recognition.library import FEATURE_KINDS
+from controller.recognition.library_io import build_library_from_manifest, save_library
 
 
 @contextmanager
@@ -56,7 +57,7 @@ def register(subparsers) -> None:
 def run_build(args: argparse.Namespace) -> int:
     manifest = existing_file(args.manifest, "manifest")
     with progress("building library", not args.json) as update:
-        lib = build_library(manifest, args.features, args.threshold, progress=update)
+        lib = build_library_from_manifest(manifest, args.features, args.threshold, progress=update)
     save_library(lib, Path(args.out))
     labels = sorted(set(lib.labels))
     if args.json:

@@ -10,10 +10,10 @@ from __future__ import annotations
 
 import argparse
 
-from controller.calibration.library import Library, hu_features, load_library
 from controller.commands._common import add_json_option, existing_file, print_json
-from controller.imaging.beam import analyze
 from controller.io.images import read_image
+from controller.recognition.library import Library
+from controller.recognition.library_io import load_library
 
 
 def register(subparsers) -> None:
@@ -28,13 +28,12 @@ def register(subparsers) -> None:
 
 def match_image(lib: Library, image) -> dict:
     """Analyse ``image`` with the library's threshold and match it; returns the JSON contract."""
-    feats = hu_features(analyze(image, threshold=lib.threshold, background="auto").hu, lib.features)
-    m = lib.matcher().match(feats)
+    m = lib.match_image(image)
     entry = lib.entries[m.index]
     out = {
         "label": "unknown" if m.unknown else m.label,
         "distance": m.distance,
-        "runner_up": {"label": m.runner_up_label, "distance": m.runner_up_distance},
+        "runner_up": {"label": m.runner_up, "distance": m.runner_up_distance},
         "az_deg": None if m.unknown else entry.az_deg,
         "el_deg": None if m.unknown else entry.el_deg,
         "unknown": m.unknown,

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import time
 from abc import ABC, abstractmethod
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from controller.errors import DeviceError, LimitError
@@ -28,6 +29,14 @@ class NakError(DriveError):
     def __init__(self, message: str, code: int) -> None:
         super().__init__(message)
         self.code = code
+
+
+class MoveCancelled(Exception):
+    """A wait was cancelled by its caller (not a drive failure); the drive may still move."""
+
+
+# Status polls in a row that may go unanswered during a wait before its outcome is unknown.
+MISSED_POLLS = 3
 
 
 class ActuatorFault(DriveError):
@@ -168,30 +177,61 @@ class Drive(ABC):
         self._send_jog(daz_steps, del_steps)
 
     def wait_in_position(self, timeout_s: float, poll_s: float = 0.02,
-                         sleep=time.sleep, clock=time.monotonic) -> DriveStatus:
-        """Poll status until both axes are in position. Raises ActuatorFault on latched
-        faults and LinkError-free :class:`DriveError` on timeout."""
+                         sleep: Callable[[float], None] = time.sleep,
+                         clock: Callable[[], float] = time.monotonic,
+                         cancelled: Callable[[], bool] | None = None,
+                         expect: tuple[int, int] | None = None) -> DriveStatus:
+        """Poll :meth:`status` every ``poll_s`` until both axes are in position.
+
+        One clock for the whole wait: the deadline ``timeout_s`` and the polling period are
+        both in ``clock``'s seconds (``sleep`` sleeps in the same unit; a simulated plant
+        passes its plant clock for both). ``expect``: the target this wait is for — a drive
+        that stopped elsewhere, or sits idle with another target, is an error.
+
+        Raises :class:`MoveCancelled` as soon as ``cancelled()`` returns True,
+        :class:`ActuatorFault` on latched faults, :class:`DriveError` on timeout or an
+        unexpected position, and :class:`LinkError` (outcome unknown) after
+        ``MISSED_POLLS`` status polls in a row got no answer; fewer are tolerated.
+        """
         deadline = clock() + timeout_s
+        missed = 0
         while True:
-            st = self.status()
-            if st.faults:
-                raise ActuatorFault(
-                    f"unit {self.unit}: actuator fault {', '.join(st.faults)} at "
-                    f"az={st.az_steps} el={st.el_steps}", list(st.faults))
-            if st.in_position:
-                return st
+            if cancelled is not None and cancelled():
+                raise MoveCancelled(f"unit {self.unit}: wait cancelled; the drive may still be moving")
+            try:
+                st = self.status()
+                missed = 0
+            except LinkError as exc:
+                missed += 1
+                if missed >= MISSED_POLLS:
+                    raise LinkError(f"{exc}; {missed} status polls in a row unanswered while waiting for "
+                                    "the move: its outcome is unknown") from None
+                st = None
+            if st is not None:
+                if st.faults:
+                    raise ActuatorFault(f"unit {self.unit}: actuator fault {', '.join(st.faults)} at "
+                                        f"az={st.az_steps} el={st.el_steps}", list(st.faults))
+                if st.in_position:
+                    if expect is not None and (st.az_steps, st.el_steps) != expect:
+                        raise DriveError(f"unit {self.unit}: stopped at ({st.az_steps}, {st.el_steps}), "
+                                         f"commanded {expect}")
+                    return st
+                if expect is not None and not st.moving and (st.az_target, st.el_target) != expect:
+                    raise DriveError(f"unit {self.unit}: target changed to ({st.az_target}, "
+                                     f"{st.el_target}) without a command (controller restarted?)")
             if clock() >= deadline:
-                raise DriveError(
-                    f"unit {self.unit}: not in position after {timeout_s:.1f} s "
-                    f"(az {st.az_steps}->{st.az_target}, el {st.el_steps}->{st.el_target})")
+                where = (f" (az {st.az_steps}->{st.az_target}, el {st.el_steps}->{st.el_target})"
+                         if st is not None else "")
+                raise DriveError(f"unit {self.unit}: not in position after {timeout_s:g} s{where}")
             sleep(poll_s)
 
-    def move_and_wait(self, az_steps: int, el_steps: int, timeout_s: float,
-                      poll_s: float = 0.02) -> DriveStatus:
-        """Move, then wait until in position; verifies the final position equals the target."""
+    def move_and_wait(self, az_steps: int, el_steps: int, timeout_s: float, *,
+                      clock: Callable[[], float] = time.monotonic,
+                      sleep: Callable[[float], None] = time.sleep, poll_s: float = 0.02,
+                      cancelled: Callable[[], bool] | None = None) -> DriveStatus:
+        """Absolute move (soft limits checked before sending), then :meth:`wait_in_position`
+        for exactly that target on one clock. The one move-and-wait of the controller: the
+        state machine, the CLI and commissioning all use it."""
         self.move_abs(az_steps, el_steps)
-        st = self.wait_in_position(timeout_s, poll_s)
-        if (st.az_steps, st.el_steps) != (az_steps, el_steps):
-            raise DriveError(f"unit {self.unit}: ended at ({st.az_steps}, {st.el_steps}), "
-                             f"commanded ({az_steps}, {el_steps})")
-        return st
+        return self.wait_in_position(timeout_s, poll_s, sleep, clock, cancelled,
+                                     (int(az_steps), int(el_steps)))

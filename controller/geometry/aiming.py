@@ -111,3 +111,14 @@ def beam_error_mrad(source_dir, normal, reference_normal) -> np.ndarray:
     ``reference_normal`` for light from ``source_dir``. Twice the normal error for a tilt in the
     plane of incidence, 2·δ·cos(θᵢ) for a tilt across it."""
     return angle_mrad(reflected_beam(source_dir, normal), reflected_beam(source_dir, reference_normal))
+
+
+def pointing_error_mrad(heliostat_pos, aim_point, spot_enu) -> float:
+    """Reflected-beam pointing error of a beam whose centroid lands at ``spot_enu``: the angle
+    at the heliostat between the directions to the aim point and to the spot, mrad.
+
+    All points in m ENU, shape (3,): ``arccos(â·ŝ)`` with â, ŝ the unit vectors from the
+    heliostat to the aim point and to the spot."""
+    a = np.asarray(aim_point, float) - np.asarray(heliostat_pos, float)
+    b = np.asarray(spot_enu, float) - np.asarray(heliostat_pos, float)
+    return float(angle_mrad(a, b))

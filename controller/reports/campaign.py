@@ -3,29 +3,34 @@
 ``write_report(store, out_dir, campaign_id=None)`` writes into ``out_dir``:
 
 * ``report.md`` and ``report.html``: summary, per-heliostat table (status, iterations, matched
-  error case, error before/after, target occupancy, fault cause) and, for a simulated plant,
-  the confusion matrix of the matched error case against the injected truth;
+  error case, error before/after, target occupancy, fault cause) and, when a reference
+  truth is given (a simulated plant's), the confusion matrix of the matched error case against it;
 * ``errors_hist.png``: pointing error before and after calibration (histogram, mrad);
 * ``centroids.png``: every measured beam centroid on the target plane (m from the aim
   point, first measurement vs last), with the target outline;
 * ``time_per_heliostat.png``: plant-clock time per heliostat (slew to standby, waiting for the
   target, on target);
-* ``confusion.png`` (simulation only).
+* ``confusion.png`` (with a reference truth only);
+* ``heliostats.csv``: the per-heliostat table for a spreadsheet;
+* ``thumbs/``: the first and last measurement's HIGH frame of each heliostat, linked to the
+  stored pair.
 
 Errors in the table are the *measured* reflected-beam errors (centroid on the target); a
-simulated campaign adds the simulated truth. Everything is written atomically.
+reference truth adds its errors. Everything is written atomically.
 """
 
 from __future__ import annotations
 
 import html
-import json
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
 
-from controller.calibration.campaign import summarize
+from controller.calibration.records import CampaignRecord, RunRecord
 from controller.io.images import save_figure, write_atomic
+from controller.reports.confusion_plot import plot_confusion
+from controller.reports.summary import ReferenceTruth, summarize
 from controller.storage.db import CampaignStore
 
 
@@ -33,15 +38,16 @@ def _fmt(v, nd: int = 3) -> str:
     return "–" if v is None else f"{v:.{nd}f}"
 
 
-def _plots(store: CampaignStore, cid: int, runs, out: Path, simulated: bool) -> list[tuple[str, str]]:
+def _plots(store: CampaignStore, camp: CampaignRecord, runs: list[RunRecord],
+           out: Path) -> list[tuple[str, str]]:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     figs = []
-    before = [r["error_before_mrad"] for r in runs if r["error_before_mrad"] is not None]
-    after = [r["error_after_mrad"] for r in runs if r["error_after_mrad"] is not None]
+    before = [r.error_before_mrad for r in runs if r.error_before_mrad is not None]
+    after = [r.error_after_mrad for r in runs if r.error_after_mrad is not None]
     fig, ax = plt.subplots(figsize=(6, 3.6))
     hi = max(before + after + [1.0])
     bins = np.linspace(0, hi * 1.05, 25)
@@ -49,16 +55,15 @@ def _plots(store: CampaignStore, cid: int, runs, out: Path, simulated: bool) -> 
     ax.hist(after, bins=bins, alpha=0.8, label="after calibration")
     ax.set_xlabel("reflected-beam pointing error, mrad (measured)")
     ax.set_ylabel("heliostats")
-    ax.legend()
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     save_figure(fig, out / "errors_hist.png", dpi=110, bbox_inches="tight")
     figs.append(("Pointing error before / after", "errors_hist.png"))
 
-    meas = store.measurements(campaign_id=cid)
-    camp = store.campaign(cid)
+    meas = store.measurements(campaign_id=camp.id)
     fig, ax = plt.subplots(figsize=(5.2, 5))
     if meas:
-        aim = np.array([[m["aim_e"], m["aim_n"], m["aim_u"]] for m in meas])
-        c = np.array([[m["centroid_e"] or 0, m["centroid_n"] or 0, m["centroid_u"] or 0] for m in meas])
+        aim = np.array([m.aim_enu for m in meas])
+        c = np.array([m.centroid_enu or (0.0, 0.0, 0.0) for m in meas])
         d = c - aim
         # The target plane's in-plane axes: horizontal (east-ish) and up.
         up = np.array([0.0, 0.0, 1.0])
@@ -69,8 +74,8 @@ def _plots(store: CampaignStore, cid: int, runs, out: Path, simulated: bool) -> 
         x, y = d @ h, d @ v
         last = {}
         for i, m in enumerate(meas):
-            last[m["run_id"]] = i
-        first = [i for i, m in enumerate(meas) if m["iteration"] == 1]
+            last[m.run_id] = i
+        first = [i for i, m in enumerate(meas) if m.iteration == 1]
         fin = sorted(last.values())
         ax.scatter(x[first], y[first], s=18, label="first measurement")
         ax.scatter(x[fin], y[fin], s=18, marker="x", label="final")
@@ -84,17 +89,17 @@ def _plots(store: CampaignStore, cid: int, runs, out: Path, simulated: bool) -> 
     figs.append(("Beam centroids on the target (relative to the aim point)", "centroids.png"))
 
     fig, ax = plt.subplots(figsize=(7, 3.6))
-    ids = [r["heliostat_id"] for r in runs]
-    prep = [_diff(r["at_standby_s"], r["start_s"]) for r in runs]
-    wait = [_diff(r["on_target_s"], r["at_standby_s"]) for r in runs]
-    occ = [_diff(r["off_target_s"], r["on_target_s"]) for r in runs]
+    ids = [r.heliostat_id for r in runs]
+    prep = [_diff(r.at_standby_s, r.start_s) for r in runs]
+    wait = [_diff(r.on_target_s, r.at_standby_s) for r in runs]
+    occ = [_diff(r.off_target_s, r.on_target_s) for r in runs]
     pos = np.arange(len(ids))
     ax.bar(pos, prep, label="slew to standby")
     ax.bar(pos, wait, bottom=prep, label="waiting at standby")
     ax.bar(pos, occ, bottom=np.add(prep, wait), label="on target (approach … parked)")
     ax.set_xticks(pos, ids, rotation=60, fontsize=8)
     ax.set_ylabel("plant time, s")
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))  # beside the bars, not on them
     save_figure(fig, out / "time_per_heliostat.png", dpi=110, bbox_inches="tight")
     figs.append(("Time per heliostat (plant clock)", "time_per_heliostat.png"))
     return figs
@@ -104,54 +109,46 @@ def _diff(a, b) -> float:
     return float(a - b) if a is not None and b is not None else 0.0
 
 
-def _target_normal(camp) -> np.ndarray:
-    meta = json.loads(camp["meta_json"] or "{}")
-    return np.asarray(meta.get("target_normal", (0.0, 1.0, 0.0)), float)
+def _target_normal(camp: CampaignRecord) -> np.ndarray:
+    return np.asarray(camp.meta.get("target_normal", (0.0, 1.0, 0.0)), float)
 
 
-def _confusion(runs, out: Path) -> tuple[dict, str] | None:
-    from controller.calibration.confusion import UNKNOWN, confusion
+def _confusion(runs: list[RunRecord], truth: Mapping[str, ReferenceTruth],
+               out: Path) -> tuple[dict, str] | None:
+    from controller.recognition.confusion import UNKNOWN, confusion
 
-    pairs = [(r["truth_label"], r["matched_label"] or UNKNOWN) for r in runs
-             if r["truth_label"] and r["iterations"] > 0]
+    pairs = [(truth[r.heliostat_id].label, r.matched_label or UNKNOWN) for r in runs
+             if r.heliostat_id in truth and truth[r.heliostat_id].label and r.iterations > 0]
     if not pairs:
         return None
     labels = sorted({t for t, _ in pairs} | {p for _, p in pairs if p != UNKNOWN})
     cm = confusion([t for t, _ in pairs], [p for _, p in pairs], labels)
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(5.5, 4.5))
-    ax.imshow(cm.matrix, cmap="Blues")
-    ax.set_xticks(range(len(labels)), labels, rotation=45, ha="right", fontsize=8)
-    ax.set_yticks(range(len(labels)), labels, fontsize=8)
-    for i in range(len(labels)):
-        for j in range(len(labels)):
-            ax.text(j, i, int(cm.matrix[i, j]), ha="center", va="center", fontsize=8)
-    ax.set_xlabel("matched case")
-    ax.set_ylabel("injected truth")
-    save_figure(fig, out / "confusion.png", dpi=110, bbox_inches="tight")
+    rate = 100.0 * cm.tp / len(pairs)
+    plot_confusion(cm.matrix, cm.unknown, labels, out / "confusion.png",
+                   title=f"matched case vs injected truth: {rate:.1f} % of {len(pairs)}",
+                   xlabel="matched case (first measurement)", ylabel="injected truth")
     unknown = {lab: int(u) for lab, u in zip(labels, cm.unknown, strict=True)}
     return {"labels": labels, "matrix": cm.matrix.tolist(), "unknown": unknown,
-            "recognition_rate": 100.0 * cm.tp / len(pairs), "n": len(pairs)}, "confusion.png"
+            "recognition_rate": rate, "n": len(pairs)}, "confusion.png"
 
 
-def write_report(store: CampaignStore, out_dir: str | Path, campaign_id: int | None = None) -> Path:
+def write_report(store: CampaignStore, out_dir: str | Path, campaign_id: int | None = None, *,
+                 truth: Mapping[str, ReferenceTruth] | None = None) -> Path:
     """Write the report of ``campaign_id`` (default: the latest) into ``out_dir``; returns the
-    path of ``report.md``."""
+    path of ``report.md``. ``truth`` (heliostat id -> :class:`ReferenceTruth`, e.g. a simulated
+    plant's) adds the reference's case and errors and the confusion matrix against it."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     camp = store.campaign(campaign_id)
-    cid = int(camp["id"])
+    cid = camp.id
     runs = store.runs(cid)
-    simulated = bool(camp["simulated"])
-    s = summarize(store, cid, truth=False)
-    st = summarize(store, cid, truth=True) if simulated else None
-    meta = json.loads(camp["meta_json"] or "{}")
-    figs = _plots(store, cid, runs, out, simulated)
-    conf = _confusion(runs, out) if simulated else None
+    simulated = bool(truth)
+    s = summarize(store, cid)
+    st = summarize(store, cid, truth=truth) if truth else None
+    meta = camp.meta
+    # Empty plots say nothing: with no recorded run the report says so in words instead.
+    figs = _plots(store, camp, runs, out) if runs else []
+    conf = _confusion(runs, truth, out) if truth else None
 
     cols = ["heliostat", "status", "iterations", "matched case", "error before mrad", "error after mrad"]
     if simulated:
@@ -159,28 +156,29 @@ def write_report(store: CampaignStore, out_dir: str | Path, campaign_id: int | N
     cols += ["on target s", "fault"]
     rows = []
     for r in runs:
-        row = [r["heliostat_id"], r["status"], str(r["iterations"]), r["matched_label"] or "–",
-               _fmt(r["error_before_mrad"]), _fmt(r["error_after_mrad"])]
-        if simulated:
-            row += [r["truth_label"] or "–", _fmt(r["true_error_before_mrad"]),
-                    _fmt(r["true_error_after_mrad"])]
-        row += [_fmt(_diff(r["off_target_s"], r["on_target_s"]) if r["on_target_s"] else None, 1),
-                (f"{r['fault_cause']} (in {r['fault_state']})" if r["fault_cause"] else "")]
+        row = [r.heliostat_id, r.status, str(r.iterations), r.matched_label or "–",
+               _fmt(r.error_before_mrad), _fmt(r.error_after_mrad)]
+        if truth:
+            t = truth.get(r.heliostat_id, ReferenceTruth(None, None, None))
+            row += [t.label or "–", _fmt(t.error_before_mrad), _fmt(t.error_after_mrad)]
+        row += [_fmt(r.target_occupancy_s, 1),
+                (f"{r.fault_cause} (in {r.fault_state})" if r.fault_cause else "")]
         rows.append(row)
 
-    lines = [f"# Morning report: campaign `{camp['name']}`", ""]
-    lines += [f"- started {camp['started_utc']}, finished {camp['finished_utc'] or '–'}, "
-              f"status **{camp['status']}**",
-              f"- configuration `{camp['config_path']}` (sha256 {camp['config_sha256'][:12]}…), "
-              f"light source `{camp['light_source']}`, target `{camp['target']}`",
+    lines = [f"# Morning report: campaign `{camp.name}`", ""]
+    lines += [f"- started {camp.started_utc}, finished {camp.finished_utc or '–'}, status **{camp.status}**"
+              + (f": {camp.cause}" if camp.cause else ""),
+              f"- configuration `{camp.config_path}` (sha256 {camp.config_sha256[:12]}…), "
+              f"light source `{camp.light_source}`, target `{camp.target}`",
               f"- heliostats {s['heliostats']}: calibrated **{s['calibrated']}**, failed or not converged "
               f"**{s['failed']}**, recorded {len(runs)}",
               f"- measured pointing error before: mean {_fmt(s['error_before_mrad']['mean'])} / max "
               f"{_fmt(s['error_before_mrad']['max'])} mrad; after: mean {_fmt(s['error_after_mrad']['mean'])}"
               f" / max {_fmt(s['error_after_mrad']['max'])} mrad",
               f"- iterations per heliostat: {_fmt(s['iterations_mean'], 2)}; mean target occupancy "
-              f"{_fmt(s['target_occupancy_s_mean'], 1)} s; {_fmt(s['heliostats_per_hour'], 0)} heliostats "
-              f"per hour on this target; pipelined speedup {_fmt(s['pipelined_speedup'], 2)}x (plant clock)"]
+              f"{_fmt(s['target_occupancy_s_mean'], 1)} s; {_fmt(s['heliostats_per_hour'], 0)} calibrated "
+              f"heliostats per hour on this target; pipelined speedup {_fmt(s['pipelined_speedup'], 2)}x "
+              "(plant clock)"]
     if simulated and st is not None:
         lines += [f"- **simulated plant** (clock {meta.get('clock_speedup', '?')}x real time): true error "
                   f"before mean {_fmt(st['error_before_mrad']['mean'])} / max "
@@ -191,6 +189,8 @@ def write_report(store: CampaignStore, out_dir: str | Path, campaign_id: int | N
         if safety:
             lines += [f"- beam safety (plant truth, last session): {safety['violations']} samples with two "
                       f"beams on the target out of {safety['samples']}"]
+    if not runs:
+        lines += ["- no heliostat was recorded in this campaign, so there is nothing to plot"]
     lines += ["", "## Heliostats", "", "| " + " | ".join(cols) + " |", "|" + " --- |" * len(cols)]
     lines += ["| " + " | ".join(c.replace("|", "/") for c in row) + " |" for row in rows]
     for title, png in figs:
@@ -204,16 +204,76 @@ def write_report(store: CampaignStore, out_dir: str | Path, campaign_id: int | N
             lines.append(f"| {lab} | " + " | ".join(str(v) for v in row) + f" | {c['unknown'][lab]} |")
         lines += ["", f"Recognition rate {c['recognition_rate']:.1f} % of {c['n']} heliostats "
                       "(first measurement; unknown counts as a miss).", "", f"![confusion]({png})"]
+    thumbs = _thumbnails(store, camp, runs, out)
+    if thumbs:
+        lines += ["", "## Beam before / after (first and last measurement, HIGH sensor)", ""]
+        lines += [f"- {hid}: " + " → ".join(f"[![{k}]({t})]({src})" for k, t, src in pics)
+                  for hid, pics in thumbs.items()]
     md = "\n".join(lines) + "\n"
     write_atomic(out / "report.md", lambda t: t.write_text(md, encoding="utf-8"))
-    write_atomic(out / "report.html", lambda t: t.write_text(_html(camp, lines, cols, rows, figs, conf),
-                                                             encoding="utf-8"))
+    page = _html(camp, lines, cols, rows, figs, conf, thumbs)
+    write_atomic(out / "report.html", lambda t: t.write_text(page, encoding="utf-8"))
+    write_atomic(out / "heliostats.csv", lambda t: _write_csv(t, cols, rows))
     return out / "report.md"
 
 
-def _html(camp, lines, cols, rows, figs, conf) -> str:
+def _write_csv(path: Path, cols: list[str], rows: list[list[str]]) -> None:
+    """The per-heliostat table as CSV (spreadsheet-friendly: plain numbers, '' for none)."""
+    import csv
+
+    with open(path, "w", newline="", encoding="utf-8") as f:
+        w = csv.writer(f)
+        w.writerow(cols)
+        w.writerows([["" if v == "–" else v for v in row] for row in rows])
+
+
+THUMB_PX = 160
+
+
+def _thumbnails(store: CampaignStore, camp: CampaignRecord, runs: list[RunRecord],
+                out: Path) -> dict[str, list[tuple[str, str, str]]]:
+    """Per heliostat: (label, thumbnail path relative to ``out``, stored image) of its first
+    and last measurement's HIGH frame, scaled to at most ``THUMB_PX`` wide. Frames no longer on
+    disk are left out."""
+    import cv2
+
+    by_run: dict[int, list] = {}
+    for m in store.measurements(campaign_id=camp.id):
+        by_run.setdefault(m.run_id, []).append(m)
+    thumbs: dict[str, list[tuple[str, str, str]]] = {}
+    for r in runs:
+        ms = by_run.get(r.id, [])
+        for label, m in (("first", ms[0]), ("last", ms[-1])) if ms else ():
+            high = next((im for im in store.images(m.id) if im.kind == "high"), None)
+            img = cv2.imread(high.path, cv2.IMREAD_UNCHANGED) if high is not None else None
+            if img is None:
+                continue
+            scale = min(1.0, THUMB_PX / img.shape[1])
+            small = cv2.resize(img, (max(1, int(img.shape[1] * scale)), max(1, int(img.shape[0] * scale))),
+                               interpolation=cv2.INTER_AREA)
+            rel = f"thumbs/{r.heliostat_id}-{label}.png"
+
+            def w(t: Path, small=small) -> None:
+                if not cv2.imwrite(str(t), small):
+                    raise OSError(f"could not write {t}")
+            write_atomic(out / rel, w)
+            thumbs.setdefault(r.heliostat_id, []).append((label, rel, Path(high.path).resolve().as_uri()))
+    return thumbs
+
+
+def _inline(text: str) -> str:
+    """Markdown's inline marks as HTML: escaped text, **bold** and `code`."""
+    import re
+
+    t = html.escape(text)
+    t = re.sub(r"\*\*(.+?)\*\*", r"<strong>\1</strong>", t)
+    return re.sub(r"`(.+?)`", r"<code>\1</code>", t)
+
+
+def _html(camp, lines, cols, rows, figs, conf, thumbs) -> str:
     e = html.escape
-    bullets = "".join(f"<li>{e(line[2:]).replace('**', '')}</li>" for line in lines if line.startswith("- "))
+    bullets = "".join(f"<li>{_inline(line[2:])}</li>" for line in lines
+                      if line.startswith("- ") and "![" not in line)
     table = ("<table><tr>" + "".join(f"<th>{e(c)}</th>" for c in cols) + "</tr>"
              + "".join("<tr>" + "".join(f"<td>{e(v)}</td>" for v in row) + "</tr>" for row in rows)
              + "</table>")
@@ -229,9 +289,14 @@ def _html(camp, lines, cols, rows, figs, conf) -> str:
                                for lab, row in zip(c["labels"], c["matrix"], strict=True))
                      + f"</table><p>Recognition rate {c['recognition_rate']:.1f} % of {c['n']}.</p>"
                      f"<img src='{e(png)}' alt='confusion matrix'>")
+    if thumbs:
+        conf_html += ("<h2>Beam before / after (first and last measurement, HIGH sensor)</h2><table>"
+                      + "".join(f"<tr><th>{e(hid)}</th>" + "".join(
+                          f"<td><a href='{e(src)}'><img src='{e(t)}' alt='{e(hid)} {k}'></a><br>{k}</td>"
+                          for k, t, src in pics) + "</tr>" for hid, pics in thumbs.items()) + "</table>")
     style = ("body{font-family:sans-serif;max-width:1100px;margin:auto}table{border-collapse:collapse}"
              "td,th{border:1px solid #bbb;padding:3px 6px;font-size:13px}img{max-width:100%}")
     return (f"<!doctype html><html><head><meta charset='utf-8'>"
-            f"<title>Morning report {e(camp['name'])}</title>"
-            f"<style>{style}</style></head><body><h1>Morning report: campaign {e(camp['name'])}</h1>"
+            f"<title>Morning report {e(camp.name)}</title>"
+            f"<style>{style}</style></head><body><h1>Morning report: campaign {e(camp.name)}</h1>"
             f"<ul>{bullets}</ul><h2>Heliostats</h2>{table}{imgs}{conf_html}</body></html>\n")

@@ -1,7 +1,7 @@
 """Calibration records in SQLite.
 
 One database file holds any number of campaigns. The connection runs in WAL mode with
-``synchronous=NORMAL`` … ``FULL`` (durable commits), foreign keys on, and every write inside one
+``synchronous=FULL`` (durable commits), foreign keys on, and every write inside one
 transaction (``with store.tx():``). The schema is versioned with ``PRAGMA user_version`` and
 upgraded by the ordered :data:`MIGRATIONS` on open, each migration in its own transaction.
 
@@ -23,218 +23,73 @@ import sqlite3
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, field
-from datetime import UTC, datetime
 from pathlib import Path
 
-from controller.errors import InputError
-
-MIGRATIONS: tuple[str, ...] = (
-    # v1: the record tables.
-    """
-    CREATE TABLE campaigns (
-        id INTEGER PRIMARY KEY,
-        name TEXT NOT NULL UNIQUE,
-        config_path TEXT NOT NULL,
-        config_sha256 TEXT NOT NULL,
-        light_source TEXT NOT NULL,
-        target TEXT NOT NULL,
-        simulated INTEGER NOT NULL DEFAULT 0,
-        queue_json TEXT NOT NULL,
-        started_utc TEXT NOT NULL,
-        finished_utc TEXT,
-        status TEXT NOT NULL DEFAULT 'running',
-        meta_json TEXT NOT NULL DEFAULT '{}'
-    );
-    CREATE TABLE heliostat_runs (
-        id INTEGER PRIMARY KEY,
-        campaign_id INTEGER NOT NULL REFERENCES campaigns(id),
-        heliostat_id TEXT NOT NULL,
-        queue_index INTEGER NOT NULL,
-        status TEXT NOT NULL,
-        final_state TEXT NOT NULL,
-        iterations INTEGER NOT NULL,
-        error_before_mrad REAL,
-        error_after_mrad REAL,
-        true_error_before_mrad REAL,
-        true_error_after_mrad REAL,
-        matched_label TEXT,
-        truth_label TEXT,
-        fault_cause TEXT,
-        fault_state TEXT,
-        start_s REAL NOT NULL,
-        at_standby_s REAL,
-        on_target_s REAL,
-        off_target_s REAL,
-        end_s REAL NOT NULL,
-        finished_utc TEXT NOT NULL,
-        UNIQUE (campaign_id, heliostat_id)
-    );
-    CREATE TABLE measurements (
-        id INTEGER PRIMARY KEY,
-        run_id INTEGER NOT NULL REFERENCES heliostat_runs(id),
-        iteration INTEGER NOT NULL,
-        az_steps INTEGER NOT NULL,
-        el_steps INTEGER NOT NULL,
-        source_e REAL NOT NULL, source_n REAL NOT NULL, source_u REAL NOT NULL,
-        source_az_deg REAL NOT NULL,
-        source_el_deg REAL NOT NULL,
-        centroid_e REAL, centroid_n REAL, centroid_u REAL,
-        centroid_x_px REAL, centroid_y_px REAL,
-        aim_e REAL NOT NULL, aim_n REAL NOT NULL, aim_u REAL NOT NULL,
-        error_mrad REAL,
-        true_error_mrad REAL,
-        matched_label TEXT,
-        match_distance REAL,
-        runner_up_label TEXT,
-        runner_up_distance REAL,
-        plant_time_s REAL NOT NULL,
-        measured_utc TEXT NOT NULL,
-        UNIQUE (run_id, iteration)
-    );
-    CREATE TABLE corrections (
-        id INTEGER PRIMARY KEY,
-        run_id INTEGER NOT NULL REFERENCES heliostat_runs(id),
-        iteration INTEGER NOT NULL,
-        kind TEXT NOT NULL CHECK (kind IN ('coarse', 'fine')),
-        daz_deg REAL NOT NULL,
-        del_deg REAL NOT NULL,
-        daz_steps INTEGER NOT NULL,
-        del_steps INTEGER NOT NULL
-    );
-    CREATE TABLE model_params (
-        id INTEGER PRIMARY KEY,
-        heliostat_id TEXT NOT NULL,
-        campaign_id INTEGER NOT NULL REFERENCES campaigns(id),
-        run_id INTEGER NOT NULL REFERENCES heliostat_runs(id),
-        params_json TEXT NOT NULL,
-        sigma_json TEXT NOT NULL,
-        residual_mrad REAL,
-        n_measurements INTEGER NOT NULL,
-        created_utc TEXT NOT NULL
-    );
-    CREATE TABLE images (
-        id INTEGER PRIMARY KEY,
-        measurement_id INTEGER NOT NULL REFERENCES measurements(id),
-        kind TEXT NOT NULL,
-        path TEXT NOT NULL,
-        sha256 TEXT NOT NULL,
-        exposure_low_s REAL NOT NULL,
-        exposure_high_s REAL NOT NULL
-    );
-    CREATE INDEX measurements_run ON measurements(run_id);
-    CREATE INDEX model_params_heliostat ON model_params(heliostat_id, id);
-    """,
+from controller.calibration.records import (
+    CAMPAIGN_STATUSES,
+    CampaignRecord,
+    CorrectionRecord,
+    ImageRecord,
+    MeasurementRecord,
+    ModelRecord,
+    RunRecord,
+    utc_now,
 )
-
-SCHEMA_VERSION = len(MIGRATIONS)
-
-
-def utc_now() -> str:
-    return datetime.now(UTC).isoformat(timespec="milliseconds")
-
-
-@dataclass
-class MeasurementRecord:
-    """One beam measurement. Directions are ENU unit vectors, positions ENU metres."""
-
-    iteration: int
-    az_steps: int
-    el_steps: int
-    source_dir: tuple[float, float, float]
-    source_az_deg: float
-    source_el_deg: float
-    aim_enu: tuple[float, float, float]
-    plant_time_s: float
-    centroid_enu: tuple[float, float, float] | None = None
-    centroid_px: tuple[float, float] | None = None
-    error_mrad: float | None = None
-    true_error_mrad: float | None = None
-    matched_label: str | None = None
-    match_distance: float | None = None
-    runner_up_label: str | None = None
-    runner_up_distance: float | None = None
-    measured_utc: str = field(default_factory=utc_now)
-    images: list[ImageRecord] = field(default_factory=list)
-
-
-@dataclass
-class ImageRecord:
-    kind: str  # "low", "high" or "hdr"
-    path: str
-    sha256: str
-    exposures: tuple[float, float]
-
-
-@dataclass
-class CorrectionRecord:
-    iteration: int
-    kind: str  # "coarse" (library case) or "fine" (centroid offset through the Jacobian)
-    daz_deg: float
-    del_deg: float
-    daz_steps: int
-    del_steps: int
-
-
-@dataclass
-class ModelRecord:
-    params: dict[str, float]
-    sigma: dict[str, float]
-    residual_mrad: float | None
-    n_measurements: int
-
-
-@dataclass
-class RunRecord:
-    """Outcome of one heliostat's calibration cycle, written atomically with its children.
-
-    ``status``: ``calibrated`` (within tolerance), ``not_converged`` (max iterations reached)
-    or ``failed`` (fault; ``fault_cause`` says why, ``fault_state`` where)."""
-
-    heliostat_id: str
-    queue_index: int
-    status: str
-    final_state: str
-    iterations: int
-    start_s: float
-    end_s: float
-    error_before_mrad: float | None = None
-    error_after_mrad: float | None = None
-    true_error_before_mrad: float | None = None
-    true_error_after_mrad: float | None = None
-    matched_label: str | None = None
-    truth_label: str | None = None
-    fault_cause: str | None = None
-    fault_state: str | None = None
-    at_standby_s: float | None = None
-    on_target_s: float | None = None
-    off_target_s: float | None = None
-    measurements: list[MeasurementRecord] = field(default_factory=list)
-    corrections: list[CorrectionRecord] = field(default_factory=list)
-    model: ModelRecord | None = None
+from controller.errors import InputError
+from controller.storage.lock import CampaignLock
+from controller.storage.schema import MIGRATIONS, SCHEMA_VERSION
 
 
 class CampaignStore:
     """The SQLite record store. Thread-safe: one connection guarded by a lock.
 
-    Raises :class:`InputError` naming the file when it is not a heliocal database or its
-    schema is newer than this program understands.
+    ``readonly``: open an existing database without changing it (reports, export): no
+    migration, no file created. A writer creates and upgrades the schema, and
+    :meth:`open_campaign` takes the database's exclusive campaign lock
+    (:class:`controller.storage.lock.CampaignLock`) until :meth:`close`.
+
+    Raises :class:`InputError` naming the file when it is not a heliocal database (another
+    program's SQLite file is refused, never written into) or its schema is newer than this
+    program understands.
     """
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, path: str | Path, *, readonly: bool = False) -> None:
         self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.readonly = readonly
         self._lock = threading.RLock()
+        self.campaign_lock = CampaignLock(self.path)
         try:
-            self._db = sqlite3.connect(str(self.path), isolation_level=None,
-                                       check_same_thread=False, timeout=10.0)
+            if readonly:
+                self._db = sqlite3.connect(f"file:{self.path}?mode=ro", uri=True, isolation_level=None,
+                                           check_same_thread=False, timeout=10.0)
+            else:
+                self.path.parent.mkdir(parents=True, exist_ok=True)
+                self._db = sqlite3.connect(str(self.path), isolation_level=None,
+                                           check_same_thread=False, timeout=10.0)
             self._db.row_factory = sqlite3.Row
-            self._db.execute("PRAGMA journal_mode=WAL")
-            self._db.execute("PRAGMA synchronous=FULL")
-            self._db.execute("PRAGMA foreign_keys=ON")
-            self._migrate()
+            self._check_foreign()
+            if not readonly:
+                self._db.execute("PRAGMA journal_mode=WAL")
+                self._db.execute("PRAGMA synchronous=FULL")
+                self._db.execute("PRAGMA foreign_keys=ON")
+                self._migrate()
+            elif self.schema_version > SCHEMA_VERSION:
+                raise InputError(f"{self.path}: database schema v{self.schema_version} is newer than this "
+                                 f"heliocal understands (v{SCHEMA_VERSION})")
         except sqlite3.DatabaseError as exc:
             raise InputError(f"{self.path}: not a usable heliocal database ({exc})") from None
+
+    def _check_foreign(self) -> None:
+        """Refuse a database that another program made (tables but no heliocal schema version),
+        and, read-only, an empty one."""
+        if self.schema_version:
+            return
+        tables = [r[0] for r in self._db.execute("SELECT name FROM sqlite_master WHERE type='table'")]
+        if tables:
+            raise InputError(f"{self.path}: not a heliocal database (it holds other tables: "
+                             f"{', '.join(sorted(tables)[:5])}); nothing was written")
+        if self.readonly:
+            raise InputError(f"{self.path}: empty database, no campaign recorded")
 
     # -- schema -----------------------------------------------------------------------------
     @property
@@ -268,6 +123,7 @@ class CampaignStore:
     def close(self) -> None:
         with self._lock:
             self._db.close()
+            self.campaign_lock.release()
 
     def __enter__(self) -> CampaignStore:
         return self
@@ -277,10 +133,11 @@ class CampaignStore:
 
     # -- campaigns --------------------------------------------------------------------------
     def open_campaign(self, name: str, *, config_path: str, config_sha256: str, light_source: str,
-                      target: str, queue: list[str], simulated: bool = False,
-                      meta: dict | None = None) -> tuple[int, bool]:
+                      target: str, queue: list[str], meta: dict | None = None) -> tuple[int, bool]:
         """Return ``(campaign_id, resumed)``. An existing campaign of that name is resumed
-        only when its config hash and queue match; otherwise InputError says why."""
+        only when its config hash and queue match; otherwise InputError says why. Takes the
+        database's campaign lock first (:class:`DatabaseBusy` names a live owner)."""
+        self.campaign_lock.acquire()
         with self.tx() as db:
             row = db.execute("SELECT * FROM campaigns WHERE name=?", (name,)).fetchone()
             if row is not None:
@@ -290,25 +147,23 @@ class CampaignStore:
                 if json.loads(row["queue_json"]) != list(queue):
                     raise InputError(f"{self.path}: campaign {name!r} was started with a different "
                                      "heliostat queue; use another --db or name")
-                db.execute("UPDATE campaigns SET status='running' WHERE id=? AND status!='finished'",
-                           (row["id"],))
+                db.execute("UPDATE campaigns SET status='running', cause=NULL "
+                           "WHERE id=? AND status!='finished'", (row["id"],))
                 return int(row["id"]), True
             cur = db.execute(
                 "INSERT INTO campaigns (name, config_path, config_sha256, light_source, target, "
-                "simulated, queue_json, started_utc, meta_json) VALUES (?,?,?,?,?,?,?,?,?)",
-                (name, config_path, config_sha256, light_source, target, int(simulated),
-                 json.dumps(list(queue)), utc_now(), json.dumps(meta or {})))
+                "queue_json, started_utc, meta_json) VALUES (?,?,?,?,?,?,?,?)",
+                (name, config_path, config_sha256, light_source, target, json.dumps(list(queue)), utc_now(),
+                 json.dumps(meta or {})))
             return int(cur.lastrowid), False
 
-    def finish_campaign(self, campaign_id: int, status: str = "finished", meta: dict | None = None) -> None:
+    def finish_campaign(self, campaign_id: int, status: str, cause: str | None = None) -> None:
+        """Record how the campaign's session ended (see :data:`CAMPAIGN_STATUSES`) and why."""
+        if status not in CAMPAIGN_STATUSES:
+            raise ValueError(f"campaign status must be one of {CAMPAIGN_STATUSES}, got {status!r}")
         with self.tx() as db:
-            if meta is not None:
-                old = json.loads(db.execute("SELECT meta_json FROM campaigns WHERE id=?",
-                                            (campaign_id,)).fetchone()[0])
-                old.update(meta)
-                db.execute("UPDATE campaigns SET meta_json=? WHERE id=?", (json.dumps(old), campaign_id))
-            db.execute("UPDATE campaigns SET status=?, finished_utc=? WHERE id=?",
-                       (status, utc_now(), campaign_id))
+            db.execute("UPDATE campaigns SET status=?, cause=?, finished_utc=? WHERE id=?",
+                       (status, cause, utc_now(), campaign_id))
 
     def update_meta(self, campaign_id: int, meta: dict) -> None:
         """Merge ``meta`` into the campaign's metadata (one transaction)."""
@@ -318,7 +173,7 @@ class CampaignStore:
             old.update(meta)
             db.execute("UPDATE campaigns SET meta_json=? WHERE id=?", (json.dumps(old), campaign_id))
 
-    def campaign(self, campaign_id: int | None = None) -> sqlite3.Row:
+    def campaign(self, campaign_id: int | None = None) -> CampaignRecord:
         """The given campaign, or the latest one. InputError when there is none."""
         with self._lock:
             if campaign_id is None:
@@ -328,11 +183,30 @@ class CampaignStore:
         if row is None:
             raise InputError(f"{self.path}: no campaign recorded"
                              + (f" with id {campaign_id}" if campaign_id is not None else ""))
-        return row
+        return _campaign(row)
 
-    def campaign_by_name(self, name: str) -> sqlite3.Row | None:
+    def campaigns(self) -> list[CampaignRecord]:
+        """Every campaign, oldest first."""
         with self._lock:
-            return self._db.execute("SELECT * FROM campaigns WHERE name=?", (name,)).fetchone()
+            rows = self._db.execute("SELECT * FROM campaigns ORDER BY id").fetchall()
+        return [_campaign(r) for r in rows]
+
+    def find_campaign(self, ref: str | int | None) -> CampaignRecord:
+        """A campaign by name or id (a name wins over an id of the same text); the latest for
+        None. InputError names the database and the reference when there is none."""
+        if ref is None:
+            return self.campaign()
+        by_name = self.campaign_by_name(str(ref))
+        if by_name is not None:
+            return by_name
+        if str(ref).isdigit():
+            return self.campaign(int(ref))
+        raise InputError(f"{self.path}: no campaign named {ref!r} (see heliocal campaign list)")
+
+    def campaign_by_name(self, name: str) -> CampaignRecord | None:
+        with self._lock:
+            row = self._db.execute("SELECT * FROM campaigns WHERE name=?", (name,)).fetchone()
+        return None if row is None else _campaign(row)
 
     def last_end_s(self, name: str) -> float | None:
         """Latest recorded plant time (``end_s``) of campaign ``name``, or None."""
@@ -353,15 +227,13 @@ class CampaignStore:
         with self.tx() as db:
             cur = db.execute(
                 "INSERT INTO heliostat_runs (campaign_id, heliostat_id, queue_index, status, "
-                "final_state, iterations, error_before_mrad, error_after_mrad, true_error_before_mrad, "
-                "true_error_after_mrad, matched_label, truth_label, fault_cause, fault_state, start_s, "
-                "at_standby_s, on_target_s, off_target_s, end_s, finished_utc) "
-                "VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?)",
+                "final_state, iterations, error_before_mrad, error_after_mrad, matched_label, "
+                "fault_cause, fault_state, start_s, at_standby_s, on_target_s, off_target_s, end_s, "
+                "finished_utc) VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?)",
                 (campaign_id, run.heliostat_id, run.queue_index, run.status, run.final_state,
-                 run.iterations, run.error_before_mrad, run.error_after_mrad, run.true_error_before_mrad,
-                 run.true_error_after_mrad, run.matched_label, run.truth_label, run.fault_cause,
-                 run.fault_state, run.start_s, run.at_standby_s, run.on_target_s, run.off_target_s,
-                 run.end_s, utc_now()))
+                 run.iterations, run.error_before_mrad, run.error_after_mrad, run.matched_label,
+                 run.fault_cause, run.fault_state, run.start_s, run.at_standby_s, run.on_target_s,
+                 run.off_target_s, run.end_s, utc_now()))
             run_id = int(cur.lastrowid)
             for m in run.measurements:
                 c = m.centroid_enu or (None, None, None)
@@ -369,13 +241,13 @@ class CampaignStore:
                 mcur = db.execute(
                     "INSERT INTO measurements (run_id, iteration, az_steps, el_steps, source_e, source_n, "
                     "source_u, source_az_deg, source_el_deg, centroid_e, centroid_n, centroid_u, "
-                    "centroid_x_px, centroid_y_px, aim_e, aim_n, aim_u, error_mrad, true_error_mrad, "
-                    "matched_label, match_distance, runner_up_label, runner_up_distance, plant_time_s, "
-                    "measured_utc) VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?)",
+                    "centroid_x_px, centroid_y_px, aim_e, aim_n, aim_u, error_mrad, matched_label, "
+                    "match_distance, runner_up_label, runner_up_distance, plant_time_s, measured_utc) "
+                    "VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?)",
                     (run_id, m.iteration, int(m.az_steps), int(m.el_steps), *map(float, m.source_dir),
                      m.source_az_deg, m.source_el_deg, *c, *px, *map(float, m.aim_enu), m.error_mrad,
-                     m.true_error_mrad, m.matched_label, m.match_distance, m.runner_up_label,
-                     m.runner_up_distance, m.plant_time_s, m.measured_utc))
+                     m.matched_label, m.match_distance, m.runner_up_label, m.runner_up_distance,
+                     m.plant_time_s, m.measured_utc))
                 for im in m.images:
                     db.execute("INSERT INTO images (measurement_id, kind, path, sha256, exposure_low_s, "
                                "exposure_high_s) VALUES (?,?,?,?,?,?)",
@@ -393,18 +265,19 @@ class CampaignStore:
             return run_id
 
     # -- queries ----------------------------------------------------------------------------
-    def runs(self, campaign_id: int) -> list[sqlite3.Row]:
+    def runs(self, campaign_id: int) -> list[RunRecord]:
+        """Every recorded run of a campaign in queue order (without children: see
+        :meth:`measurements` and :meth:`corrections`)."""
         with self._lock:
-            return self._db.execute("SELECT * FROM heliostat_runs WHERE campaign_id=? ORDER BY queue_index",
+            rows = self._db.execute("SELECT * FROM heliostat_runs WHERE campaign_id=? ORDER BY queue_index",
                                     (campaign_id,)).fetchall()
+        return [_run(r) for r in rows]
 
     def measurements(self, campaign_id: int | None = None, heliostat_id: str | None = None
-                     ) -> list[sqlite3.Row]:
-        """Measurements joined with their run's heliostat id and campaign id."""
-        sql = ("SELECT m.*, r.heliostat_id, r.campaign_id, c.target AS target, "
-               "c.light_source AS light_source "
-               "FROM measurements m JOIN heliostat_runs r ON m.run_id=r.id "
-               "JOIN campaigns c ON r.campaign_id=c.id WHERE 1=1")
+                     ) -> list[MeasurementRecord]:
+        """Measurements in recording order, with their run id and heliostat id set."""
+        sql = ("SELECT m.*, r.heliostat_id, r.campaign_id FROM measurements m "
+               "JOIN heliostat_runs r ON m.run_id=r.id WHERE 1=1")
         args: list = []
         if campaign_id is not None:
             sql += " AND r.campaign_id=?"
@@ -413,17 +286,22 @@ class CampaignStore:
             sql += " AND r.heliostat_id=?"
             args.append(heliostat_id)
         with self._lock:
-            return self._db.execute(sql + " ORDER BY m.id", args).fetchall()
+            rows = self._db.execute(sql + " ORDER BY m.id", args).fetchall()
+        return [_measurement(r) for r in rows]
 
-    def corrections(self, run_id: int) -> list[sqlite3.Row]:
+    def corrections(self, run_id: int) -> list[CorrectionRecord]:
         with self._lock:
-            return self._db.execute("SELECT * FROM corrections WHERE run_id=? ORDER BY id",
+            rows = self._db.execute("SELECT * FROM corrections WHERE run_id=? ORDER BY id",
                                     (run_id,)).fetchall()
+        return [CorrectionRecord(r["iteration"], r["kind"], r["daz_deg"], r["del_deg"], r["daz_steps"],
+                                 r["del_steps"]) for r in rows]
 
-    def images(self, measurement_id: int) -> list[sqlite3.Row]:
+    def images(self, measurement_id: int) -> list[ImageRecord]:
         with self._lock:
-            return self._db.execute("SELECT * FROM images WHERE measurement_id=? ORDER BY id",
+            rows = self._db.execute("SELECT * FROM images WHERE measurement_id=? ORDER BY id",
                                     (measurement_id,)).fetchall()
+        return [ImageRecord(r["kind"], r["path"], r["sha256"], (r["exposure_low_s"], r["exposure_high_s"]))
+                for r in rows]
 
     def latest_model(self, heliostat_id: str) -> ModelRecord | None:
         """The most recent fitted tracking-error parameters of a heliostat, or None."""
@@ -443,9 +321,42 @@ class CampaignStore:
             return int(self._db.execute(f"SELECT COUNT(*) FROM {table}").fetchone()[0])
 
 
+def _campaign(row: sqlite3.Row) -> CampaignRecord:
+    return CampaignRecord(int(row["id"]), row["name"], row["config_path"], row["config_sha256"],
+                          row["light_source"], row["target"], json.loads(row["queue_json"]),
+                          row["started_utc"], row["finished_utc"], row["status"],
+                          json.loads(row["meta_json"] or "{}"), row["cause"])
+
+
+def _run(row: sqlite3.Row) -> RunRecord:
+    return RunRecord(
+        row["heliostat_id"], row["queue_index"], row["status"], row["final_state"], row["iterations"],
+        row["start_s"], row["end_s"], error_before_mrad=row["error_before_mrad"],
+        error_after_mrad=row["error_after_mrad"], matched_label=row["matched_label"],
+        fault_cause=row["fault_cause"], fault_state=row["fault_state"], at_standby_s=row["at_standby_s"],
+        on_target_s=row["on_target_s"], off_target_s=row["off_target_s"], id=int(row["id"]),
+        finished_utc=row["finished_utc"])
+
+
+def _measurement(row: sqlite3.Row) -> MeasurementRecord:
+    def xyz(prefix: str):
+        v = (row[f"{prefix}_e"], row[f"{prefix}_n"], row[f"{prefix}_u"])
+        return None if v[0] is None else v
+
+    px = None if row["centroid_x_px"] is None else (row["centroid_x_px"], row["centroid_y_px"])
+    return MeasurementRecord(
+        row["iteration"], row["az_steps"], row["el_steps"], xyz("source"), row["source_az_deg"],
+        row["source_el_deg"], xyz("aim"), row["plant_time_s"], centroid_enu=xyz("centroid"), centroid_px=px,
+        error_mrad=row["error_mrad"], matched_label=row["matched_label"],
+        match_distance=row["match_distance"],
+        runner_up_label=row["runner_up_label"], runner_up_distance=row["runner_up_distance"],
+        measured_utc=row["measured_utc"], id=int(row["id"]), run_id=int(row["run_id"]),
+        campaign_id=int(row["campaign_id"]),         heliostat_id=row["heliostat_id"])
+
+
 def open_existing(path: str | Path) -> CampaignStore:
-    """Open a database that must already exist (reports, export): InputError otherwise."""
+    """Open a database that must already exist, read-only (reports, export): InputError otherwise."""
     p = Path(path)
     if not p.is_file():
         raise InputError(f"database not found: {p}")
-    return CampaignStore(p)
+    return CampaignStore(p, readonly=True)

@@ -1,7 +1,7 @@
 """Export measurements as PAINT-style calibration-properties JSON records.
 
 One file per measurement, ``<heliostat>-c<campaign>-m<measurement>-calibration-properties.json``,
-with the keys of the PAINT database's records (see shared/data/real/paint/):
+with the keys of the PAINT database's records (as in tests/data/real/paint/):
 
 * ``motor_position.axis_1_motor_position`` = elevation actuator steps and
   ``axis_2_motor_position`` = azimuth actuator steps (PAINT/ARTIST actuator order);
@@ -21,6 +21,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from controller.calibration.records import CampaignRecord, MeasurementRecord
 from controller.errors import InputError
 from controller.geometry.frames import enu_to_wgs84
 from controller.io.images import write_atomic
@@ -33,34 +34,32 @@ def paint_azimuth(azimuth_north_deg: float) -> float:
     return a - 360.0 if a > 180.0 else a
 
 
-def paint_record(m, site: tuple[float, float, float]) -> dict:
-    """The PAINT-style record of one measurement row (``CampaignStore.measurements``)."""
+def paint_record(m: MeasurementRecord, campaign: CampaignRecord, site: tuple[float, float, float]) -> dict:
+    """The PAINT-style record of one stored measurement of ``campaign``."""
     rec = {
         "motor_position": {
-            "axis_1_motor_position": int(m["el_steps"]),
-            "axis_2_motor_position": int(m["az_steps"]),
+            "axis_1_motor_position": int(m.el_steps),
+            "axis_2_motor_position": int(m.az_steps),
         },
-        "target_name": m["target"],
-        "sun_elevation": float(m["source_el_deg"]),
-        "sun_azimuth": paint_azimuth(m["source_az_deg"]),
+        "target_name": campaign.target,
+        "sun_elevation": float(m.source_el_deg),
+        "sun_azimuth": paint_azimuth(m.source_az_deg),
     }
-    if m["centroid_e"] is not None:
-        lat, lon, alt = enu_to_wgs84([m["centroid_e"], m["centroid_n"], m["centroid_u"]], *site)
+    if m.centroid_enu is not None:
+        lat, lon, alt = enu_to_wgs84(list(m.centroid_enu), *site)
         rec["focal_spot"] = {"heliocal": [float(lat), float(lon), float(alt)]}
     rec["heliocal"] = {
-        "heliostat_id": m["heliostat_id"],
-        "campaign_id": int(m["campaign_id"]),
-        "measurement_id": int(m["id"]),
-        "iteration": int(m["iteration"]),
-        "light_source": m["light_source"],
-        "light_source_direction_enu": [m["source_e"], m["source_n"], m["source_u"]],
-        "focal_spot_enu_m": None
-        if m["centroid_e"] is None
-        else [m["centroid_e"], m["centroid_n"], m["centroid_u"]],
-        "error_mrad": m["error_mrad"],
-        "matched_label": m["matched_label"],
-        "match_distance": m["match_distance"],
-        "measured_utc": m["measured_utc"],
+        "heliostat_id": m.heliostat_id,
+        "campaign_id": campaign.id,
+        "measurement_id": m.id,
+        "iteration": int(m.iteration),
+        "light_source": campaign.light_source,
+        "light_source_direction_enu": list(m.source_dir),
+        "focal_spot_enu_m": None if m.centroid_enu is None else list(m.centroid_enu),
+        "error_mrad": m.error_mrad,
+        "matched_label": m.matched_label,
+        "match_distance": m.match_distance,
+        "measured_utc": m.measured_utc,
         "method": "heliocal HDR double-CCD centroid",
     }
     return rec
@@ -77,20 +76,19 @@ def export_paint(
     ``site`` (lat_deg, lon_deg, elevation_m) is the ENU origin; by default it is taken from the
     campaign's stored metadata."""
     out = Path(out_dir)
-    rows = store.measurements(campaign_id=campaign_id)
     paths = []
-    sites: dict[int, tuple[float, float, float]] = {}
-    for m in rows:
-        cid = int(m["campaign_id"])
-        if site is None and cid not in sites:
-            meta = json.loads(store.campaign(cid)["meta_json"] or "{}")
-            if "site" not in meta:
+    campaigns: dict[int, CampaignRecord] = {}
+    for m in store.measurements(campaign_id=campaign_id):
+        cid = int(m.campaign_id)
+        if cid not in campaigns:
+            campaigns[cid] = store.campaign(cid)
+            if site is None and "site" not in campaigns[cid].meta:
                 raise InputError(
                     f"{store.path}: campaign {cid} has no site origin stored; pass --config to give it"
                 )
-            sites[cid] = tuple(meta["site"])
-        rec = paint_record(m, site or sites[cid])
-        p = out / f"{m['heliostat_id']}-c{cid}-m{m['id']}-calibration-properties.json"
+        camp = campaigns[cid]
+        rec = paint_record(m, camp, site or tuple(camp.meta["site"]))
+        p = out / f"{m.heliostat_id}-c{cid}-m{m.id}-calibration-properties.json"
         text = json.dumps(rec, indent=4) + "\n"
         write_atomic(p, lambda t, text=text: t.write_text(text, encoding="utf-8"))
         paths.append(p)

@@ -11,9 +11,10 @@ import pytest
 import yaml
 from beamkit import cli, gaussian
 
-from controller.calibration.confusion import confusion
-from controller.calibration.library import hu_features, load_library, read_manifest
-from controller.calibration.matching import Matcher
+from controller.recognition.confusion import confusion
+from controller.recognition.library import hu_features
+from controller.recognition.library_io import load_library, read_manifest
+from controller.recognition.matching import Matcher
 from controller.errors import InputError
 
 

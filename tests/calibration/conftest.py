@@ -5,10 +5,15 @@
 whose "image" is the true beam offset, and a linear pointing model whose Jacobian is exact:
 the beam lands ``A @ (true_steps - ideal_steps)`` metres from the aim point, with the true steps
 being the rods' positions (backlash included) plus a hidden offset.
+
+Faults are injected from callbacks, never after a delay: ``SimDrive.after`` hooks run after
+every drive call (``hook(call_name, drive)``), and ``Plant.on_state`` hooks run on every state
+change of the cycle (``hook(state)``), on the cycle's own thread.
 """
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -16,20 +21,21 @@ import numpy as np
 import pytest
 import yaml
 
-from controller.calibration.machine import (
-    CalibrationCycle,
-    CycleContext,
-    Observation,
-    Step,
-    TargetGate,
-)
+from controller.calibration.context import CycleContext, CycleObserver
+from controller.calibration.gate import TargetGate
+from controller.calibration.machine import CalibrationCycle
+from controller.calibration.observations import Observation, Step
+from controller.calibration.records import ModelRecord
 from controller.devices.camera import CameraError, FramePair
 from controller.devices.drive import Drive, DriveLimits, DriveStatus, LinkError, NakError
-from controller.sim.plant import PlantClock
 from firmware_proto.faults import Reject, fault_names
-from firmware_proto.physics import AxisParams, SimController
+from simplant.clock import PlantClock
+from simplant.firmware.physics import AxisParams, SimController
+from simplant.settings import SimulationSettings
+from tests.conftest import scaled_s
 
 SPEEDUP = 200.0
+FAST = SimulationSettings(clock_speedup=50.0)  # simulated-plant settings of the campaign tests
 AIM = np.array([0.0, 0.0, 30.0])
 HELIOSTAT = np.array([0.0, 50.0, 0.0])  # 58.3 m from the aim point
 # metres on the target per motor step: east per az step, up per el step (about 0.4 mrad/100 steps)
@@ -45,11 +51,16 @@ class SimDrive(Drive):
         self.limits = limits
         self.link_lost = False
         self.calls: list[str] = []
+        self.after: list = []  # hook(call_name, drive) after every successful call
 
     def _check(self, what: str) -> None:
         self.calls.append(what)
         if self.link_lost:
             raise LinkError(f"unit {self.unit}: no answer to {what} after 3 retries (link down)")
+
+    def _done(self, what: str) -> None:
+        for hook in list(self.after):
+            hook(what, self)
 
     def _ok(self, r: Reject, what: str) -> None:
         if r != Reject.OK:
@@ -58,13 +69,16 @@ class SimDrive(Drive):
     def status(self) -> DriveStatus:
         self._check("status")
         s = self.ctl.status()
-        return DriveStatus(self.unit, s["az_steps"], s["el_steps"], s["az_target"], s["el_target"],
-                           s["moving"], s["in_position"], s["limit_az"], s["limit_el"],
-                           tuple(fault_names(s["faults"])))
+        st = DriveStatus(self.unit, s["az_steps"], s["el_steps"], s["az_target"], s["el_target"],
+                         s["moving"], s["in_position"], s["limit_az"], s["limit_el"],
+                         tuple(fault_names(s["faults"])))
+        self._done("status")
+        return st
 
     def _send_move_abs(self, az, el):
         self._check("move")
         self._ok(self.ctl.move_abs(az, el), "MOVE_ABS")
+        self._done("move")
 
     def _send_jog(self, daz, delv):
         self._check("jog")
@@ -100,10 +114,12 @@ class Plant:
     ideal: tuple[int, int] = (30000, 30000)
     standby: tuple[int, int] = (25000, 30000)
     camera_fail: int = 0
-    camera_block_s: float = 0.0
+    camera_block: threading.Event | None = None  # capture waits until it is set
     noise_m: float = 0.0
     rng: np.random.Generator = field(default_factory=lambda: np.random.default_rng(0))
     captures: int = 0
+    true_errors: list[float] = field(default_factory=list)  # at every measurement, mrad
+    on_state: list = field(default_factory=list)  # hook(state) on every state change
 
     def offset(self) -> np.ndarray:
         """True beam offset from the aim point, m (east, up)."""
@@ -122,10 +138,8 @@ class FakeCamera:
         self.p = plant
 
     def capture(self) -> FramePair:
-        import time
-
-        if self.p.camera_block_s:
-            time.sleep(self.p.camera_block_s)
+        if self.p.camera_block is not None:
+            self.p.camera_block.wait(scaled_s(10.0))
         if self.p.camera_fail > 0:
             self.p.camera_fail -= 1
             raise CameraError("camera: no frame from ccd2 within 2 s")
@@ -161,8 +175,6 @@ class LinearPointing:
         return Step(daz_deg, del_deg, int(daz_deg * 1000), int(del_deg * 1000))
 
     def fit(self, measurements, prior):
-        from controller.storage.db import ModelRecord
-
         self.fits += 1
         m = measurements[-1]
         off = np.array([m.centroid_enu[0] - AIM[0], m.centroid_enu[2] - AIM[2]])
@@ -176,13 +188,28 @@ def _observe(frame) -> Observation:
     return Observation((0.0, 0.0), tuple(c), np.ones(7), 1.0)
 
 
+class PlantTruth(CycleObserver):
+    """The fake plant's side of the cycle: its true error at each measurement, and the
+    per-state fault hooks of the test."""
+
+    def __init__(self, plant: Plant) -> None:
+        self.p = plant
+
+    def state_changed(self, heliostat_id: str, state: str) -> None:
+        for hook in list(self.p.on_state):
+            hook(state)
+
+    def measured(self, heliostat_id: str, measurement) -> None:
+        self.p.true_errors.append(self.p.true_error_mrad())
+
+
 @pytest.fixture
 def make_cycle():
     made: list[Plant] = []
 
     def make(*, hidden=(150, -90), backlash=0, gate=None, ticket=0, match=None, timeouts=None,
-             max_iterations=4, tolerance_mrad=0.3, initial=(25000, 30000), model=None):
-        clock = PlantClock(SPEEDUP)
+             max_iterations=4, tolerance_mrad=0.3, initial=(25000, 30000), model=None, clock=None):
+        clock = clock or PlantClock(SPEEDUP)
         ax = AxisParams(500, 60000, 0, 65000, speed=1500, acceleration=3000, backlash=backlash)
         ctl = SimController(1, ax, AxisParams(**{**ax.__dict__}), clock=clock, initial_steps=initial)
         plant = Plant(ctl, clock, np.array(hidden, float))
@@ -193,8 +220,7 @@ def make_cycle():
             pointing=pointing, merge=lambda frame: frame, analyze=_observe,
             match=lambda hu: match, gate=gate or TargetGate(), model=model, tolerance_mrad=tolerance_mrad,
             max_iterations=max_iterations, settle_s=0.2, poll_s=0.05, clock=clock, sleep=clock.sleep,
-            timeouts=timeouts or {}, truth_error=plant.true_error_mrad, truth_label="wind-load",
-            move_timeout_s=10.0)
+            timeouts=timeouts or {}, observer=PlantTruth(plant), move_timeout_s=scaled_s(60.0))
         made.append(plant)
         return CalibrationCycle(ctx), plant, drive
 
@@ -221,10 +247,9 @@ REPO = Path(__file__).resolve().parents[2]
 
 @pytest.fixture
 def small_config(tmp_path) -> Path:
-    """The demo plant with a 256×192 camera and a 50× plant clock, to keep tests quick."""
+    """The demo plant with a 256×192 camera, to keep tests quick (run it with :data:`FAST`)."""
     data = yaml.safe_load((REPO / "configs" / "demo.yaml").read_text())
     data["camera"]["width_px"], data["camera"]["height_px"] = 256, 192
-    data["simulation"]["clock_speedup"] = 50.0
     p = tmp_path / "small.yaml"
     p.write_text(yaml.safe_dump(data))
     return p

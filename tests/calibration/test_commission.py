@@ -3,11 +3,16 @@
 from __future__ import annotations
 
 import json
+import re
+import signal
 import subprocess
 import sys
 from pathlib import Path
 
-from controller.calibration.library import load_library
+import pytest
+from controller.recognition.library_io import load_library
+
+from tests.conftest import scaled_s
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -71,3 +76,76 @@ def test_commission_bad_input(small_config, tmp_path):
     assert r.returncode == 2 and "H99" in r.stderr and "Traceback" not in r.stderr
     r = _run("--config", str(cfg), "--heliostat", "H02", "--simulate", "--move", "999999", "10", "--json")
     assert r.returncode == 2 and "soft limits" in json.loads(r.stdout)["error"]
+
+
+@pytest.mark.parametrize("line, expected", [
+    ("m 100 200", ("move", (100, 200))), ("jog -5 7", ("jog", (-5, 7))), ("c f.png", ("capture", ("f.png",))),
+    ("", None), ("q", ("q", ())), ("p", ("park", ())),
+])
+def test_prompt_lines(line, expected):
+    from controller.commands.commission import parse_prompt
+
+    assert parse_prompt(line) == expected
+
+
+@pytest.mark.parametrize("line, fragment", [
+    ("m 1", "usage: move AZ EL"), ("m 1 x", "usage: move AZ EL"), ("c", "usage: capture FILE.png"),
+    ("r", "usage: reference LABEL"), ("s extra", "usage: status"), ("fly", "unknown command 'fly'"),
+    ("c 'open", "cannot read the line"),
+])
+def test_bad_prompt_lines_give_usage(line, fragment):
+    from controller.commands.commission import parse_prompt
+    from controller.errors import InputError
+
+    with pytest.raises(InputError, match=re.escape(fragment)):
+        parse_prompt(line)
+
+
+def _session(small_config, tmp_path, *extra):
+    return subprocess.Popen(
+        [sys.executable, "-m", "controller.cli", "commission", "--config", str(small_config), "--heliostat",
+         "H02", "--simulate", "--run-dir", str(tmp_path / "run"), *extra],
+        cwd=REPO, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def _wait_for(stream, fragment: str) -> str:
+    seen = ""
+    while fragment not in seen:
+        line = stream.readline()
+        assert line, f"no {fragment!r} in {seen!r}"
+        seen += line
+    return seen
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_signal_mid_move_parks_the_heliostat(small_config, tmp_path, sig):
+    """A long move is under way when the signal comes: the session parks at standby, says so
+    with the position read back from the firmware, and exits 130."""
+    p = _session(small_config, tmp_path)
+    _wait_for(p.stderr, "'h' for help")
+    p.stdin.write("m 30000 30000\n")
+    p.stdin.flush()
+    _wait_for(p.stderr, "move 30000 30000")
+    p.send_signal(sig)
+    out, err = p.communicate(timeout=scaled_s(120))
+    assert p.returncode == 130, err
+    said = re.search(r"H02 parked at standby \(az (\d+), el (\d+)\)", err)
+    assert said, err
+    assert (int(said[1]), int(said[2])) != (30000, 30000)
+
+
+def test_end_of_input_parks_and_leave_in_place_does_not(small_config, tmp_path):
+    p = _session(small_config, tmp_path)
+    _, err = p.communicate("m 20000 20000\n", timeout=scaled_s(120))
+    assert p.returncode == 0 and "H02 parked at standby" in err, err
+    p = _session(small_config, tmp_path / "b", "--leave-in-place")
+    out, err = p.communicate("m 20000 20000\nq\n", timeout=scaled_s(120))
+    assert p.returncode == 0 and "left in place" in err and "parked" not in err
+    assert "'az_steps': 20000" in out
+
+
+def test_bad_prompt_line_does_not_end_the_session(small_config, tmp_path):
+    p = _session(small_config, tmp_path)
+    out, err = p.communicate("m 1\nc\ns\nq\n", timeout=scaled_s(120))
+    assert p.returncode == 0 and "Traceback" not in err
+    assert out.count("error: usage:") == 2 and "'az_steps'" in out  # status still ran

@@ -5,15 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from controller.calibration.campaign import (
-    GeometryPointing,
-    TargetFrame,
-    UnsafePath,
-    order_queue,
-    slew_time_s,
-)
+from controller.calibration.planning import order_queue, slew_time_s
+from controller.calibration.pointing import GeometryPointing, UnsafePath
 from controller.config import load_config
-from controller.sim.optics import TargetGrid
+from controller.geometry.target_frame import TargetFrame
+from simplant.optics import TargetGrid
 
 
 @pytest.fixture(scope="module")

@@ -3,7 +3,7 @@
 import pytest
 
 from firmware_proto.faults import Fault, Reject, fault_names
-from firmware_proto.physics import AxisParams, SimController
+from simplant.firmware.physics import AxisParams, SimController
 
 
 class FakeClock:

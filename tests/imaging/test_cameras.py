@@ -7,7 +7,7 @@ import pytest
 from controller.config import Camera
 from controller.devices.camera import CameraError
 from controller.devices.file_camera import FileCamera
-from controller.devices.sim_camera import SimulatedCamera
+from simplant.camera import SimulatedCamera
 from controller.errors import InputError
 from controller.imaging.autoexposure import auto_expose, next_exposures
 

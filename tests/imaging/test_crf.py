@@ -5,7 +5,7 @@ import pytest
 
 from controller.errors import InputError
 from controller.imaging.crf import Crf, fit_crf
-from controller.sim.sensor import SensorModel, knee_response
+from simplant.sensor import SensorModel, knee_response
 
 
 def sphere_csv(path, sensors, rng, noise=0.3):

@@ -6,7 +6,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from controller.sim.optics import MirrorSurface, TargetGrid, render_spot
+from simplant.optics import MirrorSurface, TargetGrid, render_spot
 
 
 def north_target(width=8.0, height=7.0, shape=(256, 256)):

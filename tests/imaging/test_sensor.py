@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from controller.sim.sensor import SensorModel, knee_response
+from simplant.sensor import SensorModel, knee_response
 
 
 def test_mean_and_variance_follow_photon_transfer():

@@ -11,8 +11,8 @@ import pytest
 
 from controller.devices.drive import AxisLimits, DriveLimits
 from controller.devices.modbus_drive import ModbusDrive, ModbusLink
-from firmware_proto.modbus_sim import ModbusSimServer
-from firmware_proto.physics import AxisParams, SimController
+from simplant.firmware.modbus import ModbusSimServer
+from simplant.firmware.physics import AxisParams, SimController
 
 SPEEDUP = 20.0
 # Demo plant (configs/demo.yaml): hard range [0, 75308] / [0, 68745], soft limits below.

@@ -12,7 +12,7 @@ from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 from pymodbus.exceptions import ModbusIOException
 
 from firmware_proto.faults import Fault, Reject
-from firmware_proto.modbus_sim import ModbusSimServer
+from simplant.firmware.modbus import ModbusSimServer
 
 from .conftest import make_controller
 

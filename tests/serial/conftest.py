@@ -20,8 +20,8 @@ from pathlib import Path
 import pytest
 
 from controller.devices.drive import AxisLimits, DriveLimits
-from firmware_proto.physics import AxisParams, SimController
-from firmware_proto.serial_sim import SerialSimFirmware
+from simplant.firmware.physics import AxisParams, SimController
+from simplant.firmware.serial import SerialSimFirmware
 
 VECTORS = Path(__file__).resolve().parents[2] / "firmware_proto" / "vectors" / "frames.json"
 SPEEDUP = 100.0  # plant clock vs. wall clock: a 10,000-step move takes ~0.07 s

@@ -12,8 +12,8 @@ from pathlib import Path
 import pytest
 
 from controller.cli import main
-from firmware_proto.physics import AxisParams, SimController
-from firmware_proto.serial_sim import SerialSimFirmware
+from simplant.firmware.physics import AxisParams, SimController
+from simplant.firmware.serial import SerialSimFirmware
 
 ROOT = Path(__file__).resolve().parents[2]
 CONFIG = str(ROOT / "configs" / "demo.yaml")
@@ -123,7 +123,7 @@ def test_firmware_limits_are_checked_too(heliocal, tmp_path):
 
 def test_drive_cli_same_contract_over_modbus_tcp(heliocal):
     """``drive --modbus-tcp`` goes through the same LinkPool path and prints the same JSON."""
-    modbus_sim = pytest.importorskip("firmware_proto.modbus_sim", reason="Modbus simulator not present")
+    modbus_sim = pytest.importorskip("simplant.firmware.modbus", reason="Modbus simulator not present")
     ctl = SimController(3, AxisParams(500, 74800, 0, 75308, speed=50000, acceleration=100000),
                         AxisParams(500, 68200, 0, 68745, speed=50000, acceleration=100000))
     server = modbus_sim.ModbusSimServer({3: ctl})

@@ -14,7 +14,7 @@ from controller.errors import LimitError
 from firmware_proto.codec import Decoder, Frame, encode
 from firmware_proto.faults import Reject
 from firmware_proto.messages import PAIR, REPLY_BIT, Command, Status
-from firmware_proto.serial_sim import SerialSimFirmware
+from simplant.firmware.serial import SerialSimFirmware
 
 LIMITS = DriveLimits(AxisLimits(500, 74800), AxisLimits(500, 68200))  # as conftest.LIMITS
 

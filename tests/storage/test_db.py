@@ -10,19 +10,18 @@ import sys
 import numpy as np
 import pytest
 
-from controller.errors import InputError
-from controller.geometry.frames import wgs84_to_enu
-from controller.storage.db import (
-    MIGRATIONS,
-    SCHEMA_VERSION,
-    CampaignStore,
+from controller.calibration.records import (
     CorrectionRecord,
     ImageRecord,
     MeasurementRecord,
     ModelRecord,
     RunRecord,
 )
+from controller.errors import InputError
+from controller.geometry.frames import wgs84_to_enu
+from controller.storage.db import CampaignStore
 from controller.storage.paint import export_paint, paint_azimuth
+from controller.storage.schema import MIGRATIONS, SCHEMA_VERSION
 
 
 def _run(hid: str, n_meas: int = 2, sha: str | None = "ab" * 32) -> RunRecord:
@@ -144,7 +143,7 @@ def test_latest_model(store):
     "north, paint", [(265.60, -85.60), (180.0, 0.0), (90.0, 90.0), (0.0, 180.0), (270.0, -90.0)]
 )
 def test_paint_azimuth_convention(north, paint):
-    # README of shared/data/real: record -85.60 deg <-> 265.60 deg from north; south = 0, east positive.
+    # README of tests/data/real: record -85.60 deg <-> 265.60 deg from north; south = 0, east positive.
     assert paint_azimuth(north) == pytest.approx(paint, abs=1e-9)
 
 

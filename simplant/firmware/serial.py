@@ -1,7 +1,7 @@
 """Simulated actuator firmware serving the serial frame protocol on a real pty.
 
 The firmware owns the pty's master side (raw mode) and answers requests for each bus
-address it serves from a :class:`firmware_proto.physics.SimController`. The code under test
+address it serves from a :class:`simplant.firmware.physics.SimController`. The code under test
 opens the slave device (``start()`` returns its path, optionally also reachable through a
 symlink) exactly as it would open an RS-485 adapter. Nothing but bytes on the pty is shared
 with the controller.
@@ -37,7 +37,7 @@ from firmware_proto.messages import (
     ack,
     nak,
 )
-from firmware_proto.physics import SimController
+from simplant.firmware.physics import SimController
 
 _POLL_S = 0.05  # how often the serving loop looks at its stop event
 _NO_PEER_S = 0.005  # back-off while no one has the slave side open (reads give EIO)

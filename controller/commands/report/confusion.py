@@ -15,15 +15,13 @@ import io
 import json
 from pathlib import Path
 
-import numpy as np
-
-from controller.calibration.confusion import UNKNOWN, Confusion, confusion
-from controller.calibration.library import hu_features, load_library, read_manifest
-from controller.commands._common import _plain, add_json_option, existing_file, print_json
+from controller.commands._common import _plain, add_json_option, existing_file, output_dir, print_json
 from controller.commands.library import progress
 from controller.errors import InputError
-from controller.imaging.beam import analyze
-from controller.io.images import read_image, save_figure, write_atomic
+from controller.io.images import read_image, write_atomic
+from controller.recognition.confusion import UNKNOWN, Confusion, confusion
+from controller.recognition.library_io import load_library, read_manifest
+from controller.reports.confusion_plot import plot_confusion
 
 
 def register(subparsers) -> None:
@@ -40,15 +38,14 @@ def register(subparsers) -> None:
 def run(args: argparse.Namespace) -> int:
     lib = load_library(existing_file(args.library, "library"))
     rows = read_manifest(existing_file(args.test, "test manifest"))
-    matcher = lib.matcher()
+    output_dir(args.out)
     true, pred = [], []
     with progress("matching test views", not args.json) as update:
         for i, row in enumerate(rows):
             try:
-                hu = analyze(read_image(row.image), threshold=lib.threshold, background="auto").hu
+                m = lib.match_image(read_image(row.image))
             except InputError as exc:
                 raise InputError(f"{args.test}:{row.line}: {exc}") from None
-            m = matcher.match(hu_features(hu, lib.features))
             true.append(row.label)
             pred.append(UNKNOWN if m.unknown else m.label)
             update(i + 1, len(rows))
@@ -93,29 +90,12 @@ def confusion_markdown(conf: Confusion, features: str) -> str:
 
 
 def write_report(conf: Confusion, report: dict, out: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     out.mkdir(parents=True, exist_ok=True)
     csv_text = confusion_csv(conf)
     md_text = confusion_markdown(conf, report.get("features", ""))
     json_text = json.dumps(_plain(report), indent=2) + "\n"
-    k = len(conf.labels)
-    full = np.column_stack([conf.matrix, conf.unknown])
-    fig, ax = plt.subplots(figsize=(1.1 * k + 3, 0.9 * k + 2))
-    im = ax.imshow(full, cmap="Blues")
-    ax.set_xticks(range(k + 1), [*conf.labels, UNKNOWN], rotation=35, ha="right")
-    ax.set_yticks(range(k), conf.labels)
-    ax.set_xlabel("predicted")
-    ax.set_ylabel("true")
-    for (i, j), v in np.ndenumerate(full):
-        ax.text(j, i, str(v), ha="center", va="center", color="white" if v > full.max() / 2 else "black")
-    ax.set_title(f"recognition rate {conf.recognition_rate:.2f} % ({report.get('features', '')})")
-    fig.colorbar(im, ax=ax, shrink=0.8)
-    fig.tight_layout()
-    save_figure(fig, out / "confusion.png", dpi=100)
+    plot_confusion(conf.matrix, conf.unknown, list(conf.labels), out / "confusion.png",
+                   title=f"recognition rate {conf.recognition_rate:.2f} % ({report.get('features', '')})")
     write_atomic(out / "confusion.csv", lambda t: t.write_text(csv_text, encoding="utf-8"))
     write_atomic(out / "confusion.md", lambda t: t.write_text(md_text, encoding="utf-8"))
     write_atomic(out / "report.json", lambda t: t.write_text(json_text, encoding="utf-8"))

@@ -4,4 +4,4 @@ from controller.commands._groups import register_group
 
 
 def register(subparsers) -> None:
-    register_group(subparsers, "sim", "run pieces of the simulated plant")
+    register_group(subparsers, __name__, "run pieces of the simulated plant")

@@ -46,7 +46,7 @@ def register(subparsers) -> None:
 
 def build_controllers(plant, args, units: list[int], speedup: float) -> dict:
     """One SimController per unit, with the axes of the heliostat the link rule picks."""
-    from firmware_proto.physics import SimController, axis_params_from_config
+    from simplant.firmware.physics import SimController, axis_params_from_config
 
     t0 = time.monotonic()
 
@@ -85,7 +85,7 @@ def run(args) -> int:
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
     if args.serial:
-        from firmware_proto.serial_sim import SerialSimFirmware
+        from simplant.firmware.serial import SerialSimFirmware
 
         server = SerialSimFirmware(controllers, args.serial)
         try:
@@ -95,7 +95,7 @@ def run(args) -> int:
         ready = {"ok": True, "link": args.serial, "device": device, "units": units}
     else:
         try:
-            from firmware_proto.modbus_sim import ModbusSimServer
+            from simplant.firmware.modbus import ModbusSimServer
         except ModuleNotFoundError as exc:
             raise HeliocalError(f"the Modbus simulator is not available: {exc}") from None
         server = ModbusSimServer(controllers)

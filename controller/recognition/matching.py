@@ -4,7 +4,7 @@ d(q, e) = sqrt(sum_i (q_i - e_i)^2) over the 7 (optionally scaled) features (pap
 The best entry gives the label; the runner-up is the nearest entry with a *different* label,
 so that the margin between the two says how confident the match is. A query whose best
 distance exceeds that entry's ``unknown_distance`` (calibrated from the library's own spread,
-see :mod:`controller.calibration.library`) is reported as unknown rather than issuing a
+see :mod:`controller.recognition.library`) is reported as unknown rather than issuing a
 correction from the wrong case.
 
 The search is a single matrix-vector product over a precomputed (n, 7) array:

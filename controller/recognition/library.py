@@ -1,10 +1,9 @@
 """The error library: reference beam images of known error cases, described by Hu features.
 
-Manifest (CSV, header required): ``image,label,az_deg,el_deg``. ``az_deg``/``el_deg`` are
-optional (columns may be absent or cells empty); image paths are relative to the manifest.
-Images are merged HDR (``.npy`` / float ``.tiff``) or single grey PNG/TIFF.
+Pure: images and labels in, :class:`Library` out (:func:`build_library`); the manifest and
+YAML files are handled by :mod:`controller.recognition.library_io`.
 
-Library (YAML)::
+Library document (YAML)::
 
     version: 1
     features: hu | log-hu          # raw Hu (paper) or -sign(h) log10|h|
@@ -26,20 +25,15 @@ Feature kinds:
 
 from __future__ import annotations
 
-import csv
-import hashlib
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import cv2
 import numpy as np
-import yaml
 
-from controller.calibration.matching import Matcher
 from controller.errors import InputError
 from controller.imaging.beam import analyze
-from controller.io.images import read_image, write_atomic
+from controller.recognition.matching import Matcher
 
 LIBRARY_VERSION = 1
 FEATURE_KINDS = ("hu", "log-hu")
@@ -47,12 +41,17 @@ _LOG_FLOOR = 1e-30
 
 
 @dataclass(frozen=True)
-class ManifestRow:
-    image: Path
+class LibraryMatch:
+    """The library's answer for one beam: nearest case and distance, the nearest other case,
+    whether it is too far to trust (``unknown``), and the entry's az/el correction (deg)."""
+
     label: str
-    az_deg: float | None = None
-    el_deg: float | None = None
-    line: int = 0
+    distance: float
+    index: int
+    runner_up: str | None
+    runner_up_distance: float | None
+    unknown: bool
+    correction_deg: tuple[float, float] | None
 
 
 @dataclass
@@ -75,6 +74,7 @@ class Library:
     scale: np.ndarray = field(default_factory=lambda: np.ones(7))
     unknown_distance: float = float("inf")
     version: int = LIBRARY_VERSION
+    _cache: tuple[int, Matcher] | None = field(default=None, init=False, repr=False, compare=False)
 
     @property
     def labels(self) -> list[str]:
@@ -87,13 +87,25 @@ class Library:
         return Matcher(self.matrix(), self.labels, self.scale,
                        np.array([e.unknown_distance for e in self.entries], dtype=np.float64))
 
+    def match_hu(self, hu: np.ndarray) -> LibraryMatch:
+        """The nearest entry to a beam's Hu moments (7,) and the nearest of another case
+        (Euclidean distance of the library's features, Eq. 14), with that entry's correction."""
+        m = self._matcher().match(hu_features(hu, self.features))
+        corr = self.entries[m.index].correction
+        return LibraryMatch(m.label, m.distance, m.index, m.runner_up_label, m.runner_up_distance, m.unknown,
+                            (float(corr["az_deg"]), float(corr["el_deg"])) if corr else None)
 
-def sha256_file(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
+    def match_image(self, image: np.ndarray, threshold: float | None = None) -> LibraryMatch:
+        """:meth:`match_hu` of a beam image (HDR or grey), analysed with the library's threshold
+        (or ``threshold``), background estimated."""
+        t = self.threshold if threshold is None else threshold
+        return self.match_hu(analyze(image, threshold=t, background="auto").hu)
+
+    def _matcher(self) -> Matcher:
+        # Built once per library: the matcher precomputes its search arrays.
+        if self._cache is None or self._cache[0] != len(self.entries):
+            self._cache = (len(self.entries), self.matcher())
+        return self._cache[1]
 
 
 def hu_features(hu: np.ndarray, kind: str) -> np.ndarray:
@@ -109,65 +121,6 @@ def hu_features(hu: np.ndarray, kind: str) -> np.ndarray:
 def image_features(image: np.ndarray, kind: str, threshold: float = 0.5) -> np.ndarray:
     """Analyse a beam image (background auto) and return its feature vector (7,)."""
     return hu_features(analyze(image, threshold=threshold, background="auto").hu, kind)
-
-
-def _opt_float(value: str | None, where: str, key: str) -> float | None:
-    if value is None or value.strip() == "":
-        return None
-    try:
-        v = float(value)
-    except ValueError:
-        raise InputError(f"{where}: {key} is not a number: {value!r}") from None
-    if not np.isfinite(v):
-        raise InputError(f"{where}: {key} must be finite, got {value!r}")
-    return v
-
-
-def write_manifest(path: str | Path, rows: list[tuple[str, str, str, str]] | list[list[str]]) -> None:
-    """Write a manifest CSV (``image,label,az_deg,el_deg``, paths relative to it) atomically."""
-
-    def writer(tmp: Path) -> None:
-        with open(tmp, "w", newline="", encoding="utf-8") as f:
-            w = csv.writer(f)
-            w.writerow(["image", "label", "az_deg", "el_deg"])
-            w.writerows(rows)
-
-    write_atomic(path, writer)
-
-
-def read_manifest(path: str | Path) -> list[ManifestRow]:
-    """Read a manifest CSV; errors name the file and line."""
-    p = Path(path)
-    if not p.is_file():
-        raise InputError(f"{p}: manifest not found")
-    try:
-        with open(p, newline="", encoding="utf-8") as f:
-            reader = csv.DictReader(f)
-            fields = [c.strip() for c in (reader.fieldnames or [])]
-            missing = {"image", "label"} - set(fields)
-            if missing:
-                raise InputError(f"{p}: header must contain image,label "
-                                 f"(missing {', '.join(sorted(missing))})")
-            rows = []
-            for i, raw in enumerate(reader, start=2):
-                rec = {(k or "").strip(): (v or "").strip() for k, v in raw.items() if k is not None}
-                where = f"{p}:{i}"
-                if not rec.get("image"):
-                    raise InputError(f"{where}: empty image path")
-                if not rec.get("label"):
-                    raise InputError(f"{where}: empty label")
-                rows.append(ManifestRow(
-                    image=(p.parent / rec["image"]), label=rec["label"],
-                    az_deg=_opt_float(rec.get("az_deg"), where, "az_deg"),
-                    el_deg=_opt_float(rec.get("el_deg"), where, "el_deg"), line=i,
-                ))
-    except UnicodeDecodeError:
-        raise InputError(f"{p}: manifest is not UTF-8 text") from None
-    except csv.Error as exc:
-        raise InputError(f"{p}: malformed CSV ({exc})") from None
-    if not rows:
-        raise InputError(f"{p}: manifest has no rows")
-    return rows
 
 
 AUGMENT_ANGLES_DEG = (20.0, 65.0, 110.0, 155.0)
@@ -242,22 +195,36 @@ def unknown_thresholds(spread: Spread, scale: np.ndarray, n_entries: int,
     return out
 
 
-def build_library(manifest: str | Path, kind: str = "hu", threshold: float = 0.5,
+def build_library(images: Sequence[np.ndarray], labels: Sequence[str], *, kind: str = "hu",
+                  threshold: float = 0.5, az_deg: Sequence[float | None] | None = None,
+                  el_deg: Sequence[float | None] | None = None, sha256: Sequence[str] | None = None,
+                  names: Sequence[str] | None = None,
                   progress: Callable[[int, int], None] | None = None) -> Library:
-    """Analyse every manifest image and assemble a :class:`Library` (nothing is written)."""
+    """A :class:`Library` from beam images and their case labels (nothing is read or written).
+
+    Each image gives one entry (its features); rotated and zoomed copies of it
+    (:func:`augmented_views`) measure the within-case spread that sets the feature scale and
+    every entry's unknown threshold. ``az_deg``/``el_deg``, ``sha256`` and ``names`` (image
+    file names) are carried into the entries. An image without a beam raises InputError
+    naming its position (or name).
+    """
     if kind not in FEATURE_KINDS:
         raise InputError(f"feature kind must be one of {', '.join(FEATURE_KINDS)}, not {kind!r}")
-    rows = read_manifest(manifest)
+    n = len(images)
+    if n == 0 or len(labels) != n:
+        raise InputError(f"a library needs one label per image and at least one image ({n} images, "
+                         f"{len(labels)} labels)")
     entries = []
     deviations, owner = [], []
-    for i, row in enumerate(rows):
+    for i, (image, label) in enumerate(zip(images, labels, strict=True)):
+        name = names[i] if names is not None else f"image {i}"
         try:
-            image = read_image(row.image)
             feats = image_features(image, kind, threshold)
         except InputError as exc:
-            raise InputError(f"{Path(manifest)}:{row.line}: {exc}") from None
-        entries.append(Entry(label=row.label, features=feats, az_deg=row.az_deg, el_deg=row.el_deg,
-                             sha256=sha256_file(row.image), image=str(row.image)))
+            raise InputError(f"{name}: {exc}") from None
+        entries.append(Entry(label=str(label), features=feats, az_deg=az_deg[i] if az_deg else None,
+                             el_deg=el_deg[i] if el_deg else None, sha256=sha256[i] if sha256 else "",
+                             image=names[i] if names is not None else ""))
         for view in augmented_views(image):
             try:
                 deviations.append(image_features(view, kind, threshold) - feats)
@@ -265,7 +232,7 @@ def build_library(manifest: str | Path, kind: str = "hu", threshold: float = 0.5
             except InputError:
                 continue  # a zoom that pushes the spot out of frame says nothing about the spread
         if progress:
-            progress(i + 1, len(rows))
+            progress(i + 1, n)
     spread = Spread(np.array(deviations).reshape(-1, 7), np.array(owner, dtype=np.int64))
     lib = Library(features=kind, threshold=float(threshold), entries=entries)
     lib.scale = feature_scale(spread, kind)
@@ -295,12 +262,6 @@ def library_to_dict(lib: Library) -> dict:
     }
 
 
-def save_library(lib: Library, path: str | Path) -> None:
-    """Write the library YAML atomically."""
-    text = yaml.safe_dump(library_to_dict(lib), sort_keys=False)
-    write_atomic(path, lambda t: t.write_text(text, encoding="utf-8"))
-
-
 def _vec7(value, where: str) -> np.ndarray:
     try:
         v = np.asarray(value, dtype=np.float64)
@@ -324,15 +285,9 @@ def _opt_positive(value, where: str) -> float:
     return v
 
 
-def load_library(path: str | Path) -> Library:
-    """Read and validate a library YAML; errors name the file and key."""
-    p = Path(path)
-    if not p.is_file():
-        raise InputError(f"{p}: library not found")
-    try:
-        data = yaml.safe_load(p.read_text(encoding="utf-8"))
-    except (yaml.YAMLError, UnicodeDecodeError) as exc:
-        raise InputError(f"{p}: not readable YAML ({str(exc).splitlines()[0]})") from None
+def library_from_dict(data: object, p: str) -> Library:
+    """Validate a parsed library document (see the module docstring); errors name ``p`` (the
+    file) and the key."""
     if not isinstance(data, dict):
         raise InputError(f"{p}: library must be a mapping")
     if data.get("version") != LIBRARY_VERSION:

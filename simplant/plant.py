@@ -2,11 +2,11 @@
 
 What it runs, all in this process but reachable only through the real wire protocols:
 
-* one :class:`firmware_proto.physics.SimController` per heliostat, on a **plant clock**
-  (:class:`PlantClock`) that may run ``simulation.clock_speedup`` times faster than real time;
-* per serial bus of the config, :class:`firmware_proto.serial_sim.SerialSimFirmware` on a pty,
+* one :class:`simplant.firmware.physics.SimController` per heliostat, on a **plant clock**
+  (:class:`PlantClock`) that may run ``SimulationSettings.clock_speedup`` times faster than real time;
+* per serial bus of the config, :class:`simplant.firmware.serial.SerialSimFirmware` on a pty,
   symlinked inside the run directory (the config's device paths are rewritten to it);
-* the Modbus TCP heliostats behind :class:`firmware_proto.modbus_sim.ModbusSimServer` on
+* the Modbus TCP heliostats behind :class:`simplant.firmware.modbus.ModbusSimServer` on
   127.0.0.1, an ephemeral port (written back into the links); Modbus RTU on a pty;
 * hidden per-heliostat tracking errors (:class:`controller.geometry.error_model.TrackingErrorParams`,
   each parameter ~ N(0, (``tracking_error_mrad``/2)²), seeded) and an injected error *case*
@@ -28,10 +28,7 @@ the direction from the mirror centre to the calibration target's centre, in mrad
 
 from __future__ import annotations
 
-import contextlib
 import copy
-import threading
-import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -43,78 +40,19 @@ from controller.devices.camera import DoubleCcdCamera, FramePair
 from controller.geometry.error_model import TrackingErrorParams, actual_normal
 from controller.geometry.kinematics import HeliostatKinematics
 from controller.geometry.vectors import unit
-from controller.sim.errorset import CASES, ErrorCase
-from controller.sim.optics import MirrorSurface, TargetGrid, render_spot
-from firmware_proto.physics import SimController, axis_params_from_config
+from simplant.clock import PlantClock
+from simplant.errorset import CASES, ErrorCase
+from simplant.firmware.physics import SimController, axis_params_from_config
+from simplant.grids import camera_grid, coarse_grid
+from simplant.optics import MirrorSurface, TargetGrid, render_spot
+from simplant.safety import BeamSafetyMonitor
+from simplant.settings import SimulationSettings
 
 RENDER_RAYS = 80_000
-RENDER_PITCH_M = 0.075  # ray-tracing grid pitch (then interpolated to the camera's)
 TRUTH_RAYS = 100_000
 # A worn gear rocks across its dead band when gusts push the mirror (the error set renders the
 # full band). Calibration nights are calm: the plant lets the mirror sweep this fraction of it.
 NIGHT_ROCK_FRACTION = 0.1
-
-
-class PlantClock:
-    """Plant time in seconds: ``speedup`` x wall time, which :meth:`frozen` can stop."""
-
-    def __init__(self, speedup: float = 1.0, start: float = 0.0) -> None:
-        self.speedup = float(speedup)
-        self._lock = threading.Lock()
-        self._base = start
-        self._wall0 = time.monotonic()
-        self._frozen = 0
-        self._frozen_at = start
-        self._realtime = 0
-
-    def __call__(self) -> float:
-        with self._lock:
-            if self._frozen:
-                return self._frozen_at
-            return self._base + (time.monotonic() - self._wall0) * self._rate()
-
-    @contextlib.contextmanager
-    def frozen(self, advance_s: float = 0.0):
-        """Stop plant time inside the block; afterwards continue ``advance_s`` later."""
-        with self._lock:
-            if not self._frozen:
-                self._frozen_at = self._base + (time.monotonic() - self._wall0) * self._rate()
-            self._frozen += 1
-        try:
-            yield
-        finally:
-            with self._lock:
-                self._frozen -= 1
-                if not self._frozen:
-                    self._base = self._frozen_at + advance_s
-                    self._wall0 = time.monotonic()
-
-    @contextlib.contextmanager
-    def realtime(self):
-        """Inside the block plant time runs at 1x: the controller's own computing costs the
-        plant what it would cost on site, whatever the speedup (nestable, any thread)."""
-        with self._lock:
-            self._rebase()
-            self._realtime += 1
-        try:
-            yield
-        finally:
-            with self._lock:
-                self._rebase()
-                self._realtime -= 1
-
-    def _rebase(self) -> None:
-        if not self._frozen:
-            now = time.monotonic()
-            self._base += (now - self._wall0) * self._rate()
-            self._wall0 = now
-
-    def _rate(self) -> float:
-        return 1.0 if self._realtime else self.speedup
-
-    def sleep(self, plant_seconds: float) -> None:
-        """Sleep for ``plant_seconds`` of plant time (in wall time: divided by the speedup)."""
-        time.sleep(max(0.0, plant_seconds) / self.speedup)
 
 
 @dataclass
@@ -151,14 +89,15 @@ class SimulatedPlant:
     """Start with :meth:`start` (returns the rewritten config), stop with :meth:`stop`."""
 
     def __init__(self, cfg_data: dict, run_dir: str | Path, *, heliostat_ids: list[str] | None = None,
-                 seed: int | None = None, cases: int = 6, source: str = "<config>",
-                 clock_start: float = 0.0) -> None:
+                 settings: SimulationSettings | None = None, seed: int | None = None, cases: int = 6,
+                 source: str = "<config>", clock_start: float = 0.0) -> None:
         self.run_dir = Path(run_dir)
         self.data = copy.deepcopy(cfg_data)
         cfg = parse_config(self.data, source)
         self.cfg = cfg
         self.ids = heliostat_ids or [h.id for h in cfg.heliostats]
-        sim = cfg.simulation
+        sim = settings or SimulationSettings()
+        self.settings = sim
         self.seed = sim.seed if seed is None else seed
         self.clock = PlantClock(sim.clock_speedup, start=clock_start)
         self.hidden: dict[str, HiddenHeliostat] = {}
@@ -191,8 +130,8 @@ class SimulatedPlant:
     # -- lifecycle -------------------------------------------------------------------------------
     def start(self) -> PlantConfig:
         """Start firmware and servers; return the config with links rewritten to them."""
-        from firmware_proto.modbus_sim import ModbusSimServer
-        from firmware_proto.serial_sim import SerialSimFirmware
+        from simplant.firmware.modbus import ModbusSimServer
+        from simplant.firmware.serial import SerialSimFirmware
 
         self.run_dir.mkdir(parents=True, exist_ok=True)
         dev_dir = self.run_dir / "dev"
@@ -360,90 +299,8 @@ class SimulatedPlant:
         return cv2.resize(img.astype(np.float32), (cols, rows), interpolation=cv2.INTER_LINEAR).astype(float)
 
 
-class BeamSafetyMonitor:
-    """Watches the plant's truth: whose reflected central ray is on the target right now.
-
-    Samples every ``period_s`` of wall time; ``violations`` counts samples with more than
-    one beam on the target (the controller must never cause one), ``report()`` summarises."""
-
-    def __init__(self, plant: SimulatedPlant, period_s: float = 0.02) -> None:
-        self.plant = plant
-        self.period_s = period_s
-        self.samples = 0
-        self.violations = 0
-        self.max_on_target = 0
-        self.offenders: set[tuple[str, ...]] = set()
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
-
-    def on_target(self) -> list[str]:
-        p = self.plant
-        tgt = p.cfg.target()
-        c, nrm = np.asarray(tgt.center_enu_m, float), unit(np.asarray(tgt.normal, float))
-        base = camera_grid(p.cfg)
-        lamp = np.asarray(p.cfg.light_source().position_enu_m, float)
-        out = []
-        for hid, hh in p.hidden.items():
-            n = p.true_normal(hid)
-            pos = hh.kin.position
-            s = unit(lamp - pos)
-            beam = 2.0 * (s @ n) * n - s
-            den = float(nrm @ beam)
-            if abs(den) < 1e-9:
-                continue
-            t = float(nrm @ (c - pos)) / den
-            if t <= 0:
-                continue
-            rel = pos + t * beam - c
-            if abs(rel @ base.u_axis) <= tgt.width_m / 2 and abs(rel @ base.v_axis) <= tgt.height_m / 2:
-                out.append(hid)
-        return out
-
-    def _run(self) -> None:
-        while not self._stop.wait(self.period_s):
-            on = self.on_target()
-            self.samples += 1
-            self.max_on_target = max(self.max_on_target, len(on))
-            if len(on) > 1:
-                self.violations += 1
-                self.offenders.add(tuple(sorted(on)))
-
-    def start(self) -> None:
-        self._stop.clear()
-        self._thread = threading.Thread(target=self._run, name="beam-safety", daemon=True)
-        self._thread.start()
-
-    def stop(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=2.0)
-            self._thread = None
-
-    def report(self) -> dict:
-        return {"samples": self.samples, "violations": self.violations,
-                "max_beams_on_target": self.max_on_target,
-                "offenders": sorted(" + ".join(o) for o in self.offenders)}
-
-
-def coarse_grid(grid: TargetGrid) -> TargetGrid:
-    """The ray-tracing grid over the same area: pixels binned to about ``RENDER_PITCH_M``."""
-    rows, cols = grid.shape
-    k = max(1, int(RENDER_PITCH_M / max(grid.pixel_size_m)))
-    return TargetGrid(grid.center, grid.normal, grid.u_axis, grid.v_axis, grid.width_m, grid.height_m,
-                      (max(1, rows // k), max(1, cols // k)))
-
-
-def camera_grid(cfg: PlantConfig) -> TargetGrid:
-    """The camera's rectified view: square pixels, the whole target in view, centred."""
-    from controller.calibration.campaign import TargetFrame
-
-    cam = cfg.camera
-    f = TargetFrame.from_config(cfg.target(), (cam.height_px, cam.width_px))
-    return TargetGrid(f.center, f.normal, f.u, f.v, f.width_m, f.height_m, f.shape)
-
-
 class PlantCamera(DoubleCcdCamera):
-    """The plant's double-CCD camera: :class:`controller.devices.sim_camera.SimulatedCamera`
+    """The plant's double-CCD camera: :class:`simplant.camera.SimulatedCamera`
     (two sensors with their own non-linear responses and gains) over :meth:`SimulatedPlant.scene`.
 
     The lamp brightness is set once so that a nominal spot of the first heliostat at the
@@ -454,7 +311,7 @@ class PlantCamera(DoubleCcdCamera):
     """
 
     def __init__(self, plant: SimulatedPlant, cfg: PlantConfig, seed: int = 0) -> None:
-        from controller.devices.sim_camera import SimulatedCamera
+        from simplant.camera import SimulatedCamera
 
         cam = cfg.camera
         self.plant = plant
@@ -512,56 +369,3 @@ def load_config_data(path: str | Path) -> dict:
     return yaml.safe_load(Path(path).read_text(encoding="utf-8"))
 
 
-def write_reference_set(cfg_data: dict, out_dir: str | Path, heliostat_ids: list[str], *, seed: int = 0,
-                        cases: int = 6, source: str = "<config>") -> Path:
-    """Render the error library's reference views through the plant's own camera.
-
-    For every reference heliostat and each of the first ``cases`` error-set cases: the
-    heliostat with only that case (its pointing part and mirror shape, no random errors) aimed
-    at the target centre with the nominal model, one frame pair, merged with the camera's true
-    CRF, saved as ``images/<heliostat>-<case>.npy`` (float32 HDR). Several heliostats give each
-    case several entries, so the nearest-neighbour match sees how the spot shape changes
-    across the field. Returns the manifest ``library.csv`` (``image,label,az_deg,el_deg``).
-    """
-    import csv
-
-    from controller.imaging.hdr import HdrMerger
-    from controller.io.images import write_atomic, write_float_image
-
-    out = Path(out_dir)
-    plant = SimulatedPlant(cfg_data, out / "plant", heliostat_ids=list(heliostat_ids), seed=seed,
-                           source=source)
-    cfg = plant.cfg
-    plant.camera = camera = PlantCamera(plant, cfg, seed=seed)
-    cam = cfg.camera
-    merger = HdrMerger(camera.exposures, camera.true_crf(), "raised-cosine", cam.dark_offset_counts,
-                       bit_depth=cam.bit_depth, read_noise=cam.read_noise_counts,
-                       full_well=cam.full_well_electrons)
-    src = cfg.light_source()
-    rows = []
-    for hid in heliostat_ids:
-        hh = plant.hidden[hid]
-        h = cfg.heliostat(hid)
-        s = unit(np.asarray(src.position_enu_m, float) - hh.kin.position)
-        aim = hh.kin.aim(s, np.asarray(cfg.target().center_enu_m, float))
-        stow = hh.controller
-        for case in CASES[:cases]:
-            hh.case, hh.params = case, case.params
-            hh.mirror = replace(MirrorSurface.from_config(h.mirror), deformation=case.deformation,
-                                focal_length_m=h.mirror.focal_length_m / case.focus_factor)
-            hh.controller = SimController(unit=stow.unit, az=stow.az, el=stow.el, clock=plant.clock,
-                                          initial_steps=aim)
-            frame = camera.capture()
-            name = f"images/{hid}-{case.label}.npy"
-            write_float_image(out / name, merger.merge(frame.low, frame.high))
-            rows.append((name, case.label, "", ""))
-        hh.controller = stow
-
-    def writer(tmp: Path) -> None:
-        with open(tmp, "w", newline="", encoding="utf-8") as f:
-            w = csv.writer(f)
-            w.writerow(["image", "label", "az_deg", "el_deg"])
-            w.writerows(rows)
-
-    write_atomic(out / "library.csv", writer)
-    return out / "library.csv"

@@ -4,4 +4,4 @@ from controller.commands._groups import register_group
 
 
 def register(subparsers) -> None:
-    register_group(subparsers, "report", "write reports (plots, tables) into a directory")
+    register_group(subparsers, __name__, "write reports (plots, tables) into a directory")

@@ -2,12 +2,12 @@
 
 The scene is whatever ``scene_fn()`` returns at capture time: an irradiance image of what the
 camera sees, in **counts per second at unit gain before response** (see
-:mod:`controller.sim.sensor`), shape (rows, cols). The simulated plant plugs beam spots from
-:func:`controller.sim.optics.render_spot` in here, scaled by ``irradiance_scale``.
+:mod:`simplant.sensor`), shape (rows, cols). The simulated plant plugs beam spots from
+:func:`simplant.optics.render_spot` in here, scaled by ``irradiance_scale``.
 
 Both sensors expose the *same* scene at the same instant (prism camera) with their own
 exposure time, gain (a small mismatch from the config, e.g. 1.03) and non-linear response
-(:func:`controller.sim.sensor.knee_response`, a different knee per sensor). Their true
+(:func:`simplant.sensor.knee_response`, a different knee per sensor). Their true
 inverse responses are available as a :class:`controller.imaging.crf.Crf` (``true_crf()``),
 the stand-in for an integrating-sphere calibration.
 """
@@ -21,7 +21,7 @@ import numpy as np
 
 from controller.devices.camera import CameraError, DoubleCcdCamera, FramePair
 from controller.imaging.crf import Crf
-from controller.sim.sensor import SensorModel, knee_response
+from simplant.sensor import SensorModel, knee_response
 
 # Knee of each sensor's response: a mild compression (slope 1.15 / 1.25 at black) that a
 # linear CRF would miss by a few per cent, as the fitted CRFs of real CCDs do.

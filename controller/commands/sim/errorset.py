@@ -2,7 +2,7 @@
 
 Writes ``DIR/library.csv`` (one nominal view per case), ``DIR/test.csv`` (``--views``
 perturbed views per case) and ``DIR/images/*.npy`` (merged HDR, float32). See
-:mod:`controller.sim.errorset` and docs/recognition.md. ``--json`` prints
+:mod:`simplant.errorset` and docs/recognition.md. ``--json`` prints
 ``{"library_manifest", "test_manifest", "labels", "images"}``.
 """
 
@@ -14,7 +14,7 @@ from controller.commands._common import add_config_option, add_json_option, exis
 from controller.commands.library import progress
 from controller.config import load_config
 from controller.errors import InputError
-from controller.sim.errorset import CASES, scene_from_config, write_errorset
+from simplant.errorset import CASES, scene_from_config, write_errorset
 
 
 def register(subparsers) -> None:

@@ -1,7 +1,7 @@
 """Simulated Modbus actuator: the drive controller behind Modbus TCP and Modbus RTU.
 
 The register map is ``registers.yaml`` (see MODBUS.md); the physics is
-:class:`firmware_proto.physics.SimController`, shared with the serial simulated firmware, so
+:class:`simplant.firmware.physics.SimController`, shared with the serial simulated firmware, so
 both links move the same simulated axes the same way. The server is the pinned pymodbus
 (3.16) ``SimDevice`` datastore: one ``SimDevice`` per unit id whose async ``action`` callback
 refreshes the input registers from the controller on every read and validates and executes
@@ -37,8 +37,8 @@ from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
 from firmware_proto.faults import Reject
-from firmware_proto.physics import SimController
 from firmware_proto.registers import Register, RegisterMap, load_register_map
+from simplant.firmware.physics import SimController
 
 # Why a command was refused -> the Modbus exception code returned (MODBUS.md, "Exceptions").
 _REJECT_EXCEPTION = {

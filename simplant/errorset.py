@@ -26,8 +26,8 @@ facet-split        left and right halves canted apart by ±2.5 mrad: a double sp
 =================  ==========================================================================
 
 Each view: the lamp-lit spot is ray traced onto a target-plane pixel grid
-(:func:`controller.sim.optics.render_spot`), exposed as a double-CCD pair by
-:class:`controller.sim.sensor.SensorModel` and merged by :class:`controller.imaging.hdr.HdrMerger`
+(:func:`simplant.optics.render_spot`), exposed as a double-CCD pair by
+:class:`simplant.sensor.SensorModel` and merged by :class:`controller.imaging.hdr.HdrMerger`
 into a float HDR image. Library views use the nominal framing; test views are perturbed
 deterministically from the seed by translation (grid centre ±0.3 m), scaling (pixel pitch
 x 0.8-1.25), rotation (grid axes turned about the target normal by 0-360°), exposure change
@@ -42,15 +42,15 @@ from pathlib import Path
 
 import numpy as np
 
-from controller.calibration.library import write_manifest
+from controller.recognition.library_io import write_manifest
 from controller.config import PlantConfig
 from controller.geometry.error_model import TrackingErrorParams, actual_normal_from_angles
 from controller.geometry.kinematics import HeliostatKinematics, angles_from_normal
 from controller.geometry.vectors import unit, vector_to_azel
 from controller.imaging.hdr import HdrMerger
 from controller.io.images import write_float_image
-from controller.sim.optics import MirrorSurface, TargetGrid, render_spot
-from controller.sim.sensor import SensorModel
+from simplant.optics import MirrorSurface, TargetGrid, render_spot
+from simplant.sensor import SensorModel
 
 Deformation = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
 

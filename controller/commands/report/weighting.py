@@ -7,7 +7,7 @@ Contract::
 1. The simulated double-CCD camera (configs/demo.yaml camera, its true CRF) captures ``--pairs``
    pairs of one fixed scene: the beam spot of heliostat ``--heliostat`` under ``--source``
    (default: the sun, high in the south) on a 3 m window of the calibration target, rendered by
-   :func:`controller.sim.optics.render_spot` (2 M rays, 1 px Gaussian camera PSF), plus
+   :func:`simplant.optics.render_spot` (2 M rays, 1 px Gaussian camera PSF), plus
    diffuse ambient light on the target, framed with a dark border (the target mask). The
    brightness is set so that LOW peaks at ``--low-peak`` (default 80 %) of its range, so that
    HIGH saturates in the core.
@@ -72,7 +72,7 @@ def _scene(cfg, heliostat_id: str | None, source_id: str | None = None) -> tuple
     """Irradiance frame (relative, peak 1) and target mask of the study scene."""
     import cv2
 
-    from controller.sim.optics import MirrorSurface, TargetGrid, render_spot
+    from simplant.optics import MirrorSurface, TargetGrid, render_spot
 
     h = cfg.heliostat(heliostat_id) if heliostat_id else cfg.heliostats[0]
     target = cfg.target()
@@ -121,9 +121,9 @@ def _centroid(img: np.ndarray, threshold: float, mask: np.ndarray) -> tuple[floa
 def run_study(cfg, pairs: int, seed: int, heliostat_id: str | None = None, progress=None,
               source_id: str | None = None, low_peak: float = LOW_PEAK_FRACTION) -> dict:
     """Run the study; returns thresholds, rms_px per weighting, centroids, and plot material."""
-    from controller.devices.sim_camera import SimulatedCamera
     from controller.imaging.hdr import HdrMerger
     from controller.imaging.weights import NAMES
+    from simplant.camera import SimulatedCamera
 
     frame, mask = _scene(cfg, heliostat_id, source_id)
     cam_cfg = cfg.camera

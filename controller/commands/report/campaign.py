@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from controller.commands._common import add_json_option, print_json
+from controller.commands._common import add_json_option, output_dir, print_json
 
 
 def register(subparsers) -> None:
@@ -12,7 +12,8 @@ def register(subparsers) -> None:
                               description="Write report.md, report.html and plots of a campaign.")
     p.add_argument("--db", required=True, metavar="DB", help="campaign database (SQLite)")
     p.add_argument("--out", required=True, metavar="DIR", help="output directory")
-    p.add_argument("--campaign", type=int, default=None, metavar="ID", help="campaign id (default: latest)")
+    p.add_argument("--campaign", default=None, metavar="NAME|ID",
+                   help="campaign name or id (default: latest)")
     add_json_option(p)
     p.set_defaults(func=run)
 
@@ -21,8 +22,9 @@ def run(args: argparse.Namespace) -> int:
     from controller.reports.campaign import write_report
     from controller.storage.db import open_existing
 
+    output_dir(args.out)
     with open_existing(args.db) as store:
-        path = write_report(store, args.out, args.campaign)
+        path = write_report(store, args.out, store.find_campaign(args.campaign).id)
     if args.json:
         print_json({"report": str(path), "html": str(path.with_suffix(".html"))})
     else:

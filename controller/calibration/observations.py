@@ -1,0 +1,42 @@
+"""What one measurement of a cycle yields: the beam seen on the target, the library's match,
+and a correction step; :class:`BeamNotFound` when there is nothing to measure."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Observation:
+    """Beam seen on the target. ``centroid_px`` = (x col, y row); ``centroid_enu`` in m."""
+
+    centroid_px: tuple[float, float]
+    centroid_enu: tuple[float, float, float]
+    hu: np.ndarray
+    peak: float
+
+
+@dataclass(frozen=True)
+class Match:
+    label: str
+    distance: float
+    runner_up: str | None = None
+    runner_up_distance: float | None = None
+    unknown: bool = False
+    correction_deg: tuple[float, float] | None = None  # (daz, del) of the library entry, deg
+
+
+@dataclass(frozen=True)
+class Step:
+    """A correction in both units: axis angles in degrees and motor steps."""
+
+    daz_deg: float
+    del_deg: float
+    daz_steps: int
+    del_steps: int
+
+
+class BeamNotFound(RuntimeError):
+    """No usable beam spot in the image (none, or clipped by the edge of the view)."""

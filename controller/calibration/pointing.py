@@ -1,0 +1,184 @@
+"""Geometry of one heliostat for the calibration cycle: aim and standby steps, beam-safe
+slews, corrections and the tracking-error fit (the cycle's ``Pointing``)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from controller.calibration.observations import Step
+from controller.calibration.records import MeasurementRecord, ModelRecord
+from controller.config import Heliostat, LampSource, PlantConfig, Target
+from controller.errors import HeliocalError, InputError, LimitError
+from controller.geometry.aiming import aim_normal, source_direction
+from controller.geometry.correction import correction_from_offset
+from controller.geometry.error_model import (
+    Measurement,
+    TrackingErrorParams,
+    fit_tracking_errors,
+    steps_for_normal_with_errors,
+)
+from controller.geometry.kinematics import HeliostatKinematics
+from controller.geometry.target_frame import TargetFrame
+from controller.geometry.vectors import vector_to_azel
+
+# Below this spread of joint angles the measurements cannot separate tilt and non-orthogonality
+# from the reference offsets: the fit then estimates only the two offsets (error_model docs).
+_FULL_FIT_SPREAD_RAD = math.radians(10.0)
+
+
+class UnsafePath(HeliocalError):
+    """No slew keeps the beam off the target (beam safety); nothing was sent."""
+
+
+# -- geometry of one heliostat ------------------------------------------------------------------
+class GeometryPointing:
+    """:class:`controller.calibration.machine.Pointing` on controller.geometry.
+
+    The aim point is the target centre; the standby point lies ``standby_offset_m`` beside it in
+    the target plane, on the heliostat's own side, so the approach is a short horizontal slew.
+    """
+
+    def __init__(self, heliostat: Heliostat, target: Target, source, frame: TargetFrame,
+                 standby_offset_m: float, current_steps: tuple[int, int] | None = None) -> None:
+        self.kin = HeliostatKinematics.from_config(heliostat)
+        self.heliostat_pos = np.asarray(heliostat.position_enu_m, float)
+        self.target = target
+        self.aim_point = np.asarray(target.center_enu_m, float)
+        self.source_dir = np.asarray(source_direction(source, self.heliostat_pos), float)
+        self.heliostat = heliostat
+        self.frame = frame
+        self.standby_point = self.aim_point + standby_offset_m * frame.side(self.heliostat_pos)
+        if current_steps is not None:
+            # Park on the side the slew from the present pose reaches first (azimuth steps
+            # closer to the present ones), so the beam does not pass the target on its way.
+            best = None
+            for side in (frame.u, -frame.u):
+                point = self.aim_point + standby_offset_m * side
+                try:
+                    az, _ = self.kin.aim(self.source_dir, point)
+                except (LimitError, ValueError):  # unreachable side
+                    continue
+                if best is None or abs(az - current_steps[0]) < best[0]:
+                    best = (abs(az - current_steps[0]), point)
+            if best is not None:
+                self.standby_point = best[1]
+
+    def beam_on_target(self, az_steps: float, el_steps: float, margin_m: float = 2.0) -> bool:
+        """Whether the nominal reflected central ray lands on the target grown by ``margin_m``
+        (spot radius plus model error)."""
+        try:
+            hit = self.kin.spot(az_steps, el_steps, self.source_dir, self.aim_point, self.frame.normal)
+        except (ValueError, FloatingPointError):
+            return False  # the beam points away from the target plane
+        d = hit - self.aim_point
+        return (abs(float(d @ self.frame.u)) <= self.target.width_m / 2 + margin_m
+                and abs(float(d @ self.frame.v)) <= self.target.height_m / 2 + margin_m)
+
+    def path_to(self, start: tuple[int, int], end: tuple[int, int]) -> list[tuple[int, int]]:
+        """Waypoints from ``start`` to ``end`` (a point off the target) along which the beam
+        never crosses the target: both axes together, else elevation first, else azimuth first.
+        The motion model moves each axis at its configured speed (acceleration ignored).
+        Raises :class:`UnsafePath` when no such path exists."""
+        ax = self.heliostat.axes
+        speed = np.array([ax.azimuth.speed_steps_per_s, ax.elevation.speed_steps_per_s])
+
+        def clear(plan: list[tuple[int, int]]) -> bool:
+            # A beam that starts on the target may leave it; once off it must never enter.
+            inside = self.beam_on_target(*start)
+            for a, b in zip([start] + plan[:-1], plan, strict=True):
+                a_, b_ = np.asarray(a, float), np.asarray(b, float)
+                dur = np.abs(b_ - a_) / speed
+                total = float(dur.max())
+                for t in np.linspace(0.0, total, 120 if total > 0 else 1):
+                    frac = np.where(dur > 0, np.minimum(1.0, t / np.where(dur > 0, dur, 1.0)), 1.0)
+                    on = self.beam_on_target(*(a_ + frac * (b_ - a_)))
+                    if on and not inside:
+                        return False
+                    inside = inside and on
+            return True
+
+        plans = ([end], [(start[0], end[1]), end], [(end[0], start[1]), end])
+        for plan in plans:
+            if clear(plan):
+                return [p for p in plan if p != start]
+        raise UnsafePath(f"{self.heliostat.id}: no slew from {start} to standby {end} keeps the beam "
+                         "off the target")
+
+    def _steps(self, point: np.ndarray, model: ModelRecord | None) -> tuple[int, int]:
+        if model is None:
+            return self.kin.aim(self.source_dir, point)
+        n = aim_normal(self.source_dir, self.heliostat_pos, point)
+        return steps_for_normal_with_errors(self.kin, TrackingErrorParams.from_dict(model.params), n)
+
+    def aim_steps(self, model: ModelRecord | None) -> tuple[int, int]:
+        return self._steps(self.aim_point, model)
+
+    def standby_steps(self, model: ModelRecord | None) -> tuple[int, int]:
+        return self._steps(self.standby_point, model)
+
+    def fine_correction(self, az_steps: int, el_steps: int, offset_enu: np.ndarray) -> Step:
+        c = correction_from_offset(self.kin, az_steps, el_steps, self.source_dir, None, self.target,
+                                   offset_enu)
+        return Step(c.daz_deg, c.del_deg, c.daz_steps, c.del_steps)
+
+    def coarse_correction(self, az_steps: int, el_steps: int, daz_deg: float, del_deg: float) -> Step:
+        alpha, eps = self.kin.angles(az_steps, el_steps)
+        daz = self.kin.azimuth.steps_float(alpha + math.radians(daz_deg)) - az_steps
+        dele = self.kin.elevation.steps_float(eps + math.radians(del_deg)) - el_steps
+        return Step(daz_deg, del_deg, int(round(float(daz))), int(round(float(dele))))
+
+    def fit(self, measurements: list[MeasurementRecord], prior: ModelRecord | None) -> ModelRecord | None:
+        """Tracking-error fit over all measurements of this heliostat (earlier runs included).
+
+        With a small spread of joint angles only the two reference offsets are fitted (the
+        other parameters keep their prior values)."""
+        ms = [Measurement(np.asarray(m.source_dir), m.az_steps, m.el_steps, np.asarray(m.centroid_enu))
+              for m in measurements if m.centroid_enu is not None]
+        if not ms:
+            return prior
+        ang = np.array([self.kin.angles(m.az_steps, m.el_steps) for m in ms])
+        spread = float(np.max(np.ptp(ang, axis=0)))
+        initial = TrackingErrorParams.from_dict(prior.params) if prior else TrackingErrorParams()
+        if spread >= _FULL_FIT_SPREAD_RAD and len(ms) >= 4:
+            res = fit_tracking_errors(self.kin, ms, initial=initial)
+        else:
+            res = fit_tracking_errors(self.kin, ms, fit=("az_offset", "el_offset"), initial=initial)
+        sigma = {k: (v if math.isfinite(v) else None) for k, v in res.sigma.to_dict().items()}
+        return ModelRecord(res.params.to_dict(), sigma, float(res.residual_mrad_rms), len(ms))
+
+
+@dataclass(frozen=True)
+class NominalAim:
+    """Aim of one heliostat with the nominal kinematics (no error model): light-source
+    direction and mirror normal (ENU unit vectors), normal azimuth/elevation (degrees,
+    azimuth clockwise from north) and motor steps."""
+
+    heliostat_id: str
+    source_dir: np.ndarray
+    normal: np.ndarray
+    az_deg: float
+    el_deg: float
+    az_steps: int
+    el_steps: int
+
+
+def nominal_aims(cfg: PlantConfig, ids: list[str]) -> list[NominalAim]:
+    """Nominal aim of each heliostat at the calibration target's centre under the
+    calibration light source (a lamp)."""
+    src = cfg.light_source()
+    if not isinstance(src, LampSource):
+        raise InputError("calibration.light_source must be a lamp for a nightly aim")
+    target = np.asarray(cfg.target().center_enu_m, float)
+    out = []
+    for hid in ids:
+        h = cfg.heliostat(hid)
+        pos = np.asarray(h.position_enu_m, float)
+        s = source_direction(src, pos)
+        normal = aim_normal(s, pos, target)
+        az, el = vector_to_azel(normal)
+        a, e = HeliostatKinematics.from_config(h).steps_for_normal(normal)
+        out.append(NominalAim(hid, s, normal, float(az), float(el), int(a), int(e)))
+    return out

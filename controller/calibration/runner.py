@@ -1,0 +1,333 @@
+"""Nightly calibration campaign: the queue, the pipeline and resumption.
+
+A campaign calibrates a list of heliostats against one target under one light source (a
+lamp at night). It knows only the plant configuration, drives from
+:class:`controller.devices.factory.LinkPool`, a :class:`DoubleCcdCamera`, a record store and
+an image archive (both handed in by the interface layer); nothing here knows whether the
+plant is simulated. What happens is told to :class:`CampaignObserver` s: a terminal progress
+bar, a web console, or a simulation harness that keeps its own truth.
+
+* **Queue** (:func:`controller.calibration.planning.order_queue`): heliostats sorted by their
+  estimated slew time to their standby point, shortest first. The queue is stored with the
+  campaign, so a resumed run keeps it.
+* **Pipeline**: up to ``pipeline_depth`` heliostats run their cycle at once. Each slews to its
+  standby point in parallel; the :class:`TargetGate` then lets them onto the target one at a
+  time, in queue order. So while heliostat k is measured, k+1… are already parked at standby.
+* **Resumable**: each heliostat's record is committed in one transaction when its cycle ends
+  (``store.record_run``). After ``kill -9`` the rerun skips the heliostats already recorded;
+  a heliostat interrupted mid-cycle has no record and is calibrated again.
+* **Timing** is read from the injected plant ``clock`` (seconds), so throughput is in plant
+  time; target occupancy = from the approach command until the beam is parked at standby.
+
+Measurement chain per capture: :class:`controller.calibration.beam_chain.BeamChain`.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+from controller.calibration.beam_chain import BeamChain
+from controller.calibration.context import CycleContext, CycleObserver
+from controller.calibration.gate import TargetGate
+from controller.calibration.machine import CalibrationCycle
+from controller.calibration.planning import order_queue
+from controller.calibration.pointing import GeometryPointing
+from controller.calibration.records import (
+    CampaignRecord,
+    ImageRecord,
+    MeasurementRecord,
+    ModelRecord,
+    RunRecord,
+)
+from controller.config import PlantConfig
+from controller.devices.drive import DriveError, DriveLimits
+from controller.errors import InputError
+
+INTERRUPTED = "interrupted by the operator"
+
+
+class RecordStore(Protocol):
+    """What the runner needs of the record store (:class:`controller.storage.db.CampaignStore`)."""
+
+    def open_campaign(self, name: str, *, config_path: str, config_sha256: str, light_source: str,
+                      target: str, queue: list[str], meta: dict | None = None) -> tuple[int, bool]: ...
+    def campaign_by_name(self, name: str) -> CampaignRecord | None: ...
+    def done_heliostats(self, campaign_id: int) -> set[str]: ...
+    def record_run(self, campaign_id: int, run: RunRecord) -> int: ...
+    def finish_campaign(self, campaign_id: int, status: str, cause: str | None = None) -> None: ...
+    def runs(self, campaign_id: int) -> list[RunRecord]: ...
+    def measurements(self, campaign_id: int | None = None,
+                     heliostat_id: str | None = None) -> list[MeasurementRecord]: ...
+    def latest_model(self, heliostat_id: str) -> ModelRecord | None: ...
+
+
+class ImageSink(Protocol):
+    """Keeps the frame pairs of the measurements (:class:`controller.storage.images.ImageArchive`)."""
+
+    def save(self, campaign: str, heliostat_id: str, iteration: int, frame: Any) -> list[ImageRecord]: ...
+
+
+class CampaignObserver(CycleObserver):
+    """What a campaign tells the outside world, besides every cycle's :class:`CycleObserver`
+    hooks; every hook defaults to doing nothing."""
+
+    def campaign_started(self, campaign_id: int, queue: list[str], done: set[str]) -> None:
+        """The campaign (re)started; ``done`` are the heliostats recorded in earlier sessions."""
+
+    def run_recorded(self, campaign_id: int, run: RunRecord) -> None:
+        """A heliostat's run was committed (``run.id`` is its database id)."""
+
+    def campaign_finished(self, campaign_id: int, status: str) -> None:
+        """The session ended with ``status`` (one of ``records.CAMPAIGN_STATUSES``)."""
+
+
+class _Observers(CampaignObserver):
+    """Fans every hook out to several observers, in order."""
+
+    def __init__(self, observers: Sequence[CampaignObserver]) -> None:
+        self._all = list(observers)
+
+    def state_changed(self, heliostat_id: str, state: str) -> None:
+        for o in self._all:
+            o.state_changed(heliostat_id, state)
+
+    def measured(self, heliostat_id: str, measurement: MeasurementRecord) -> None:
+        for o in self._all:
+            o.measured(heliostat_id, measurement)
+
+    def campaign_started(self, campaign_id: int, queue: list[str], done: set[str]) -> None:
+        for o in self._all:
+            o.campaign_started(campaign_id, queue, done)
+
+    def run_recorded(self, campaign_id: int, run: RunRecord) -> None:
+        for o in self._all:
+            o.run_recorded(campaign_id, run)
+
+    def campaign_finished(self, campaign_id: int, status: str) -> None:
+        for o in self._all:
+            o.campaign_finished(campaign_id, status)
+
+
+@dataclass
+class CampaignResult:
+    campaign_id: int
+    name: str
+    resumed: bool
+    runs: list[RunRecord]  # every heliostat run of the campaign (earlier sessions too)
+    makespan_s: float  # plant time of this session, first start to last end
+    sequential_estimate_s: float  # same work one after another (sum of slews + occupancy)
+    status: str = "finished"  # one of records.CAMPAIGN_STATUSES
+    cause: str | None = None  # why it ended so (None when every heliostat was calibrated)
+    session_runs: int = 0
+
+    @property
+    def exit_code(self) -> int:
+        """The CLI's exit status for this outcome (docs/campaigns.md): 0 every heliostat
+        calibrated, 3 some failed or did not converge, 1 aborted."""
+        return {"finished": 0, "partial": 3}.get(self.status, 1)
+
+
+@dataclass
+class CampaignOptions:
+    name: str = "campaign"
+    pipeline_depth: int = 4
+    settle_s: float = 0.5
+    timeouts: dict[str, float] = field(default_factory=dict)
+    move_timeout_s: float = 120.0  # plant seconds
+    poll_s: float = 0.1  # status polling interval, plant seconds
+
+
+class Campaign:
+    """Runs (or resumes) one campaign; see the module docstring.
+
+    ``config_sha256`` identifies the configuration file the campaign was started with (a
+    resume with another configuration is refused). ``images``: where frame pairs are kept
+    (None: not kept). ``compute``: a context manager around the controller's own computing
+    (a simulated plant lets its clock run at 1x there)."""
+
+    def __init__(self, cfg: PlantConfig, config_path: str, store: RecordStore, pool, camera, *,
+                 config_sha256: str, heliostat_ids: list[str] | None = None, library=None,
+                 options: CampaignOptions | None = None, images: ImageSink | None = None,
+                 clock: Callable[[], float] = time.monotonic, sleep: Callable[[float], None] = time.sleep,
+                 meta: dict | None = None, compute=None,
+                 observers: Sequence[CampaignObserver] = ()) -> None:
+        self.cfg = cfg
+        self.config_path = str(config_path)
+        self.config_sha256 = config_sha256
+        self.store = store
+        self.pool = pool
+        self.camera = camera
+        self.ids = list(heliostat_ids) if heliostat_ids is not None else [h.id for h in cfg.heliostats]
+        for hid in self.ids:
+            cfg.heliostat(hid)  # ConfigError naming an unknown id
+        self.opt = options or CampaignOptions(settle_s=cfg.calibration.settle_s,
+                                              pipeline_depth=cfg.calibration.pipeline_depth)
+        if self.opt.pipeline_depth < 1:
+            raise InputError(f"pipeline depth must be at least 1, got {self.opt.pipeline_depth}")
+        self.images = images
+        self.clock = clock
+        self.sleep = sleep
+        self.meta = meta or {}
+        self.compute = compute
+        self.observer = _Observers([_StateTable(self), *observers])
+        self.chain = BeamChain(cfg, library)
+        self._camera_lock = threading.Lock()
+        self._drives: dict[str, Any] = {}
+        self.states: dict[str, str] = {}
+
+    # -- devices ------------------------------------------------------------------------------
+    def drive(self, hid: str):
+        """The drive of ``hid`` (opened once). Drives on one bus may be used from several cycle
+        threads: each link holds its lock per transaction (controller.devices)."""
+        if hid not in self._drives:
+            h = self.cfg.heliostat(hid)
+            self._drives[hid] = self.pool.drive(h.link, DriveLimits.from_axes(h.axes))
+        return self._drives[hid]
+
+    def _capture(self):
+        with self._camera_lock:
+            return self.camera.capture()
+
+    # -- run ----------------------------------------------------------------------------------
+    def run(self) -> CampaignResult:
+        cal = self.cfg.calibration
+        source = self.cfg.light_source()
+        target = self.cfg.target()
+        current = {}
+        for hid in self.ids:
+            try:
+                st = self.drive(hid).status()
+                current[hid] = (st.az_steps, st.el_steps)
+            except DriveError:  # unreachable now: its cycle will record the failure
+                pass
+        pointing = {hid: GeometryPointing(self.cfg.heliostat(hid), target, source, self.chain.frame,
+                                          cal.standby_offset_m, current.get(hid)) for hid in self.ids}
+        existing = self.store.campaign_by_name(self.opt.name)
+        queue = existing.queue if existing is not None else order_queue(self.cfg, self.ids, current, pointing)
+        site = self.cfg.site
+        self.meta.setdefault("site", [site.latitude_deg, site.longitude_deg, site.elevation_m])
+        self.meta.setdefault("target_normal", list(target.normal))
+        cid, resumed = self.store.open_campaign(
+            self.opt.name, config_path=self.config_path, config_sha256=self.config_sha256,
+            light_source=source.id, target=target.id, queue=queue, meta=self.meta)
+        try:
+            return self._session(cid, resumed, queue, pointing)
+        except KeyboardInterrupt:
+            self._finish(cid, "interrupted", f"{INTERRUPTED}; rerun the same command to resume")
+            raise
+        except BaseException as exc:
+            # Whatever stopped the campaign (a device gone, a full disk) is its recorded end.
+            self._finish(cid, "aborted", f"{type(exc).__name__}: {exc}")
+            raise
+
+    def _finish(self, cid: int, status: str, cause: str | None) -> None:
+        self.store.finish_campaign(cid, status, cause)
+        self.observer.campaign_finished(cid, status)
+
+    def _session(self, cid: int, resumed: bool, queue: list[str],
+                 pointing: dict[str, GeometryPointing]) -> CampaignResult:
+        done = self.store.done_heliostats(cid)
+        todo = [(i, hid) for i, hid in enumerate(queue) if hid not in done]
+        gate = TargetGate()
+        t0 = self.clock()
+        session: list[RunRecord] = []
+        cycles: dict[str, CalibrationCycle] = {}
+        stop = threading.Event()
+        self.observer.campaign_started(cid, list(queue), set(done))
+
+        def one(ticket: int, qi: int, hid: str) -> RunRecord | None:
+            if gate.blocked or stop.is_set():
+                gate.release(ticket)
+                return None
+            cyc = CalibrationCycle(self._context(hid, qi, ticket, gate, pointing[hid]))
+            cycles[hid] = cyc
+            rec = cyc.run()
+            cycles.pop(hid, None)
+            if rec.fault_cause == INTERRUPTED:
+                return None  # parked, not recorded: a resume calibrates it again
+            if gate.blocked and rec.final_state != "aborted" and rec.iterations == 0 \
+                    and rec.status == "failed":
+                return None  # never reached the target because another beam blocked it: not recorded
+            rec.id = self.store.record_run(cid, rec)
+            self.observer.run_recorded(cid, rec)
+            return rec
+
+        with ThreadPoolExecutor(max_workers=self.opt.pipeline_depth, thread_name_prefix="cycle") as pool:
+            futures = [pool.submit(one, t, qi, hid) for t, (qi, hid) in enumerate(todo)]
+            try:
+                for f in futures:
+                    rec = f.result()
+                    if rec is not None:
+                        session.append(rec)
+            except KeyboardInterrupt:
+                # Ctrl-C / SIGTERM: every cycle in flight parks its beam (fault path), nothing new
+                # starts; the caller records the campaign as interrupted.
+                stop.set()
+                for cyc in list(cycles.values()):
+                    cyc.request_abort(INTERRUPTED)
+                pool.shutdown(wait=True, cancel_futures=True)
+                raise
+        t1 = self.clock()
+        runs = self.store.runs(cid)
+        status, cause = _outcome(runs, queue, gate.blocked)
+        self._finish(cid, status, cause)
+        return CampaignResult(cid, self.opt.name, resumed, runs, t1 - t0,
+                              sum(r.sequential_share_s for r in session), status, cause, len(session))
+
+    def _context(self, hid: str, qi: int, ticket: int, gate: TargetGate,
+                 pointing: GeometryPointing) -> CycleContext:
+        cal = self.cfg.calibration
+        chain = self.chain
+        name = self.opt.name
+        images = self.images
+
+        def save(frame, hdr, iteration):
+            return images.save(name, hid, iteration, frame) if images is not None else []
+
+        return CycleContext(
+            heliostat_id=hid, queue_index=qi, ticket=ticket, drive=self.drive(hid),
+            camera=_CameraView(self._capture), pointing=pointing,
+            merge=chain.merge, analyze=chain.analyze, match=chain.match, gate=gate,
+            model=self.store.latest_model(hid), history=self.store.measurements(heliostat_id=hid),
+            tolerance_mrad=cal.tolerance_mrad, max_iterations=cal.max_iterations, settle_s=self.opt.settle_s,
+            move_timeout_s=self.opt.move_timeout_s, poll_s=self.opt.poll_s, clock=self.clock,
+            sleep=self.sleep, timeouts=self.opt.timeouts, save_images=save, observer=self.observer,
+            **({"compute": self.compute} if self.compute else {}))
+
+
+class _StateTable(CampaignObserver):
+    """Keeps ``Campaign.states`` (heliostat -> current state) for whoever polls it."""
+
+    def __init__(self, campaign: Campaign) -> None:
+        self._c = campaign
+
+    def state_changed(self, heliostat_id: str, state: str) -> None:
+        self._c.states[heliostat_id] = state
+
+
+class _CameraView:
+    """The shared camera as each cycle sees it (captures serialised by the campaign)."""
+
+    def __init__(self, capture: Callable[[], Any]) -> None:
+        self.capture = capture
+
+
+def _outcome(runs: list[RunRecord], queue: list[str], target_blocked: bool) -> tuple[str, str | None]:
+    """Status and cause of a campaign session that ran to its end (records.CAMPAIGN_STATUSES)."""
+    if target_blocked:
+        return "aborted", ("a beam may have been left on the target (a heliostat could not be parked); "
+                           "nobody else was sent onto it")
+    failed = [r for r in runs if r.status != "calibrated"]
+    missing = len(queue) - len(runs)
+    if not failed and not missing:
+        return "finished", None
+    parts = [f"{len(failed)} of {len(queue)} heliostats not calibrated"] if failed else []
+    if missing:
+        parts.append(f"{missing} not recorded")
+    detail = "; ".join(f"{r.heliostat_id}: {r.fault_cause or r.status.replace('_', ' ')}" for r in failed[:3])
+    return "partial", ", ".join(parts) + (f" ({detail}{'; …' if len(failed) > 3 else ''})" if detail else "")

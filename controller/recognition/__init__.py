@@ -1,0 +1,1 @@
+"""Error recognition: Hu-moment features, the error library and its nearest-neighbour matcher (pure)."""

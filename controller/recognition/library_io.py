@@ -1,0 +1,169 @@
+"""Files of the error library: the manifest CSV that lists reference images, and the library
+YAML (format in :mod:`controller.recognition.library`).
+
+Manifest (CSV, header required): ``image,label,az_deg,el_deg``. ``az_deg``/``el_deg`` are
+optional (columns may be absent or cells empty); image paths are relative to the manifest.
+Images are merged HDR (``.npy`` / float ``.tiff``) or single grey PNG/TIFF.
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import yaml
+
+from controller.errors import InputError
+from controller.io.images import read_image, write_atomic
+from controller.io.yaml_files import load_yaml
+from controller.recognition.library import Library, build_library, library_from_dict, library_to_dict
+
+MAX_MANIFEST_ROWS = 100_000
+
+
+@dataclass(frozen=True)
+class ManifestRow:
+    image: Path
+    label: str
+    az_deg: float | None = None
+    el_deg: float | None = None
+    line: int = 0
+
+
+def sha256_file(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def _opt_float(value: str | None, where: str, key: str) -> float | None:
+    if value is None or value.strip() == "":
+        return None
+    try:
+        v = float(value)
+    except ValueError:
+        raise InputError(f"{where}: {key} is not a number: {value!r}") from None
+    if not math.isfinite(v):
+        raise InputError(f"{where}: {key} must be finite, got {value!r}")
+    return v
+
+
+def write_manifest(path: str | Path, rows: list[tuple[str, str, str, str]] | list[list[str]]) -> None:
+    """Write a manifest CSV (``image,label,az_deg,el_deg``, paths relative to it) atomically."""
+
+    def writer(tmp: Path) -> None:
+        with open(tmp, "w", newline="", encoding="utf-8") as f:
+            w = csv.writer(f)
+            w.writerow(["image", "label", "az_deg", "el_deg"])
+            w.writerows(rows)
+
+    write_atomic(path, writer)
+
+
+def read_manifest(path: str | Path) -> list[ManifestRow]:
+    """Read a manifest CSV; errors name the file and line."""
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(f"{p}: manifest not found")
+    try:
+        with open(p, newline="", encoding="utf-8") as f:
+            reader = csv.DictReader(f)
+            fields = [c.strip() for c in (reader.fieldnames or [])]
+            missing = {"image", "label"} - set(fields)
+            if missing:
+                raise InputError(f"{p}: header must contain image,label "
+                                 f"(missing {', '.join(sorted(missing))})")
+            rows = []
+            for i, raw in enumerate(reader, start=2):
+                if len(rows) >= MAX_MANIFEST_ROWS:
+                    raise InputError(f"{p}: more than {MAX_MANIFEST_ROWS} rows")
+                rec = {(k or "").strip(): (v or "").strip() for k, v in raw.items() if k is not None}
+                where = f"{p}:{i}"
+                if not rec.get("image"):
+                    raise InputError(f"{where}: empty image path")
+                if not rec.get("label"):
+                    raise InputError(f"{where}: empty label")
+                rows.append(ManifestRow(
+                    image=(p.parent / rec["image"]), label=rec["label"],
+                    az_deg=_opt_float(rec.get("az_deg"), where, "az_deg"),
+                    el_deg=_opt_float(rec.get("el_deg"), where, "el_deg"), line=i,
+                ))
+    except UnicodeDecodeError:
+        raise InputError(f"{p}: manifest is not UTF-8 text") from None
+    except csv.Error as exc:
+        raise InputError(f"{p}: malformed CSV ({exc})") from None
+    if not rows:
+        raise InputError(f"{p}: manifest has no rows")
+    return rows
+
+
+def build_library_from_manifest(manifest: str | Path, kind: str = "hu", threshold: float = 0.5,
+                                progress: Callable[[int, int], None] | None = None) -> Library:
+    """Read every manifest image and build the :class:`Library` (nothing is written); errors
+    name the manifest line."""
+    rows = read_manifest(manifest)
+    images = []
+    for row in rows:
+        try:
+            images.append(read_image(row.image))
+        except InputError as exc:
+            raise InputError(f"{Path(manifest)}:{row.line}: {exc}") from None
+    names = [str(r.image) for r in rows]
+    try:
+        return build_library(images, [r.label for r in rows], kind=kind, threshold=threshold,
+                             az_deg=[r.az_deg for r in rows], el_deg=[r.el_deg for r in rows],
+                             sha256=[sha256_file(r.image) for r in rows], names=names, progress=progress)
+    except InputError as exc:
+        line = next((r.line for r in rows if str(exc).startswith(f"{r.image}:")), None)
+        raise InputError(f"{Path(manifest)}:{line}: {exc}" if line else str(exc)) from None
+
+
+def save_library(lib: Library, path: str | Path) -> None:
+    """Write the library YAML atomically."""
+    text = yaml.safe_dump(library_to_dict(lib), sort_keys=False)
+    write_atomic(path, lambda t: t.write_text(text, encoding="utf-8"))
+
+
+def load_library(path: str | Path) -> Library:
+    """Read and validate a library YAML; errors name the file and key."""
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(f"{p}: library not found")
+    return library_from_dict(load_yaml(p, "library"), str(p))
+
+
+def add_reference(library_path: str | Path, label: str, hdr, hu, *, source: str, threshold: float) -> dict:
+    """Store a captured HDR frame as a new reference case ``label`` of the library at
+    ``library_path`` (created when missing): the frame goes to ``references/`` beside it, the
+    entry into the library, a row into its manifest (``<stem>-manifest.csv``). Returns what
+    was written."""
+    from controller.io.images import write_float_image
+    from controller.recognition.library import Entry, hu_features
+
+    if not label or any(c in label for c in ",\n"):
+        raise InputError(f"reference label must be a non-empty word without commas, got {label!r}")
+    lib_path = Path(library_path)
+    lib = load_library(lib_path) if lib_path.is_file() else Library(features="log-hu", threshold=threshold,
+                                                                      entries=[])
+    n = sum(1 for e in lib.entries if e.label == label)
+    img = lib_path.parent / "references" / f"{source}-{label}-{n:02d}.npy"
+    write_float_image(img, hdr)
+    entry = Entry(label=label, features=hu_features(hu, lib.features), sha256=sha256_file(img),
+                  image=str(img))
+    lib.entries.append(entry)
+    save_library(lib, lib_path)
+    manifest = lib_path.with_name(lib_path.stem + "-manifest.csv")
+    rows = []
+    if manifest.is_file():
+        with open(manifest, newline="", encoding="utf-8") as f:
+            rows = list(csv.reader(f))[1:]
+    rows.append([str(img.relative_to(manifest.parent)), label, "", ""])
+    write_manifest(manifest, rows)
+    return {"label": label, "image": str(img), "sha256": entry.sha256, "library": str(lib_path),
+            "entries": len(lib.entries), "manifest": str(manifest)}

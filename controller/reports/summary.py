@@ -1,0 +1,64 @@
+"""Campaign summary statistics, from the record store."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from controller.storage.db import CampaignStore
+
+
+@dataclass(frozen=True)
+class ReferenceTruth:
+    """What an independent reference knows of one heliostat's run, for scoring the controller:
+    a simulated plant's hidden truth, or a survey. Errors are reflected-beam errors, mrad."""
+
+    label: str | None
+    error_before_mrad: float | None
+    error_after_mrad: float | None
+
+
+def _stats(values: list[float | None]) -> dict:
+    v = [float(x) for x in values if x is not None]
+    return {"mean": float(np.mean(v)) if v else None, "max": float(np.max(v)) if v else None}
+
+
+def summarize(store: CampaignStore, campaign_id: int, *,
+              truth: Mapping[str, ReferenceTruth] | None = None) -> dict:
+    """The campaign summary over every recorded run (all sessions), from the database.
+
+    Errors are the measured reflected-beam pointing errors, or with ``truth`` (heliostat id ->
+    :class:`ReferenceTruth`) the reference's. ``heliostats_per_hour``: *calibrated* heliostats
+    per plant hour, from the first run's start to the last run's end (plant clock);
+    ``pipelined_speedup``: the sum of every run's own slew-to-standby and target time (what
+    one-after-another would take) over that span. ``failed`` counts every run not calibrated
+    (faults and runs out of iterations).
+    """
+    runs = store.runs(campaign_id)
+    if truth is None:
+        before = [r.error_before_mrad for r in runs]
+        after = [r.error_after_mrad for r in runs]
+    else:
+        known = [truth[r.heliostat_id] for r in runs if r.heliostat_id in truth]
+        before = [t.error_before_mrad for t in known]
+        after = [t.error_after_mrad for t in known]
+    camp = store.campaign(campaign_id)
+    calibrated = [r for r in runs if r.status == "calibrated"]
+    occ = [r.target_occupancy_s for r in runs if r.target_occupancy_s is not None]
+    span = (max(r.end_s for r in runs) - min(r.start_s for r in runs)) if runs else 0.0
+    seq = sum(r.sequential_share_s for r in runs)
+    return {
+        "status": camp.status,
+        "cause": camp.cause,
+        "heliostats": len(camp.queue),
+        "calibrated": len(calibrated),
+        "failed": len(runs) - len(calibrated),
+        "error_before_mrad": _stats(before),
+        "error_after_mrad": _stats(after),
+        "iterations_mean": float(np.mean([r.iterations for r in runs])) if runs else None,
+        "target_occupancy_s_mean": float(np.mean(occ)) if occ else None,
+        "heliostats_per_hour": 3600.0 * len(calibrated) / span if span > 0 else None,
+        "pipelined_speedup": seq / span if span > 0 else None,
+    }

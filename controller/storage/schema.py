@@ -1,0 +1,119 @@
+"""The SQLite schema of the record store, as the ordered migrations that build it.
+
+A database at ``PRAGMA user_version`` v has had the first v migrations applied; opening it
+applies the rest (:class:`controller.storage.db.CampaignStore`). A migration is never edited
+once released: a change is a new one at the end.
+"""
+
+MIGRATIONS: tuple[str, ...] = (
+    # v1: the record tables.
+    """
+    CREATE TABLE campaigns (
+        id INTEGER PRIMARY KEY,
+        name TEXT NOT NULL UNIQUE,
+        config_path TEXT NOT NULL,
+        config_sha256 TEXT NOT NULL,
+        light_source TEXT NOT NULL,
+        target TEXT NOT NULL,
+        simulated INTEGER NOT NULL DEFAULT 0,
+        queue_json TEXT NOT NULL,
+        started_utc TEXT NOT NULL,
+        finished_utc TEXT,
+        status TEXT NOT NULL DEFAULT 'running',
+        meta_json TEXT NOT NULL DEFAULT '{}'
+    );
+    CREATE TABLE heliostat_runs (
+        id INTEGER PRIMARY KEY,
+        campaign_id INTEGER NOT NULL REFERENCES campaigns(id),
+        heliostat_id TEXT NOT NULL,
+        queue_index INTEGER NOT NULL,
+        status TEXT NOT NULL,
+        final_state TEXT NOT NULL,
+        iterations INTEGER NOT NULL,
+        error_before_mrad REAL,
+        error_after_mrad REAL,
+        true_error_before_mrad REAL,
+        true_error_after_mrad REAL,
+        matched_label TEXT,
+        truth_label TEXT,
+        fault_cause TEXT,
+        fault_state TEXT,
+        start_s REAL NOT NULL,
+        at_standby_s REAL,
+        on_target_s REAL,
+        off_target_s REAL,
+        end_s REAL NOT NULL,
+        finished_utc TEXT NOT NULL,
+        UNIQUE (campaign_id, heliostat_id)
+    );
+    CREATE TABLE measurements (
+        id INTEGER PRIMARY KEY,
+        run_id INTEGER NOT NULL REFERENCES heliostat_runs(id),
+        iteration INTEGER NOT NULL,
+        az_steps INTEGER NOT NULL,
+        el_steps INTEGER NOT NULL,
+        source_e REAL NOT NULL, source_n REAL NOT NULL, source_u REAL NOT NULL,
+        source_az_deg REAL NOT NULL,
+        source_el_deg REAL NOT NULL,
+        centroid_e REAL, centroid_n REAL, centroid_u REAL,
+        centroid_x_px REAL, centroid_y_px REAL,
+        aim_e REAL NOT NULL, aim_n REAL NOT NULL, aim_u REAL NOT NULL,
+        error_mrad REAL,
+        true_error_mrad REAL,
+        matched_label TEXT,
+        match_distance REAL,
+        runner_up_label TEXT,
+        runner_up_distance REAL,
+        plant_time_s REAL NOT NULL,
+        measured_utc TEXT NOT NULL,
+        UNIQUE (run_id, iteration)
+    );
+    CREATE TABLE corrections (
+        id INTEGER PRIMARY KEY,
+        run_id INTEGER NOT NULL REFERENCES heliostat_runs(id),
+        iteration INTEGER NOT NULL,
+        kind TEXT NOT NULL CHECK (kind IN ('coarse', 'fine')),
+        daz_deg REAL NOT NULL,
+        del_deg REAL NOT NULL,
+        daz_steps INTEGER NOT NULL,
+        del_steps INTEGER NOT NULL
+    );
+    CREATE TABLE model_params (
+        id INTEGER PRIMARY KEY,
+        heliostat_id TEXT NOT NULL,
+        campaign_id INTEGER NOT NULL REFERENCES campaigns(id),
+        run_id INTEGER NOT NULL REFERENCES heliostat_runs(id),
+        params_json TEXT NOT NULL,
+        sigma_json TEXT NOT NULL,
+        residual_mrad REAL,
+        n_measurements INTEGER NOT NULL,
+        created_utc TEXT NOT NULL
+    );
+    CREATE TABLE images (
+        id INTEGER PRIMARY KEY,
+        measurement_id INTEGER NOT NULL REFERENCES measurements(id),
+        kind TEXT NOT NULL,
+        path TEXT NOT NULL,
+        sha256 TEXT NOT NULL,
+        exposure_low_s REAL NOT NULL,
+        exposure_high_s REAL NOT NULL
+    );
+    CREATE INDEX measurements_run ON measurements(run_id);
+    CREATE INDEX model_params_heliostat ON model_params(heliostat_id, id);
+    """,
+    # v2: the record store holds what the controller measured, nothing a simulator knows. The
+    # simulated plant keeps its truth in its own table (simplant.harness, ``sim_truth``).
+    """
+    ALTER TABLE campaigns DROP COLUMN simulated;
+    ALTER TABLE heliostat_runs DROP COLUMN true_error_before_mrad;
+    ALTER TABLE heliostat_runs DROP COLUMN true_error_after_mrad;
+    ALTER TABLE heliostat_runs DROP COLUMN truth_label;
+    ALTER TABLE measurements DROP COLUMN true_error_mrad;
+    """,
+    # v3: why a campaign ended as it did (status finished / partial / aborted / interrupted).
+    """
+    ALTER TABLE campaigns ADD COLUMN cause TEXT;
+    """,
+)
+
+SCHEMA_VERSION = len(MIGRATIONS)

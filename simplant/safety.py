@@ -1,0 +1,79 @@
+"""Beam safety as the plant's truth sees it: whose reflected central ray is on the target."""
+
+from __future__ import annotations
+
+import threading
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from controller.geometry.vectors import unit
+from simplant.grids import camera_grid
+
+if TYPE_CHECKING:  # the plant owns its monitor: a runtime import would be circular
+    from simplant.plant import SimulatedPlant
+
+
+class BeamSafetyMonitor:
+    """Watches the plant's truth: whose reflected central ray is on the target right now.
+
+    Samples every ``period_s`` of wall time; ``violations`` counts samples with more than
+    one beam on the target (the controller must never cause one), ``report()`` summarises."""
+
+    def __init__(self, plant: SimulatedPlant, period_s: float = 0.02) -> None:
+        self.plant = plant
+        self.period_s = period_s
+        self.samples = 0
+        self.violations = 0
+        self.max_on_target = 0
+        self.offenders: set[tuple[str, ...]] = set()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def on_target(self) -> list[str]:
+        p = self.plant
+        tgt = p.cfg.target()
+        c, nrm = np.asarray(tgt.center_enu_m, float), unit(np.asarray(tgt.normal, float))
+        base = camera_grid(p.cfg)
+        lamp = np.asarray(p.cfg.light_source().position_enu_m, float)
+        out = []
+        for hid, hh in p.hidden.items():
+            n = p.true_normal(hid)
+            pos = hh.kin.position
+            s = unit(lamp - pos)
+            beam = 2.0 * (s @ n) * n - s
+            den = float(nrm @ beam)
+            if abs(den) < 1e-9:
+                continue
+            t = float(nrm @ (c - pos)) / den
+            if t <= 0:
+                continue
+            rel = pos + t * beam - c
+            if abs(rel @ base.u_axis) <= tgt.width_m / 2 and abs(rel @ base.v_axis) <= tgt.height_m / 2:
+                out.append(hid)
+        return out
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.period_s):
+            on = self.on_target()
+            self.samples += 1
+            self.max_on_target = max(self.max_on_target, len(on))
+            if len(on) > 1:
+                self.violations += 1
+                self.offenders.add(tuple(sorted(on)))
+
+    def start(self) -> None:
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name="beam-safety", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+            self._thread = None
+
+    def report(self) -> dict:
+        return {"samples": self.samples, "violations": self.violations,
+                "max_beams_on_target": self.max_on_target,
+                "offenders": sorted(" + ".join(o) for o in self.offenders)}

@@ -1,0 +1,107 @@
+"""How a campaign ends: status and cause in the database, exit codes, throughput over
+calibrated heliostats only, a report without runs, and the campaign list."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from controller.calibration.records import RunRecord
+from controller.calibration.runner import CampaignResult, _outcome
+from controller.reports.campaign import write_report
+from controller.reports.summary import summarize
+from controller.storage.db import CampaignStore
+
+REPO = Path(__file__).resolve().parents[2]
+OPEN = {"config_path": "c.yaml", "config_sha256": "ab", "light_source": "lamp", "target": "t"}
+
+
+def _run(hid: str, status: str, start: float, end: float, cause: str | None = None) -> RunRecord:
+    return RunRecord(hid, 0, status, "done", 2, start, end, fault_cause=cause)
+
+
+@pytest.mark.parametrize("statuses, blocked, expected, code", [
+    (["calibrated", "calibrated"], False, "finished", 0),
+    (["calibrated", "failed"], False, "partial", 3),
+    (["calibrated", "not_converged"], False, "partial", 3),
+    (["calibrated"], False, "partial", 3),  # one of two never recorded
+    (["calibrated", "calibrated"], True, "aborted", 1),
+])
+def test_outcome_and_exit_code(statuses, blocked, expected, code):
+    runs = [_run(f"H{i}", s, 0.0, 1.0, "ActuatorFault: stall_az" if s == "failed" else None)
+            for i, s in enumerate(statuses)]
+    status, cause = _outcome(runs, ["H0", "H1"], blocked)
+    assert status == expected and (cause is None) == (expected == "finished")
+    if "failed" in statuses:
+        assert "H1: ActuatorFault: stall_az" in cause
+    assert CampaignResult(1, "n", False, runs, 1.0, 1.0, status, cause).exit_code == code
+
+
+def test_throughput_counts_calibrated_heliostats_only(tmp_path):
+    with CampaignStore(tmp_path / "c.db") as store:
+        cid, _ = store.open_campaign("n", queue=["H1", "H2", "H3"], **OPEN)
+        store.record_run(cid, _run("H1", "calibrated", 0.0, 600.0))
+        store.record_run(cid, _run("H2", "failed", 600.0, 1200.0, "LinkError: gone"))
+        store.record_run(cid, _run("H3", "failed", 1200.0, 1800.0, "LinkError: gone"))
+        store.finish_campaign(cid, "partial", "2 of 3 heliostats not calibrated")
+        s = summarize(store, cid)
+    assert s["heliostats_per_hour"] == pytest.approx(2.0)  # 1 calibrated in 1800 s, not 3
+    assert (s["status"], s["calibrated"], s["failed"]) == ("partial", 1, 2)
+
+
+def test_report_without_runs_says_so_instead_of_empty_plots(tmp_path):
+    with CampaignStore(tmp_path / "c.db") as store:
+        cid, _ = store.open_campaign("n", queue=["H1"], **OPEN)
+        store.finish_campaign(cid, "aborted", "SerialException: cannot open /dev/ttyUSB9")
+        md = write_report(store, tmp_path / "rep", cid).read_text()
+    assert "status **aborted**: SerialException: cannot open /dev/ttyUSB9" in md
+    assert "nothing to plot" in md and not list((tmp_path / "rep").glob("*.png"))
+
+
+def test_finish_refuses_an_unknown_status(tmp_path):
+    with CampaignStore(tmp_path / "c.db") as store:
+        cid, _ = store.open_campaign("n", queue=["H1"], **OPEN)
+        with pytest.raises(ValueError, match="halted"):
+            store.finish_campaign(cid, "halted")
+
+
+def test_campaign_list_and_lookup_by_name(tmp_path):
+    db = tmp_path / "c.db"
+    with CampaignStore(db) as store:
+        a, _ = store.open_campaign("night-1", queue=["H1"], **OPEN)
+        store.record_run(a, _run("H1", "calibrated", 0.0, 1.0))
+        store.finish_campaign(a, "finished")
+    with CampaignStore(db) as store:
+        b, _ = store.open_campaign("night-2", queue=["H1", "H2"], **OPEN)
+        store.finish_campaign(b, "interrupted", "interrupted by the operator")
+        assert store.find_campaign("night-1").id == a and store.find_campaign(str(b)).name == "night-2"
+        assert store.find_campaign(None).id == b
+    r = subprocess.run([sys.executable, "-m", "controller.cli", "campaign", "list", "--db", str(db),
+                        "--json"], cwd=REPO, capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    rows = json.loads(r.stdout)["campaigns"]
+    assert [(c["name"], c["status"], c["calibrated"], c["heliostats"]) for c in rows] == [
+        ("night-1", "finished", 1, 1), ("night-2", "interrupted", 0, 2)]
+    r = subprocess.run([sys.executable, "-m", "controller.cli", "report", "campaign", "--db", str(db),
+                        "--out", str(tmp_path / "rep"), "--campaign", "night-9", "--json"],
+                       cwd=REPO, capture_output=True, text=True)
+    assert r.returncode == 2 and "night-9" in json.loads(r.stdout)["error"]
+    assert not (tmp_path / "rep").exists()
+
+
+@pytest.mark.parametrize("args, fragment", [
+    (["--heliostats", ","], "--heliostats: no heliostat id"),
+    (["--heliostats", "H01,H01"], "given twice"),
+    (["--simulate", "--camera-manifest", "m.yaml"], "--camera-manifest cannot be given"),
+    (["--simulate", "--report", "no/such/dir/rep"], "--report no/such/dir/rep: parent folder"),
+])
+def test_campaign_run_bad_options_exit_2_before_work(tmp_path, args, fragment):
+    r = subprocess.run([sys.executable, "-m", "controller.cli", "campaign", "run", "--config",
+                        str(REPO / "configs" / "demo.yaml"), "--db", str(tmp_path / "c.db"), *args, "--json"],
+                       cwd=tmp_path, capture_output=True, text=True)
+    assert r.returncode == 2 and fragment in json.loads(r.stdout)["error"], r.stdout + r.stderr
+    assert not (tmp_path / "c.db").exists()
