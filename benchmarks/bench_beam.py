@@ -27,10 +27,10 @@ import time
 import cv2
 import numpy as np
 
-from controller.recognition.library import hu_features
-from controller.recognition.matching import Matcher
 from controller.imaging.beam import analyze
 from controller.imaging.moments import hu_moments
+from controller.recognition.library import hu_features
+from controller.recognition.matching import Matcher
 
 
 def _median_ms(fn, repeat: int) -> float:

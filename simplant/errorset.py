@@ -42,13 +42,13 @@ from pathlib import Path
 
 import numpy as np
 
-from controller.recognition.library_io import write_manifest
 from controller.config import PlantConfig
 from controller.geometry.error_model import TrackingErrorParams, actual_normal_from_angles
 from controller.geometry.kinematics import HeliostatKinematics, angles_from_normal
 from controller.geometry.vectors import unit, vector_to_azel
 from controller.imaging.hdr import HdrMerger
 from controller.io.images import write_float_image
+from controller.recognition.library_io import write_manifest
 from simplant.optics import MirrorSurface, TargetGrid, render_spot
 from simplant.sensor import SensorModel
 

@@ -36,9 +36,7 @@ def write_reference_set(cfg_data: dict, out_dir: str | Path, heliostat_ids: list
     cfg = plant.cfg
     plant.camera = camera = PlantCamera(plant, cfg, seed=seed)
     cam = cfg.camera
-    merger = HdrMerger(camera.exposures, camera.true_crf(), "raised-cosine", cam.dark_offset_counts,
-                       bit_depth=cam.bit_depth, read_noise=cam.read_noise_counts,
-                       full_well=cam.full_well_electrons)
+    merger = HdrMerger.from_camera_config(cam, camera.true_crf(), exposures=camera.exposures)
     src = cfg.light_source()
     rows = []
     for hid in heliostat_ids:

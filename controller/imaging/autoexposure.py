@@ -2,7 +2,8 @@
 ratio) until the longer exposure has useful signal and the shorter one is not saturated in the
 beam core.
 
-Rule for one frame pair (pure, no I/O: :func:`next_exposures`):
+Rule for one frame pair (pure, no I/O: :func:`next_exposures`; the capture loop around it is
+:func:`controller.calibration.exposure.auto_expose`):
 
 * LOW has more than ``max_saturated`` pixels at ``z_max`` (its beam core clips): divide both
   exposures by ``step``;
@@ -21,8 +22,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from controller.devices.camera import DoubleCcdCamera
-
 
 @dataclass(frozen=True)
 class ExposureStep:
@@ -33,13 +32,6 @@ class ExposureStep:
     low_saturated_px: int
     high_peak: float
     low_peak: float
-
-
-@dataclass(frozen=True)
-class AutoExposureResult:
-    exposures: tuple[float, float]
-    converged: bool
-    steps: tuple[ExposureStep, ...]
 
 
 def next_exposures(low: np.ndarray, high: np.ndarray, exposures: tuple[float, float], *,
@@ -59,20 +51,3 @@ def next_exposures(low: np.ndarray, high: np.ndarray, exposures: tuple[float, fl
             and t2 * step <= limits_s[1]):
         return ExposureStep((t1 * step, t2 * step), "longer", sat, high_peak, low_peak)
     return ExposureStep((t1, t2), "ok", sat, high_peak, low_peak)
-
-
-def auto_expose(camera: DoubleCcdCamera, *, max_steps: int = 12, bit_depth: int = 8,
-                dark_offset: float = 8.0, useful_fraction: float = 0.5, max_saturated: int = 0,
-                step: float = 2.0, limits_s: tuple[float, float] = (1e-5, 1.0)) -> AutoExposureResult:
-    """Capture, decide, set, repeat until a pair needs no change (or ``max_steps`` pairs)."""
-    steps = []
-    for _ in range(max_steps):
-        pair = camera.capture()
-        decision = next_exposures(pair.low, pair.high, camera.exposures, bit_depth=bit_depth,
-                                  dark_offset=dark_offset, useful_fraction=useful_fraction,
-                                  max_saturated=max_saturated, step=step, limits_s=limits_s)
-        steps.append(decision)
-        if decision.action == "ok":
-            return AutoExposureResult(camera.exposures, True, tuple(steps))
-        camera.set_exposures(*decision.exposures)
-    return AutoExposureResult(camera.exposures, False, tuple(steps))

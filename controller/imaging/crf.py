@@ -1,4 +1,6 @@
-"""Camera response functions (CRF) of the two sensors: file format, linear default, fitting.
+"""Camera response functions (CRF) of the two sensors: document format, linear default, fitting.
+
+Pure; the files are read and written by :mod:`controller.imaging.crf_io`.
 
 The CRF file (YAML) lists the sensors in image order, first = shorter exposure (LOW)::
 
@@ -28,16 +30,13 @@ References
 
 from __future__ import annotations
 
-import csv
 from dataclasses import dataclass
 from math import comb
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from controller.errors import InputError
-from controller.io.images import write_atomic
 
 
 @dataclass(frozen=True, eq=False)
@@ -110,14 +109,18 @@ class Crf:
 
     @classmethod
     def load(cls, path: str | Path) -> Crf:
-        """Read a CRF YAML file; InputError names the file and key on any problem."""
-        p = Path(path)
-        try:
-            data = yaml.safe_load(p.read_text(encoding="utf-8"))
-        except OSError as exc:
-            raise InputError(f"{p}: cannot read CRF file: {exc.strerror or exc}") from None
-        except yaml.YAMLError as exc:
-            raise InputError(f"{p}: invalid YAML: {getattr(exc, 'problem', None) or exc}") from None
+        """Read a CRF YAML file; InputError names the file and key on any problem.
+
+        A public entry point older than the split of file handling out of the domain: it
+        delegates to :func:`controller.imaging.crf_io.load_crf` (imported here, lazily)."""
+        from controller.imaging.crf_io import load_crf
+
+        return load_crf(path)
+
+    @classmethod
+    def from_mapping(cls, data: object, source: str) -> Crf:
+        """Validate a parsed CRF document (module docstring); errors name ``source`` and the key."""
+        p = source
         if not isinstance(data, dict) or not isinstance(data.get("sensors"), list):
             raise InputError(f"{p}: sensors: required key is missing (a list of 2 sensors)")
         sensors = []
@@ -146,18 +149,23 @@ class Crf:
         crf.validate(str(p))
         return crf
 
-    def save(self, path: str | Path) -> None:
-        """Write the CRF YAML atomically."""
-        doc = {"sensors": []}
-        for s in self.sensors:
-            item = {"name": s.name, "bit_depth": s.bit_depth,
-                    "inverse_response": [round(float(v), 9) for v in s.inverse_response]}
-            if s.uncertainty_pct is not None:
-                item["uncertainty_pct"] = round(float(s.uncertainty_pct), 3)
+    def to_mapping(self) -> dict:
+        """The CRF document (module docstring) as plain data."""
+        doc: dict = {"sensors": []}
+        for sensor in self.sensors:
+            item = {"name": sensor.name, "bit_depth": sensor.bit_depth,
+                    "inverse_response": [round(float(v), 9) for v in sensor.inverse_response]}
+            if sensor.uncertainty_pct is not None:
+                item["uncertainty_pct"] = round(float(sensor.uncertainty_pct), 3)
             doc["sensors"].append(item)
-        text = "# sensors in image order: first = shorter exposure (LOW), second = HIGH\n"
-        text += yaml.safe_dump(doc, sort_keys=False, default_flow_style=None, width=100)
-        write_atomic(path, lambda t: t.write_text(text, encoding="utf-8"))
+        return doc
+
+    def save(self, path: str | Path) -> None:
+        """Write the CRF YAML atomically (delegates to :func:`controller.imaging.crf_io.save_crf`,
+        like :meth:`load`)."""
+        from controller.imaging.crf_io import save_crf
+
+        save_crf(self, path)
 
 
 def _bernstein(x: np.ndarray, degree: int) -> np.ndarray:
@@ -222,48 +230,16 @@ def fit_sensor(name: str, exposure_value: np.ndarray, pixel_mean: np.ndarray, bi
     return SensorFit(CrfSensor(name, bit_depth, table, unc), unc, int(x.size), int(sat.sum()), dark)
 
 
-def read_sphere_csv(path: str | Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """Read ``sensor,exposure_value,pixel_mean`` rows; returns {sensor: (X, z)} in file order."""
-    p = Path(path)
-    try:
-        with p.open(newline="", encoding="utf-8") as fh:
-            reader = csv.DictReader(fh)
-            need = {"sensor", "exposure_value", "pixel_mean"}
-            if reader.fieldnames is None or not need <= {f.strip() for f in reader.fieldnames}:
-                raise InputError(f"{p}: header must contain the columns sensor,exposure_value,pixel_mean "
-                                 f"(got {','.join(reader.fieldnames or [])})")
-            data: dict[str, tuple[list, list]] = {}
-            for line, row in enumerate(reader, start=2):
-                row = {k.strip(): (v or "").strip() for k, v in row.items() if k}
-                try:
-                    xv = float(row["exposure_value"])
-                    zv = float(row["pixel_mean"])
-                except ValueError:
-                    raise InputError(f"{p}: line {line}: exposure_value and pixel_mean must be "
-                                     "numbers") from None
-                if not (np.isfinite(xv) and np.isfinite(zv)) or xv < 0 or zv < 0:
-                    raise InputError(f"{p}: line {line}: values must be finite and >= 0")
-                xs, zs = data.setdefault(row["sensor"], ([], []))
-                xs.append(xv)
-                zs.append(zv)
-    except OSError as exc:
-        raise InputError(f"{p}: cannot read CSV: {exc.strerror or exc}") from None
-    except UnicodeDecodeError:
-        raise InputError(f"{p}: not a UTF-8 text CSV file") from None
-    if len(data) != 2:
-        raise InputError(f"{p}: column sensor must name exactly 2 sensors, got {len(data)}")
-    return {k: (np.array(v[0]), np.array(v[1])) for k, v in data.items()}
-
-
-def fit_crf(path: str | Path, bit_depth: int = 8) -> tuple[Crf, list[SensorFit]]:
-    """Fit both sensors from an integrating-sphere CSV. Sensor order: as first seen in the file
-    (the first must be the LOW sensor)."""
+def fit_crf(samples: dict[str, tuple[np.ndarray, np.ndarray]], bit_depth: int = 8,
+            source: str = "<data>") -> tuple[Crf, list[SensorFit]]:
+    """Fit both sensors from integrating-sphere samples ``{sensor: (exposure_value, pixel_mean)}``
+    (arrays, in sensor order: the first must be the LOW sensor)."""
     fits = []
-    for name, (x, z) in read_sphere_csv(path).items():
+    for name, (x, z) in samples.items():
         try:
             fits.append(fit_sensor(name, x, z, bit_depth))
         except InputError as exc:
-            raise InputError(f"{path}: {exc}") from None
-    crf = Crf(tuple(f.sensor for f in fits))
-    crf.validate(str(path))
+            raise InputError(f"{source}: {exc}") from None
+    crf = Crf(tuple(fit.sensor for fit in fits))
+    crf.validate(source)
     return crf, fits

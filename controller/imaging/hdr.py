@@ -146,12 +146,14 @@ class HdrMerger:
             self._codes = code.ravel()
 
     @classmethod
-    def from_camera_config(cls, camera_cfg, crf: Crf | None = None,
-                           weighting: str = "raised-cosine") -> HdrMerger:
-        """From a :class:`controller.config.Camera`; loads ``crf_file`` when set and no CRF is given."""
-        if crf is None and camera_cfg.crf_file:
-            crf = Crf.load(camera_cfg.crf_file)
-        return cls((camera_cfg.sensors[0].exposure_s, camera_cfg.sensors[1].exposure_s), crf, weighting,
+    def from_camera_config(cls, camera_cfg, crf: Crf | None = None, weighting: str = "raised-cosine",
+                           exposures: tuple[float, float] | None = None) -> HdrMerger:
+        """From a :class:`controller.config.Camera` (dark offset, bit depth, noise, full well) and
+        the camera's response ``crf`` (None: linear; the caller reads ``crf_file``);
+        ``exposures`` (s, LOW first) default to the configured ones."""
+        if exposures is None:
+            exposures = (camera_cfg.sensors[0].exposure_s, camera_cfg.sensors[1].exposure_s)
+        return cls(tuple(exposures), crf, weighting,
                    camera_cfg.dark_offset_counts, bit_depth=camera_cfg.bit_depth,
                    read_noise=camera_cfg.read_noise_counts, full_well=camera_cfg.full_well_electrons)
 

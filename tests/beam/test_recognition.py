@@ -11,11 +11,11 @@ import pytest
 import yaml
 from beamkit import cli, gaussian
 
+from controller.errors import InputError
 from controller.recognition.confusion import confusion
 from controller.recognition.library import hu_features
 from controller.recognition.library_io import load_library, read_manifest
 from controller.recognition.matching import Matcher
-from controller.errors import InputError
 
 
 def test_matcher_nearest_runner_up_and_unknown():

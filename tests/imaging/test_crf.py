@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from controller.errors import InputError
-from controller.imaging.crf import Crf, fit_crf
+from controller.imaging.crf import Crf
+from controller.imaging.crf_io import fit_crf_file as fit_crf
 from simplant.sensor import SensorModel, knee_response
 
 

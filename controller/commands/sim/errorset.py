@@ -10,11 +10,16 @@ from __future__ import annotations
 
 import argparse
 
-from controller.commands._common import add_config_option, add_json_option, existing_file, print_json
+from controller.commands._common import (
+    add_config_option,
+    add_json_option,
+    existing_file,
+    output_dir,
+    print_json,
+)
 from controller.commands.library import progress
 from controller.config import load_config
 from controller.errors import InputError
-from simplant.errorset import CASES, scene_from_config, write_errorset
 
 
 def register(subparsers) -> None:
@@ -23,7 +28,7 @@ def register(subparsers) -> None:
     p.add_argument("--out", required=True, metavar="DIR", help="output directory")
     p.add_argument("--seed", type=int, default=0, metavar="S", help="seed of the perturbations (default 0)")
     p.add_argument("--cases", type=int, default=6, metavar="N",
-                   help=f"number of error cases, 1..{len(CASES)} (default 6)")
+                   help="number of error cases of the error set, from 1 (default 6)")
     p.add_argument("--views", type=int, default=14, metavar="N", help="test views per case (default 14)")
     p.add_argument("--heliostat", default="H09", metavar="ID", help="heliostat of the config (default H09)")
     add_config_option(p)
@@ -32,10 +37,13 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from simplant.errorset import CASES, scene_from_config, write_errorset
+
     if not 1 <= args.cases <= len(CASES):
         raise InputError(f"--cases must be in 1..{len(CASES)}, got {args.cases}")
     if args.views < 1:
         raise InputError(f"--views must be at least 1, got {args.views}")
+    output_dir(args.out)
     cfg = load_config(existing_file(args.config, "config"))
     scene = scene_from_config(cfg, args.heliostat)
     with progress("rendering error set", not args.json) as update:

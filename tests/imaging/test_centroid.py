@@ -1,0 +1,49 @@
+"""Energy centroid: hand-computed cases, clipping, and the beam check on a noise-only frame."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from controller.imaging.centroid import energy_centroid
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def test_two_lobes_by_hand():
+    s = np.zeros((20, 30))
+    s[5, 4] = 3.0  # (x=4, y=5) weight 3
+    s[12, 20] = 1.0  # (x=20, y=12) weight 1, a dim lobe above the 5 % threshold
+    c = energy_centroid(s, 0.05, smooth_sigma_px=0.5)
+    assert c.x == pytest.approx((3 * 4 + 20) / 4) and c.y == pytest.approx((3 * 5 + 12) / 4)
+    assert c.total == pytest.approx(4.0) and c.clipped == ()
+
+
+def test_edges_touched_are_reported():
+    s = np.zeros((10, 10))
+    s[0, 5] = s[5, 9] = 1.0
+    assert set(energy_centroid(s, 0.05, 0.5).clipped) == {"top", "right"}
+
+
+def test_nothing_above_threshold_gives_nan():
+    c = energy_centroid(np.zeros((8, 8)), 0.05)
+    assert np.isnan(c.x) and c.total == 0.0
+
+
+def test_noise_only_frame_is_no_beam_not_a_clipped_one():
+    """The heliostat at stow leaves only noise: the chain says there is no beam, with figures."""
+    from controller.calibration.beam_chain import BeamChain
+    from controller.calibration.observations import BeamNotFound
+    from controller.config import load_config
+
+    chain = BeamChain(load_config(REPO / "configs" / "demo.yaml"))
+    noise = np.random.default_rng(0).normal(20.0, 1.0, (768, 1024))
+    with pytest.raises(BeamNotFound, match=r"no beam spot found \(peak .* background noise σ"):
+        chain.analyze(noise)
+    spot = noise.copy()
+    yy, xx = np.mgrid[0:768, 0:1024]
+    spot += 500.0 * np.exp(-((xx - 400.0) ** 2 + (yy - 300.0) ** 2) / (2 * 15.0**2))
+    obs = chain.analyze(spot)
+    assert obs.centroid_px == pytest.approx((400, 300), abs=0.5)
