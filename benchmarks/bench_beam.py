@@ -29,7 +29,7 @@ import numpy as np
 
 from controller.imaging.beam import analyze
 from controller.imaging.moments import hu_moments
-from controller.recognition.library import hu_features
+from controller.recognition.library import Entry, Library
 from controller.recognition.matching import Matcher
 
 
@@ -61,10 +61,13 @@ def main() -> None:
     img = test_image()
     rng = np.random.default_rng(1)
 
-    lib6 = Matcher(rng.normal(size=(6, 7)), [f"case{i}" for i in range(6)])
+    lib6 = Library("log-hu", 0.5, [Entry(f"case{i}", f) for i, f in enumerate(rng.normal(size=(6, 7)))])
 
-    def pipeline(background="auto"):
-        return lib6.match(hu_features(analyze(img, threshold=0.5, background=background).hu, "log-hu"))
+    def pipeline():
+        return lib6.match_image(img)
+
+    def pipeline_no_background():
+        return lib6.match_hu(analyze(img, threshold=0.5, background="none").hu)
 
     def cv2_chain():
         sub = img - np.float32(np.median(img[::16, ::16]))
@@ -86,7 +89,7 @@ def main() -> None:
         "image": [768, 1024],
         "cores": os.cpu_count(),
         "analyze_hu_match_ms": _median_ms(pipeline, args.repeat),
-        "analyze_none_ms": _median_ms(lambda: pipeline("none"), args.repeat),
+        "analyze_none_ms": _median_ms(pipeline_no_background, args.repeat),
         "cv2_threshold_moments_ms": _median_ms(cv2_chain, args.repeat),
         "hu_full_frame_ms": _median_ms(lambda: hu_moments(img), args.repeat),
         "cv2_hu_full_frame_ms": _median_ms(lambda: cv2.HuMoments(cv2.moments(img)), args.repeat),

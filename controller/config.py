@@ -135,6 +135,16 @@ class SerialLink(_Model):
     address: int = Field(ge=1, le=247)
     baud: int = Field(default=115200, gt=0)
 
+    @property
+    def bus_key(self) -> tuple:
+        """The physical link several heliostats share (opened once): the serial bus."""
+        return ("serial", self.device)
+
+    @property
+    def station(self) -> int:
+        """This heliostat's address on its bus."""
+        return self.address
+
 
 class ModbusTcpLink(_Model):
     kind: Literal["modbus-tcp"]
@@ -142,12 +152,30 @@ class ModbusTcpLink(_Model):
     port: int = Field(ge=1, le=65535)
     unit: int = Field(ge=1, le=247)
 
+    @property
+    def bus_key(self) -> tuple:
+        """The physical link several heliostats share: the gateway's TCP connection."""
+        return ("modbus-tcp", self.host, self.port)
+
+    @property
+    def station(self) -> int:
+        return self.unit
+
 
 class ModbusRtuLink(_Model):
     kind: Literal["modbus-rtu"]
     device: str
     unit: int = Field(ge=1, le=247)
     baud: int = Field(default=115200, gt=0)
+
+    @property
+    def bus_key(self) -> tuple:
+        """The physical link several heliostats share: the RS-485 bus."""
+        return ("modbus-rtu", self.device)
+
+    @property
+    def station(self) -> int:
+        return self.unit
 
 
 Link = Annotated[SerialLink | ModbusTcpLink | ModbusRtuLink, Field(discriminator="kind")]
@@ -230,8 +258,7 @@ class PlantConfig(_Model):
         seen: dict[tuple, str] = {}
         for index, h in enumerate(self.heliostats):
             link = h.link
-            key = (link.kind, getattr(link, "device", None) or f"{link.host}:{link.port}",
-                   getattr(link, "address", None) or link.unit)
+            key = (*link.bus_key, link.station)
             if key in seen:
                 raise ValueError(f"heliostats[{index}].link: heliostats {seen[key]!r} and {h.id!r} "
                                  f"share the link {key}")

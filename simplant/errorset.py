@@ -42,7 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
-from controller.config import PlantConfig
+from controller.config import Camera, PlantConfig
 from controller.geometry.error_model import TrackingErrorParams, actual_normal_from_angles
 from controller.geometry.kinematics import HeliostatKinematics, angles_from_normal
 from controller.geometry.vectors import unit, vector_to_azel
@@ -114,6 +114,7 @@ class Scene:
     v_axis: np.ndarray
     sensor: SensorModel
     exposures: tuple[float, float]
+    camera: Camera  # the configured camera the sensor model and the HDR merge follow
 
 
 def scene_from_config(cfg: PlantConfig, heliostat_id: str = "H09") -> Scene:
@@ -134,7 +135,7 @@ def scene_from_config(cfg: PlantConfig, heliostat_id: str = "H09") -> Scene:
                          read_noise=cam.read_noise_counts, full_well=cam.full_well_electrons)
     return Scene(HeliostatKinematics.from_config(h), MirrorSurface.from_config(h.mirror), source_pos,
                  diameter, np.asarray(target.center_enu_m, dtype=float), grid.normal, grid.u_axis,
-                 grid.v_axis, sensor, (cam.sensors[0].exposure_s, cam.sensors[1].exposure_s))
+                 grid.v_axis, sensor, (cam.sensors[0].exposure_s, cam.sensors[1].exposure_s), cam)
 
 
 @dataclass(frozen=True)
@@ -242,10 +243,7 @@ def write_errorset(out: str | Path, scene: Scene, seed: int = 0, cases: int = 6,
         raise ValueError(f"cases must be in 1..{len(CASES)}")
     out = Path(out)
     chosen = CASES[:cases]
-    t_low, t_high = scene.exposures
-    merger = HdrMerger((t_low, t_high), dark_offset=scene.sensor.dark_offset,
-                       bit_depth=scene.sensor.bit_depth, read_noise=scene.sensor.read_noise,
-                       full_well=scene.sensor.full_well)
+    merger = HdrMerger.from_camera_config(scene.camera, exposures=scene.exposures)
     lib_rows, test_rows = [], []
     total = len(chosen) * (1 + views)
     done = 0

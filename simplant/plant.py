@@ -73,8 +73,7 @@ def field_selection(cfg: PlantConfig, n: int) -> list[str]:
     groups: dict[tuple, list[str]] = {}
     for h in cfg.heliostats:
         link = h.link
-        groups.setdefault((link.kind, getattr(link, "device", None) or f"{link.host}:{link.port}"),
-                          []).append(h.id)
+        groups.setdefault(link.bus_key, []).append(h.id)
     out: list[str] = []
     lists = list(groups.values())
     while len(out) < min(n, len(cfg.heliostats)):
@@ -116,7 +115,7 @@ class SimulatedPlant:
                                                                                             strict=True)})
             mirror = replace(MirrorSurface.from_config(h.mirror), deformation=case.deformation,
                              focal_length_m=h.mirror.focal_length_m / case.focus_factor)
-            ctl = SimController(unit=getattr(h.link, "address", None) or h.link.unit,
+            ctl = SimController(unit=h.link.station,
                                 az=axis_params_from_config(h.axes.azimuth),
                                 el=axis_params_from_config(h.axes.elevation), clock=self.clock)
             kin = HeliostatKinematics.from_config(h)

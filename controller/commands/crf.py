@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from controller.commands._common import add_json_option, existing_file, print_json
 from controller.errors import InputError
-from controller.imaging.crf_io import fit_crf_file
+from controller.imaging.crf_io import fit_crf_file, save_crf
 
 
 def register(subparsers) -> None:
@@ -36,7 +36,7 @@ def run_fit(args) -> int:
     if not 1 <= args.bit_depth <= 16:
         raise InputError(f"--bit-depth must be in 1..16, got {args.bit_depth}")
     crf, fits = fit_crf_file(existing_file(args.data, "CRF data CSV"), args.bit_depth)
-    crf.save(args.out)
+    save_crf(crf, args.out)
     rows = [{"name": f.sensor.name, "uncertainty_pct": f.uncertainty_pct, "points_used": f.points_used,
              "points_saturated": f.points_saturated, "dark_level": f.dark_level} for f in fits]
     if args.json:

@@ -16,10 +16,12 @@ before anything is sent; out of range exits 2. Failures print ``{"ok": false, "e
 from __future__ import annotations
 
 import argparse
+import math
+import sys
 
 from controller.commands._common import DEFAULT_CONFIG, add_json_option, print_json
 from controller.commands._links import add_link_options, heliostat_for, link_model, load_plant
-from controller.devices.drive import AxisLimits, DriveError, DriveLimits, MoveResult
+from controller.devices.drive import AxisLimits, DriveLimits, MoveResult
 from controller.errors import DeviceError, HeliocalError, InputError
 
 _WIDE = DriveLimits(AxisLimits(-(2**31), 2**31 - 1), AxisLimits(-(2**31), 2**31 - 1))
@@ -55,6 +57,8 @@ def register(subparsers) -> None:
         a.add_argument("--wait", action="store_true", help="wait until in position and verify it")
         a.add_argument("--wait-timeout", type=float, default=120.0, metavar="S",
                        help="give up waiting after S seconds (default 120)")
+        a.add_argument("--leave-in-place", action="store_true",
+                       help="on Ctrl-C/SIGTERM while waiting, do not stop the axes (default: stop them)")
         add_json_option(a)
     p.set_defaults(func=run)
 
@@ -63,8 +67,13 @@ def run(args) -> int:
     from controller.devices.factory import LinkPool
 
     args.json = args.json or args.json_first
-    if args.timeout <= 0 or args.retries < 0:
-        raise InputError("--timeout must be > 0 and --retries >= 0")
+    if not (math.isfinite(args.timeout) and 0 < args.timeout <= 60):
+        raise InputError(f"--timeout must be in (0, 60] s, got {args.timeout}")
+    if not 0 <= args.retries <= 100:
+        raise InputError(f"--retries must be in 0..100, got {args.retries}")
+    wait_s = getattr(args, "wait_timeout", None)
+    if wait_s is not None and not (math.isfinite(wait_s) and 0 < wait_s <= 86400):
+        raise InputError(f"--wait-timeout must be in (0, 86400] s, got {wait_s}")
     link = link_model(args, args.unit, args.baud)
     motion = args.drive_command in ("move", "jog")
     plant = load_plant(args.config, required=False)
@@ -82,8 +91,6 @@ def run(args) -> int:
                                                                                source)
     except HeliocalError:
         raise
-    except ModuleNotFoundError as exc:
-        raise DeviceError(f"this link is not available: {exc}") from None
     except Exception as exc:  # the CLI boundary: any driver failure becomes one clean line
         raise DeviceError(f"{type(exc).__name__}: {exc}") from None
     finally:
@@ -95,13 +102,8 @@ def run(args) -> int:
     return 0
 
 
-def _firmware_limits(drive) -> DriveLimits | None:
-    get = getattr(drive, "get_limits", None)
-    return get() if get is not None else None
-
-
 def _act(args, drive, cfg_limits: DriveLimits | None, source: str | None) -> dict:
-    fw_limits = _firmware_limits(drive)
+    fw_limits = drive.get_limits()
     status = drive.status() if args.drive_command == "jog" else None
     if status is not None:
         target = (status.az_target + args.az_steps, status.el_target + args.el_steps)
@@ -117,17 +119,34 @@ def _act(args, drive, cfg_limits: DriveLimits | None, source: str | None) -> dic
     drive.limits = _intersect(cfg_limits, fw_limits)
     if status is not None:
         drive.jog(args.az_steps, args.el_steps, from_status=status)
-        target = getattr(drive, "last_targets", None) or target
+        target = drive.last_targets or target
     else:
         drive.move_abs(*target)
     az, el = target
     if args.wait:
-        st = drive.wait_in_position(args.wait_timeout)
-        if (st.az_steps, st.el_steps) != target:
-            raise DriveError(f"unit {drive.unit}: ended at ({st.az_steps}, {st.el_steps}), "
-                             f"commanded ({target[0]}, {target[1]})")
+        try:
+            st = drive.wait_in_position(args.wait_timeout, expect=target)
+        except KeyboardInterrupt:
+            _interrupted(args, drive)
+            raise
         az, el = st.az_steps, st.el_steps
     return MoveResult(True, az, el, retries=drive.retries_used).to_json()
+
+
+def _interrupted(args, drive) -> None:
+    """Ctrl-C / SIGTERM while waiting: the axes would go on moving; stop them (unless
+    --leave-in-place) and say where they are."""
+    if args.leave_in_place:
+        print(f"heliocal drive: unit {drive.unit} left moving (--leave-in-place)", file=sys.stderr)
+        return
+    try:
+        drive.stop()
+        st = drive.status()
+        print(f"heliocal drive: interrupted; unit {drive.unit} axes stopped at az {st.az_steps}, "
+              f"el {st.el_steps}", file=sys.stderr)
+    except HeliocalError as exc:
+        print(f"heliocal drive: interrupted; STOP FAILED for unit {drive.unit} ({exc}): the axes may "
+              "still be moving", file=sys.stderr)
 
 
 def _query(args, drive, cfg_limits: DriveLimits | None, source: str | None) -> dict:
@@ -140,7 +159,7 @@ def _query(args, drive, cfg_limits: DriveLimits | None, source: str | None) -> d
                 "protocol_version": info.protocol_version, "axes": info.axes,
                 "hard_limits": _limits_json(info.hard_limits)}
     if cmd == "limits":
-        fw = _firmware_limits(drive)
+        fw = drive.get_limits()
         return {"unit": drive.unit, "config": _limits_json(cfg_limits), "config_source": source,
                 "firmware": _limits_json(fw)}
     {"stop": drive.stop, "home": drive.home, "stow": drive.stow,

@@ -24,6 +24,7 @@ from controller.commands._common import add_json_option, existing_file, print_js
 from controller.errors import InputError
 from controller.flux import phlux
 from controller.flux.sun_disc import SunDiscError, find_sun_disc
+from controller.imaging.hdr import merge_above_offset
 from controller.io.images import read_image, save_figure, write_float_image
 
 HDR_DARK_OFFSET = 8.0
@@ -143,22 +144,9 @@ def _same_shape(images: dict[str, np.ndarray]) -> None:
 
 def _merge_pair(paths: list[str], exposures: tuple[float, float]) -> np.ndarray:
     """Merged pair in counts per second above the dark offset, shape (rows, cols)."""
-    try:
-        from controller.imaging.hdr import HdrMerger, merge_pair
-    except ImportError as exc:
-        raise InputError(f"double-CCD pairs need controller.imaging.hdr ({exc})") from None
     low, high = (read_image(existing_file(p, "image")) for p in paths)
     _same_shape({paths[0]: low, paths[1]: high})
-    merger = HdrMerger(exposures=tuple(exposures), crf=None, weighting="raised-cosine",
-                       dark_offset=HDR_DARK_OFFSET)
-    merged = np.asarray(merger.merge(low, high), dtype=np.float64)
-    # With crf=None the merge uses I(z) = z, dark offset included. Eq. (1) and its rules for
-    # uncovered pixels are linear in I, so the offset's share per pixel is the same merge of
-    # I(z) = 1 (Σ w t / Σ w t², or 1/t where a single exposure is used), times the offset.
-    ones = np.ones_like(merger.inverse[0])
-    share, _ = merge_pair(low.astype(np.intp), high.astype(np.intp), merger.exposures, ones, ones,
-                          *merger.weights, merger.dark_offset)
-    return merged - HDR_DARK_OFFSET * share
+    return merge_above_offset(low, high, tuple(exposures), HDR_DARK_OFFSET)
 
 
 def _target_values(args: argparse.Namespace) -> tuple[np.ndarray, dict[str, np.ndarray], int]:

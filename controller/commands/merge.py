@@ -15,8 +15,8 @@ from pathlib import Path
 
 from controller.commands._common import add_json_option, existing_file, print_json
 from controller.errors import InputError
-from controller.imaging.crf import Crf
-from controller.imaging.hdr import HdrMerger
+from controller.imaging.crf_io import load_crf
+from controller.imaging.hdr import HdrMerger, pair_bit_depth
 from controller.imaging.weights import NAMES
 from controller.io.images import read_image, write_float_image
 
@@ -43,13 +43,9 @@ def run(args) -> int:
         raise InputError(f"--out {out}: must end in .npy or .tiff")
     low = read_image(existing_file(args.low, "LOW image"))
     high = read_image(existing_file(args.high, "HIGH image"))
-    crf = Crf.load(existing_file(args.crf, "CRF file")) if args.crf else None
-    bits = crf.bit_depth if crf is not None else (8 if low.dtype.itemsize == 1 and high.dtype.itemsize == 1
-                                                  else 16)
-    if crf is None and bits == 16:
-        # Without a CRF, the bit depth is the smallest that holds the data (e.g. 12-bit in uint16).
-        bits = max(8, int(max(int(low.max()), int(high.max()), 1)).bit_length())
-    merger = HdrMerger(tuple(args.exposures), crf, args.weighting, args.dark_offset, bit_depth=bits)
+    crf = load_crf(existing_file(args.crf, "CRF file")) if args.crf else None
+    merger = HdrMerger(tuple(args.exposures), crf, args.weighting, args.dark_offset,
+                       bit_depth=pair_bit_depth(low, high, crf))
     try:
         result = merger.merge_with_mask(low, high)
     except InputError as exc:

@@ -139,9 +139,23 @@ class Drive(ABC):
     unit: int
     limits: DriveLimits
     retries_used: int = 0  # retransmissions since the last reset, for reporting
+    # Targets of the last move or jog as the firmware took them (a jog's result), else None.
+    last_targets: tuple[int, int] | None = None
 
     @abstractmethod
     def status(self) -> DriveStatus: ...
+
+    @abstractmethod
+    def info(self) -> FirmwareInfo:
+        """Firmware identification: protocol version, axes, hard step ranges, version string."""
+
+    @abstractmethod
+    def get_limits(self) -> DriveLimits:
+        """The soft limits the firmware enforces."""
+
+    @abstractmethod
+    def set_limits(self, limits: DriveLimits) -> None:
+        """Set the firmware's soft limits (it refuses limits that exclude its position/target)."""
 
     @abstractmethod
     def _send_move_abs(self, az_steps: int, el_steps: int) -> None: ...

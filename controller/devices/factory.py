@@ -29,25 +29,22 @@ class LinkPool:
 
     def drive(self, link: Link, limits: DriveLimits) -> Drive:
         """A drive for ``link``; opens the underlying bus/connection on first use."""
+        key = link.bus_key
         if isinstance(link, SerialLink):
             from controller.devices.serial_drive import SerialBus, SerialDrive
 
-            key = ("serial", link.device)
             if key not in self._links:
                 self._links[key] = SerialBus(link.device, link.baud, **self._opts())
             return SerialDrive(self._links[key], link.address, limits)
         from controller.devices.modbus_drive import ModbusDrive, ModbusLink
 
-        if isinstance(link, ModbusTcpLink):
-            key = ("modbus-tcp", link.host, link.port)
-            if key not in self._links:
+        if key not in self._links:
+            if isinstance(link, ModbusTcpLink):
                 self._links[key] = ModbusLink.tcp(link.host, link.port, **self._opts())
-        elif isinstance(link, ModbusRtuLink):
-            key = ("modbus-rtu", link.device)
-            if key not in self._links:
+            elif isinstance(link, ModbusRtuLink):
                 self._links[key] = ModbusLink.rtu(link.device, link.baud, **self._opts())
-        else:  # pragma: no cover - pydantic's discriminated union admits nothing else
-            raise TypeError(f"unknown link {link!r}")
+            else:  # pragma: no cover - pydantic's discriminated union admits nothing else
+                raise TypeError(f"unknown link {link!r}")
         return ModbusDrive(self._links[key], link.unit, limits)
 
     def close(self) -> None:

@@ -83,6 +83,7 @@ def estimate_background(image: np.ndarray, mask: np.ndarray | None = None, itera
         return Background(level=level, noise=sigma)
     return Background(level=float(coef[0]), slope_x=float(coef[1]), slope_y=float(coef[2]), noise=sigma)
 
+
 def working_dtype(image: np.ndarray) -> type:
     """float64 for float64 input, else float32: frame-wide steps stay cheap; moments are summed
     in float64 on the small crop around the spot."""

@@ -63,8 +63,6 @@ def read_sphere_csv(path: str | Path) -> dict[str, tuple[np.ndarray, np.ndarray]
     return {k: (np.array(v[0]), np.array(v[1])) for k, v in data.items()}
 
 
-
-
 def fit_crf_file(path: str | Path, bit_depth: int = 8) -> tuple[Crf, list[SensorFit]]:
     """:func:`controller.imaging.crf.fit_crf` of an integrating-sphere CSV (sensor order as first
     seen in the file; the first must be the LOW sensor)."""

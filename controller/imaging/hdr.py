@@ -89,6 +89,20 @@ class MergeResult:
     dark_both: int
 
 
+def pair_bit_depth(low: np.ndarray, high: np.ndarray, crf: Crf | None = None) -> int:
+    """Sensor bit depth for merging ``low`` and ``high`` (integer pixel arrays).
+
+    The CRF's when there is one; 8 when both arrays are 8-bit; otherwise the smallest depth
+    (at least 8) that holds the largest pixel value, since 10-, 12- and 14-bit sensors are
+    stored in 16-bit containers and the merge's tables must span only the sensor's range.
+    """
+    if crf is not None:
+        return crf.bit_depth
+    if low.dtype.itemsize == 1 and high.dtype.itemsize == 1:
+        return 8
+    return max(8, max(int(low.max()), int(high.max()), 1).bit_length())
+
+
 class HdrMerger:
     """Merge LOW/HIGH pairs by Eq. (1) with a precomputed (z_1, z_2) table.
 
@@ -208,6 +222,27 @@ class HdrMerger:
             code = np.take(self._codes, idx, mode="clip")
         return MergeResult(hdr, code == VALID, int(np.count_nonzero(code == SATURATED_BOTH)),
                            int(np.count_nonzero(code == DARK_BOTH)))
+
+
+def merge_above_offset(low: np.ndarray, high: np.ndarray, exposures: tuple[float, float],
+                       dark_offset: float = 8.0, weighting: str = "raised-cosine") -> np.ndarray:
+    """Merged irradiance of an 8-bit pair above the dark offset, counts per second (float64).
+
+    With the linear response ``I(z) = z`` Eq. (1) and its rules for uncovered pixels are linear
+    in ``I``, so the offset's share of a pixel is the same merge with ``I(z) = 1``
+    (``Σ w t / Σ w t²``, or ``1/t`` where one exposure is used), times the offset::
+
+        x_j - o · x_j[I = 1],   o = ``dark_offset`` (counts)
+
+    This removes the offset without a fitted CRF (whose ``I`` is 0 at the offset), e.g. for
+    flux maps whose scale comes from a sun image taken by the same camera.
+    """
+    merger = HdrMerger(exposures, None, weighting, dark_offset)
+    merged = np.asarray(merger.merge(low, high), dtype=np.float64)  # validates the pair
+    ones = np.ones_like(merger.inverse[0])
+    share, _ = merge_pair(low.astype(np.intp), high.astype(np.intp), merger.exposures, ones, ones,
+                          *merger.weights, merger.dark_offset)
+    return merged - merger.dark_offset * share
 
 
 def estimate_noise_model(frames: np.ndarray, dark_offset: float) -> tuple[float, float]:

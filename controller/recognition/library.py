@@ -95,11 +95,12 @@ class Library:
         return LibraryMatch(m.label, m.distance, m.index, m.runner_up_label, m.runner_up_distance, m.unknown,
                             (float(corr["az_deg"]), float(corr["el_deg"])) if corr else None)
 
-    def match_image(self, image: np.ndarray, threshold: float | None = None) -> LibraryMatch:
-        """:meth:`match_hu` of a beam image (HDR or grey), analysed with the library's threshold
-        (or ``threshold``), background estimated."""
+    def match_image(self, hdr: np.ndarray, *, threshold: float | None = None) -> LibraryMatch:
+        """:meth:`match_hu` of a beam image (2-D HDR or grey, x = column, y = row), segmented at
+        the library's threshold (or ``threshold``, a fraction of the peak) with the background
+        estimated (:func:`controller.imaging.beam.analyze`). InputError when there is no beam."""
         t = self.threshold if threshold is None else threshold
-        return self.match_hu(analyze(image, threshold=t, background="auto").hu)
+        return self.match_hu(analyze(hdr, threshold=t, background="auto").hu)
 
     def _matcher(self) -> Matcher:
         # Built once per library: the matcher precomputes its search arrays.

@@ -5,6 +5,7 @@ each weighting function lets the beam centroid wander between pairs of one fixed
 from __future__ import annotations
 
 import csv
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +27,23 @@ LOW_PEAK_FRACTION = 0.8
 AMBIENT_FRACTION = 0.04  # diffuse light on the target, as a fraction of the beam peak
 
 
+@dataclass(frozen=True)
+class WeightingStudy:
+    """Result of :func:`run_study`. Per weighting name: ``rms_px`` and ``bias_px`` (one value per
+    threshold, px) and ``centroids`` (pairs, thresholds, 2) as (x = column, y = row) px;
+    ``first_pair`` is (LOW, HIGH, raised-cosine HDR) of the first capture, ``frame`` the
+    noise-free irradiance (counts/s at unit gain) and ``mask`` the target mask."""
+
+    thresholds: list[float]
+    rms_px: dict[str, list[float]]
+    bias_px: dict[str, list[float]]
+    centroids: dict[str, np.ndarray]
+    first_pair: tuple[np.ndarray, np.ndarray, np.ndarray]
+    mergers: dict[str, HdrMerger]
+    frame: np.ndarray
+    mask: np.ndarray
+
+
 def _source(cfg, source_id: str | None):
     if source_id:
         return cfg.light_source(source_id)
@@ -35,7 +53,6 @@ def _source(cfg, source_id: str | None):
 def _scene(cfg, heliostat_id: str | None, source_id: str | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Irradiance frame (relative, peak 1) and target mask of the study scene."""
     import cv2
-
 
     h = cfg.heliostat(heliostat_id) if heliostat_id else cfg.heliostats[0]
     target = cfg.target()
@@ -75,8 +92,9 @@ def _centroid(img: np.ndarray, threshold: float, mask: np.ndarray) -> tuple[floa
 
 
 def run_study(cfg, pairs: int, seed: int, heliostat_id: str | None = None, progress=None,
-              source_id: str | None = None, low_peak: float = LOW_PEAK_FRACTION) -> dict:
-    """Run the study; returns thresholds, rms_px per weighting, centroids, and plot material."""
+              source_id: str | None = None, low_peak: float = LOW_PEAK_FRACTION) -> WeightingStudy:
+    """Capture ``pairs`` pairs of the fixed scene, merge each with every weighting and centroid
+    the HDR image at every threshold; ``progress()`` is called once per pair."""
     frame, mask = _scene(cfg, heliostat_id, source_id)
     cam_cfg = cfg.camera
     camera = SimulatedCamera(cam_cfg, lambda: frame, seed=seed)
@@ -103,21 +121,20 @@ def run_study(cfg, pairs: int, seed: int, heliostat_id: str | None = None, progr
     # Centroid of the noise-free irradiance at each threshold: the truth the means are biased from.
     truth = np.array([_centroid(frame, thr, mask) for thr in THRESHOLDS])
     bias = {w: np.linalg.norm(c.mean(axis=0) - truth, axis=1) for w, c in cents.items()}
-    return {"thresholds": list(THRESHOLDS), "rms_px": {w: rms[w].tolist() for w in NAMES},
-            "bias_px": {w: bias[w].tolist() for w in NAMES}, "centroids": cents,
-            "first_pair": first, "mergers": mergers, "frame": frame * scale,
-            "mask": mask}
+    return WeightingStudy(list(THRESHOLDS), {w: rms[w].tolist() for w in NAMES},
+                          {w: bias[w].tolist() for w in NAMES}, cents, first, mergers, frame * scale, mask)
 
 
-def write_plots(out: Path, study: dict) -> None:
+def write_plots(out: Path, study: WeightingStudy) -> None:
+    """``rms_vs_threshold.png``, ``weighting_functions.png`` and ``profiles.png`` in ``out``."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    thr = study["thresholds"]
+    thr = study.thresholds
     fig, ax = plt.subplots(figsize=(6.4, 4.2))
-    for w, r in study["rms_px"].items():
+    for w, r in study.rms_px.items():
         ax.plot(thr, r, marker="o", ms=3, lw=2.2 if w in ("raised-cosine", "noise-optimal") else 1.2, label=w)
     ax.set_xlabel("threshold (fraction of peak)")
     ax.set_ylabel("centroid RMS distance to mean (px)")
@@ -129,7 +146,7 @@ def write_plots(out: Path, study: dict) -> None:
 
     fig, ax = plt.subplots(figsize=(6.4, 4.2))
     z = np.arange(256)
-    for w, m in study["mergers"].items():
+    for w, m in study.mergers.items():
         wt = m.weights[0]
         ax.plot(z, wt / wt.max(), lw=2.2 if w == "raised-cosine" else 1.2, label=w)
     ax.set_xlabel("pixel value z (counts)")
@@ -140,7 +157,7 @@ def write_plots(out: Path, study: dict) -> None:
     fig.tight_layout()
     save_figure(fig, out / "weighting_functions.png", dpi=110)
 
-    low, high, hdr = study["first_pair"]
+    low, high, hdr = study.first_pair
     row = int(np.argmax(hdr.max(axis=1)))
     fig, ax = plt.subplots(figsize=(6.4, 4.2))
     ax.plot(low[row], label="LOW (counts)", lw=1)
@@ -158,16 +175,17 @@ def write_plots(out: Path, study: dict) -> None:
     save_figure(fig, out / "profiles.png", dpi=110)
 
 
-def write_csv(out: Path, study: dict) -> None:
+def write_csv(out: Path, study: WeightingStudy) -> None:
+    """``weighting_study.csv`` in ``out`` (columns in the command's docstring)."""
     def writer(tmp: Path) -> None:
         with tmp.open("w", newline="", encoding="utf-8") as fh:
             w = csv.writer(fh)
             w.writerow(["weighting", "threshold", "rms_px", "bias_px", "mean_x_px", "mean_y_px", "pairs"])
-            for name, r in study["rms_px"].items():
-                c = study["centroids"][name]
-                for j, thr in enumerate(study["thresholds"]):
+            for name, r in study.rms_px.items():
+                c = study.centroids[name]
+                for j, thr in enumerate(study.thresholds):
                     mx, my = c[:, j].mean(axis=0)
-                    w.writerow([name, f"{thr:.2f}", f"{r[j]:.5f}", f"{study['bias_px'][name][j]:.5f}",
+                    w.writerow([name, f"{thr:.2f}", f"{r[j]:.5f}", f"{study.bias_px[name][j]:.5f}",
                                 f"{mx:.4f}", f"{my:.4f}", c.shape[0]])
     write_atomic(out / "weighting_study.csv", writer)
 

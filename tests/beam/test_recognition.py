@@ -195,3 +195,60 @@ def test_errorset_manifests_and_determinism(errorset, tmp_path, capsys):
 def test_errorset_bad_arguments(tmp_path, capsys):
     code, _, err = cli(capsys, "sim", "errorset", "--out", str(tmp_path / "x"), "--cases", "99")
     assert code == 2 and "--cases" in err
+
+
+def _three_shapes() -> tuple[list[np.ndarray], list[str]]:
+    shape = (100, 120)
+    return ([gaussian(shape, 60, 50, 6, 6, amp=100.0), gaussian(shape, 60, 50, 14, 5, amp=100.0),
+             gaussian(shape, 60, 50, 5, 15, amp=100.0)], ["round", "wide", "tall"])
+
+
+def test_build_library_from_arrays_and_match_image_and_hu():
+    from controller.imaging.beam import analyze
+    from controller.recognition.library import build_library
+
+    images, labels = _three_shapes()
+    calls = []
+    lib = build_library(images, labels, kind="log-hu", threshold=0.3, az_deg=[0.1, 0.2, 0.3],
+                        progress=lambda done, total: calls.append((done, total)))
+    assert lib.labels == labels and calls[-1] == (3, 3)
+    assert lib.threshold == 0.3 and lib.entries[1].az_deg == 0.2
+    lib.entries[1].correction = {"az_deg": 0.05, "el_deg": -0.02}
+    # The same "wide" spot, moved and brighter: Hu moments ignore both.
+    query = gaussian((100, 120), 40, 55, 14, 5, amp=300.0)
+    by_image = lib.match_image(query)
+    by_hu = lib.match_hu(analyze(query, threshold=0.3, background="auto").hu)
+    # log|phi_3..7| of a symmetric spot is the log of rounding noise: distances agree loosely.
+    assert by_image.distance == pytest.approx(by_hu.distance, rel=0.05)
+    assert (by_image.label, by_image.index, by_image.unknown) == ("wide", 1, False)
+    assert (by_hu.label, by_hu.index) == ("wide", 1)
+    assert by_image.correction_deg == (0.05, -0.02)
+    assert by_image.runner_up in ("round", "tall") and by_image.runner_up_distance > by_image.distance
+    assert lib.match_image(images[0]).correction_deg is None
+    # The threshold reaches the analysis: a raw-Hu library sees the segmented region change.
+    raw = build_library(images, labels, kind="hu", threshold=0.3)
+    assert raw.match_image(query, threshold=0.7).distance > 2 * raw.match_image(query).distance
+
+
+def test_build_library_names_the_image_without_a_beam():
+    from controller.recognition.library import build_library
+
+    images, labels = _three_shapes()
+    images[2] = np.zeros((100, 120))
+    with pytest.raises(InputError, match="c.npy: image is all zeros"):
+        build_library(images, labels, names=["a.npy", "b.npy", "c.npy"])
+    with pytest.raises(InputError, match="one label per image"):
+        build_library(images[:2], labels)
+
+
+def test_library_save_load_round_trip_keeps_matches(tmp_path):
+    from controller.recognition.library import build_library
+    from controller.recognition.library_io import save_library
+
+    images, labels = _three_shapes()
+    lib = build_library(images, labels, kind="log-hu")
+    save_library(lib, tmp_path / "lib.yaml")
+    back = load_library(tmp_path / "lib.yaml")
+    for img in images:
+        assert back.match_image(img).label == lib.match_image(img).label
+    np.testing.assert_allclose(back.scale, lib.scale)

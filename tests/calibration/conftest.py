@@ -27,7 +27,7 @@ from controller.calibration.machine import CalibrationCycle
 from controller.calibration.observations import Observation, Step
 from controller.calibration.records import ModelRecord
 from controller.devices.camera import CameraError, FramePair
-from controller.devices.drive import Drive, DriveLimits, DriveStatus, LinkError, NakError
+from controller.devices.drive import Drive, DriveLimits, DriveStatus, FirmwareInfo, LinkError, NakError
 from firmware_proto.faults import Reject, fault_names
 from simplant.clock import PlantClock
 from simplant.firmware.physics import AxisParams, SimController
@@ -99,6 +99,16 @@ class SimDrive(Drive):
     def clear_fault(self):
         self._check("clear_fault")
         self.ctl.clear_fault()
+
+    def info(self) -> FirmwareInfo:
+        return FirmwareInfo(1, 2, self.limits, "sim-drive")
+
+    def get_limits(self) -> DriveLimits:
+        return self.limits
+
+    def set_limits(self, limits: DriveLimits) -> None:
+        self._check("set_limits")
+        self.limits = limits
 
     def close(self):
         pass

@@ -2,7 +2,7 @@
 
 import pytest
 
-from controller.devices.drive import AxisLimits, Drive, DriveLimits, DriveStatus
+from controller.devices.drive import AxisLimits, Drive, DriveLimits, DriveStatus, FirmwareInfo
 from controller.errors import LimitError
 
 
@@ -22,6 +22,15 @@ class RecordingDrive(Drive):
 
     def _send_jog(self, daz, delv):
         self.sent.append(("jog", daz, delv))
+
+    def info(self):
+        return FirmwareInfo(1, 2, self.limits, "recording")
+
+    def get_limits(self) -> DriveLimits:
+        return self.limits
+
+    def set_limits(self, limits: DriveLimits) -> None:
+        self.sent.append(("limits", limits))
 
     stop = home = stow = clear_fault = close = lambda self: None
 

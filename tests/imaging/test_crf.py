@@ -82,3 +82,29 @@ def test_bad_sphere_csv(tmp_path, text, msg):
     p.write_text(text)
     with pytest.raises(InputError, match=msg):
         fit_crf(p)
+
+
+def test_pure_fit_from_arrays_equals_the_file_fit(tmp_path):
+    from controller.imaging.crf import fit_crf as fit_arrays
+    from controller.imaging.crf_io import read_sphere_csv
+
+    s1, s2 = SensorModel(response=knee_response(0.15)), SensorModel(response=knee_response(0.25))
+    csv = sphere_csv(tmp_path / "sphere.csv", [("ccd1", s1), ("ccd2", s2)], np.random.default_rng(1))
+    from_file, _ = fit_crf(csv)
+    from_arrays, fits = fit_arrays(read_sphere_csv(csv), source="sphere")
+    for k in (0, 1):
+        np.testing.assert_array_equal(from_arrays.inverse(k), from_file.inverse(k))
+    x, z = np.array([1.0, 2.0]), np.array([10.0, 20.0])
+    with pytest.raises(InputError, match="^sphere: sensor 'a': needs at least"):
+        fit_arrays({"a": (x, z), "b": (x, z)}, source="sphere")
+
+
+def test_crf_load_and_save_are_the_io_module(tmp_path):
+    from controller.imaging.crf_io import load_crf, save_crf
+
+    crf = Crf.linear(8, 8.0)
+    save_crf(crf, tmp_path / "a.yaml")
+    crf.save(tmp_path / "b.yaml")
+    assert (tmp_path / "a.yaml").read_text() == (tmp_path / "b.yaml").read_text()
+    np.testing.assert_array_equal(Crf.load(tmp_path / "a.yaml").inverse(1),
+                                  load_crf(tmp_path / "b.yaml").inverse(1))

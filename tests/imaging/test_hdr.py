@@ -147,3 +147,41 @@ def test_merge_with_mask_matches_merge_and_from_camera_config():
     r = m.merge_with_mask(low, high)
     assert np.array_equal(r.hdr, m.merge(low, high))
     assert r.valid.sum() + r.saturated_both + r.dark_both == low.size
+
+
+def test_from_camera_config_takes_every_camera_setting():
+    from controller.config import Camera
+
+    cam = Camera(sensors=({"name": "a", "exposure_s": 0.005}, {"name": "b", "exposure_s": 0.04}),
+                 dark_offset_counts=6.0, read_noise_counts=2.0, full_well_electrons=5000.0)
+    m = HdrMerger.from_camera_config(cam, None, "noise-optimal", exposures=(0.01, 0.02))
+    plain = HdrMerger((0.01, 0.02), None, "noise-optimal", 6.0, bit_depth=cam.bit_depth, read_noise=2.0,
+                      full_well=5000.0)
+    assert m.exposures == (0.01, 0.02) and m.weighting == "noise-optimal"
+    for a, b in zip(m.weights, plain.weights, strict=True):
+        np.testing.assert_array_equal(a, b)
+    default_noise = HdrMerger((0.01, 0.02), None, "noise-optimal", 6.0)
+    assert not np.array_equal(m.weights[1], default_noise.weights[1])
+
+
+def test_pair_bit_depth():
+    from controller.imaging.hdr import pair_bit_depth
+
+    u8 = np.zeros((2, 2), np.uint8)
+    assert pair_bit_depth(u8, u8) == 8
+    assert pair_bit_depth(np.array([[4095]], np.uint16), np.array([[7]], np.uint16)) == 12
+    assert pair_bit_depth(np.array([[3]], np.uint16), np.array([[7]], np.uint16)) == 8
+    assert pair_bit_depth(np.array([[4095]], np.uint16), u8, Crf.linear(10)) == 10
+
+
+def test_merge_above_offset_removes_the_offset_exactly():
+    from controller.imaging.hdr import merge_above_offset
+
+    # A noise-free linear pair: z = offset + E t, so the merge above the offset is E itself.
+    e = np.linspace(100.0, 9000.0, 60).reshape(6, 10)
+    t = (0.01, 0.02)
+    low, high = (np.round(8.0 + e * tk).astype(np.uint8) for tk in t)
+    ok = (high < 250) & (low > 9)
+    x = merge_above_offset(low, high, t, 8.0)
+    np.testing.assert_allclose(x[ok], e[ok], rtol=0.05)
+    assert np.max(np.abs(x[ok] - e[ok])) < 0.5 / t[0]  # within one count's quantisation

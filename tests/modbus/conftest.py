@@ -13,6 +13,7 @@ from controller.devices.drive import AxisLimits, DriveLimits
 from controller.devices.modbus_drive import ModbusDrive, ModbusLink
 from simplant.firmware.modbus import ModbusSimServer
 from simplant.firmware.physics import AxisParams, SimController
+from tests.conftest import scaled_s
 
 SPEEDUP = 20.0
 # Demo plant (configs/demo.yaml): hard range [0, 75308] / [0, 68745], soft limits below.
@@ -47,7 +48,7 @@ def sim(controllers):
 
 @pytest.fixture
 def link(sim):
-    lk = ModbusLink.tcp("127.0.0.1", sim.port, timeout_s=0.2, retries=1)
+    lk = ModbusLink.tcp("127.0.0.1", sim.port, timeout_s=scaled_s(0.5), retries=1)
     yield lk
     lk.close()
 
@@ -62,6 +63,6 @@ def raw_client(sim):
     """A plain pymodbus client (no retries) for wire-level checks of the simulated device."""
     from pymodbus.client import ModbusTcpClient
 
-    client = ModbusTcpClient("127.0.0.1", port=sim.port, timeout=0.2, retries=0)
+    client = ModbusTcpClient("127.0.0.1", port=sim.port, timeout=scaled_s(0.5), retries=0)
     yield client
     client.close()

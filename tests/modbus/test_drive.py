@@ -28,6 +28,7 @@ from controller.devices.modbus_drive import (
 )
 from controller.errors import LimitError
 from firmware_proto.faults import Reject
+from tests.conftest import scaled_s
 
 from .conftest import LIMITS
 
@@ -57,7 +58,7 @@ def test_info_and_limits(drive, controllers):
 
 
 def test_move_and_wait_and_jog(drive, controllers, sim):
-    st = drive.move_and_wait(4000, 3000, timeout_s=5)
+    st = drive.move_and_wait(4000, 3000, timeout_s=scaled_s(5))
     assert (st.az_steps, st.el_steps) == (4000, 3000)
     drive.jog(-250, 125)
     assert drive.last_targets == (3750, 3125)
@@ -112,9 +113,9 @@ def test_silent_unit_times_out_with_retries(link):
     silent = ModbusDrive(link, 9, LIMITS)
     t0 = time.monotonic()
     with pytest.raises(LinkError, match=r"unit 9: no answer to read input register 0-11 .* "
-                                        r"after 2 attempt\(s\), timeout 0.2 s: no response"):
+                                        rf"after 2 attempt\(s\), timeout {link.timeout_s:g} s: no response"):
         silent.status()
-    assert time.monotonic() - t0 >= 0.4           # two attempts of 0.2 s each
+    assert time.monotonic() - t0 >= 2 * link.timeout_s  # two attempts of the timeout each
     assert silent.retries_used == 0 and link.retries_used == 1
 
 
@@ -122,7 +123,7 @@ def test_nobody_listening(controllers):
     with socket.socket() as s:            # a port that was free a moment ago
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
-    drive = ModbusDrive(ModbusLink.tcp("127.0.0.1", port, timeout_s=0.1, retries=0), 1, LIMITS)
+    drive = ModbusDrive(ModbusLink.tcp("127.0.0.1", port, timeout_s=scaled_s(0.1), retries=0), 1, LIMITS)
     with pytest.raises(LinkError, match=f"modbus-tcp 127.0.0.1:{port} unit 1: no answer"):
         drive.status()
 
@@ -191,7 +192,7 @@ def test_lost_request_is_resent(drive, controllers, monkeypatch):
 
 
 def test_home_and_stow(drive, controllers):
-    drive.move_and_wait(3000, 3000, timeout_s=5)
+    drive.move_and_wait(3000, 3000, timeout_s=scaled_s(5))
     drive.home()
     assert drive.wait_in_position(5).az_steps == 500
     drive.stow()
@@ -221,11 +222,11 @@ def test_units_polled_from_threads_share_one_link(link):
 
 def test_rtu_over_a_pty(sim, controllers, tmp_path):
     device = sim.start_rtu(str(tmp_path / "rs485"))
-    link = ModbusLink.rtu(device, timeout_s=0.3, retries=1)
+    link = ModbusLink.rtu(device, timeout_s=scaled_s(0.3), retries=1)
     try:
         d2 = ModbusDrive(link, 2, LIMITS)
         assert d2.status().az_steps == 1000
-        st = d2.move_and_wait(1500, 1800, timeout_s=5)
+        st = d2.move_and_wait(1500, 1800, timeout_s=scaled_s(5))
         assert (st.az_steps, st.el_steps) == (1500, 1800)
         with pytest.raises(LinkError, match="modbus-rtu .* unit 7: no answer"):
             ModbusDrive(link, 7, LIMITS).status()
@@ -236,7 +237,7 @@ def test_rtu_over_a_pty(sim, controllers, tmp_path):
 
 def test_link_pool_builds_modbus_drives(sim, tmp_path):
     device = sim.start_rtu(str(tmp_path / "bus"))
-    with LinkPool(timeout_s=0.3, retries=0) as pool:
+    with LinkPool(timeout_s=scaled_s(0.3), retries=0) as pool:
         a = pool.drive(ModbusTcpLink(kind="modbus-tcp", host="127.0.0.1", port=sim.port, unit=1), LIMITS)
         b = pool.drive(ModbusTcpLink(kind="modbus-tcp", host="127.0.0.1", port=sim.port, unit=2), LIMITS)
         c = pool.drive(ModbusRtuLink(kind="modbus-rtu", device=device, unit=2), LIMITS)

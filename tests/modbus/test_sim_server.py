@@ -13,6 +13,7 @@ from pymodbus.exceptions import ModbusIOException
 
 from firmware_proto.faults import Fault, Reject
 from simplant.firmware.modbus import ModbusSimServer
+from tests.conftest import scaled_s
 
 from .conftest import make_controller
 
@@ -130,7 +131,7 @@ def test_tcp_and_rtu_share_units_and_stop_independently(sim, raw_client, tmp_pat
     link = tmp_path / "bus"
     dev = sim.start_rtu(str(link))
     assert dev == str(link) and link.is_symlink()
-    rtu = ModbusSerialClient(dev, baudrate=115200, timeout=0.3, retries=0)
+    rtu = ModbusSerialClient(dev, baudrate=115200, timeout=scaled_s(0.3), retries=0)
     try:
         raw_client.write_registers(0, [0, 1234, 0, 4321], device_id=1)
         assert rtu.read_holding_registers(0, count=4, device_id=1).registers == [0, 1234, 0, 4321]
@@ -151,10 +152,10 @@ def test_two_servers_in_one_process():
     try:
         pa, pb = a.start_tcp(), b.start_tcp()
         a.stop()
-        client = ModbusTcpClient("127.0.0.1", port=pb, timeout=0.3, retries=0)
+        client = ModbusTcpClient("127.0.0.1", port=pb, timeout=scaled_s(0.3), retries=0)
         assert client.read_input_registers(0, count=4, device_id=1).registers == [0, 700, 0, 800]
         client.close()
-        assert not ModbusTcpClient("127.0.0.1", port=pa, timeout=0.3, retries=0).connect()
+        assert not ModbusTcpClient("127.0.0.1", port=pa, timeout=scaled_s(0.3), retries=0).connect()
     finally:
         a.stop()
         b.stop()

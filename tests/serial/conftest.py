@@ -90,9 +90,14 @@ class NoisyLine:
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
 
-    def cut(self, seconds: float) -> None:
+    def cut(self, seconds: float = float("inf")) -> None:
+        """Drop everything for ``seconds`` (default: until :meth:`restore`)."""
         self._cut_until = time.monotonic() + seconds
         self.counts["cuts"] += 1
+
+    def restore(self) -> None:
+        """End a cut now."""
+        self._cut_until = 0.0
 
     def close(self) -> None:
         self._stop.set()

@@ -15,13 +15,14 @@ from firmware_proto.codec import Decoder, Frame, encode
 from firmware_proto.faults import Reject
 from firmware_proto.messages import PAIR, REPLY_BIT, Command, Status
 from simplant.firmware.serial import SerialSimFirmware
+from tests.conftest import scaled_s
 
 LIMITS = DriveLimits(AxisLimits(500, 74800), AxisLimits(500, 68200))  # as conftest.LIMITS
 
 
 @pytest.fixture
 def bus(firmware):
-    b = SerialBus(firmware.device, timeout_s=0.1, retries=2)
+    b = SerialBus(firmware.device, timeout_s=scaled_s(0.5), retries=2)
     yield b
     b.close()
 
@@ -39,7 +40,7 @@ def test_status_info_limits(bus, firmware):
 
 def test_move_and_jog_end_exactly_at_target(bus, firmware):
     d = SerialDrive(bus, 2, LIMITS)
-    st = d.move_and_wait(12000, 3000, timeout_s=5)
+    st = d.move_and_wait(12000, 3000, timeout_s=scaled_s(5))
     assert (st.az_steps, st.el_steps) == (12000, 3000)
     d.jog(-250, 40)
     assert d.last_targets == (11750, 3040)
@@ -106,7 +107,8 @@ def test_set_limits_outside_hard_range_refused(bus):
 
 def test_unserved_address_times_out_with_link_error(bus):
     d = SerialDrive(bus, 9, LIMITS)
-    with pytest.raises(LinkError, match="unit 9: no valid reply to PING .* after 3 attempts of 0.1 s"):
+    expected = rf"unit 9: no valid reply to PING .* after 3 attempts of {bus.timeout_s:g} s"
+    with pytest.raises(LinkError, match=expected):
         d.status()
     assert bus.retries_used == 2  # the first attempt plus retries=2 retransmissions
 
@@ -114,7 +116,7 @@ def test_unserved_address_times_out_with_link_error(bus):
 def test_firmware_gone_is_a_link_error(make_ctl):
     fw = SerialSimFirmware({1: make_ctl(1)})
     fw.start()
-    b = SerialBus(fw.device, timeout_s=0.1, retries=1)
+    b = SerialBus(fw.device, timeout_s=scaled_s(0.1), retries=1)
     d = SerialDrive(b, 1, LIMITS)
     d.status()
     fw.stop()
@@ -134,7 +136,7 @@ def _raw_exchange(port: serial.Serial, wire: bytes, expect: int, timeout: float 
 
 def test_duplicate_jog_is_answered_not_executed(firmware):
     """The same JOG frame twice on the wire (a retransmission): one execution, two equal replies."""
-    port = serial.Serial(firmware.device, 115200, timeout=0.05)
+    port = serial.Serial(firmware.device, 115200, timeout=scaled_s(0.05))
     jog = encode(Frame(1, 42, Command.JOG, PAIR.pack(100, 0)))
     replies = _raw_exchange(port, jog + jog, expect=2)
     port.close()
@@ -160,11 +162,11 @@ def test_power_cycle_forgets_cache_and_refuses_the_retry(firmware):
 
 def test_session_start_ping_defeats_stale_cache(firmware):
     """A new bus session must not get a cached reply from an earlier session with the same seq."""
-    b1 = SerialBus(firmware.device, timeout_s=0.1, retries=0)
+    b1 = SerialBus(firmware.device, timeout_s=scaled_s(0.5), retries=0)
     SerialDrive(b1, 1, LIMITS).stop()
     b1.close()
     for _ in range(3):
-        b2 = SerialBus(firmware.device, timeout_s=0.1, retries=0)
+        b2 = SerialBus(firmware.device, timeout_s=scaled_s(0.5), retries=0)
         SerialDrive(b2, 1, LIMITS).stop()
         b2.close()
     assert [e.command for e in firmware.controllers[1].log] == ["STOP"] * 4
@@ -172,7 +174,7 @@ def test_session_start_ping_defeats_stale_cache(firmware):
 
 
 def test_nak_for_unknown_command_and_bad_length(firmware):
-    port = serial.Serial(firmware.device, 115200, timeout=0.05)
+    port = serial.Serial(firmware.device, 115200, timeout=scaled_s(0.05))
     got = _raw_exchange(port, encode(Frame(2, 1, 0x55)) + encode(Frame(2, 2, Command.MOVE_ABS, b"\x01")),
                         expect=2)
     port.close()
@@ -182,7 +184,7 @@ def test_nak_for_unknown_command_and_bad_length(firmware):
 
 
 def test_garbage_before_request_is_skipped(firmware):
-    port = serial.Serial(firmware.device, 115200, timeout=0.05)
+    port = serial.Serial(firmware.device, 115200, timeout=scaled_s(0.05))
     garbage = random.Random(5).randbytes(40).replace(b"\x00", b"\x01")
     got = _raw_exchange(port, garbage + encode(Frame(1, 3, Command.GET_STATUS)), expect=1)
     port.close()
@@ -197,7 +199,7 @@ def test_bus_reopens_after_firmware_restart(make_ctl, tmp_path):
     link = str(tmp_path / "bus")
     fw = SerialSimFirmware({1: make_ctl(1)}, link)
     fw.start()
-    b = SerialBus(link, timeout_s=0.05, retries=1)
+    b = SerialBus(link, timeout_s=scaled_s(0.05), retries=1)
     d = SerialDrive(b, 1, LIMITS)
     d.move_and_wait(3000, 3000, 5)
     fw.stop()

@@ -80,15 +80,15 @@ def run(args) -> int:
     out.mkdir(parents=True, exist_ok=True)
     write_csv(out, study)
     write_plots(out, study)
-    result = {"thresholds": study["thresholds"], "rms_px": study["rms_px"]}
+    result = {"thresholds": study.thresholds, "rms_px": study.rms_px}
     if args.json:
         print_json(result)
     else:
-        best = {t: min(study["rms_px"], key=lambda w, j=j: study["rms_px"][w][j])
-                for j, t in enumerate(study["thresholds"])}
-        print("threshold  " + "  ".join(f"{w[:13]:>13s}" for w in study["rms_px"]))
-        for j, t in enumerate(study["thresholds"]):
-            print(f"{t:9.2f}  " + "  ".join(f"{study['rms_px'][w][j]:13.4f}" for w in study["rms_px"])
+        best = {t: min(study.rms_px, key=lambda w, j=j: study.rms_px[w][j])
+                for j, t in enumerate(study.thresholds)}
+        print("threshold  " + "  ".join(f"{w[:13]:>13s}" for w in study.rms_px))
+        for j, t in enumerate(study.thresholds):
+            print(f"{t:9.2f}  " + "  ".join(f"{study.rms_px[w][j]:13.4f}" for w in study.rms_px)
                   + f"   best: {best[t]}")
         print(f"wrote {out}/weighting_study.csv, rms_vs_threshold.png, weighting_functions.png, profiles.png")
     return 0

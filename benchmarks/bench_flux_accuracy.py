@@ -8,7 +8,7 @@ the error of the power in the frame, and the sun-radius error; then times find_s
 irradiance_from_sun_image on a 1024x768 frame. Also the tube-panel power error (uniform and
 beam-lit surface) for tube radii of 6, 12 and 20 px.
 
-    .venv/bin/python benchmarks/flux_accuracy.py
+    .venv/bin/python benchmarks/bench_flux_accuracy.py
 """
 
 from __future__ import annotations
