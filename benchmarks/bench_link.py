@@ -4,7 +4,7 @@ Runs ``heliocal sim firmware --serial-link`` as a child process, then times GET_
 exchanges through :class:`controller.devices.serial_drive.SerialDrive` (the full software
 path: encode, write, select/read, decode, CRC, dataclass). A pty has no baud-rate delay, so
 this measures software overhead only; target >= 2,000/s (<= 0.5 ms per exchange). Also
-reports Modbus TCP status polls per second via benchmarks/_modbus_bench.py when it exists.
+reports Modbus TCP status polls per second via benchmarks/bench_modbus.py.
 
 Usage: .venv/bin/python benchmarks/bench_link.py [--seconds S]   (prints one JSON object)
 """
@@ -68,11 +68,11 @@ def serial_round_trips(seconds: float) -> dict:
 
 
 def modbus_polls() -> dict:
-    path = ROOT / "benchmarks" / "_modbus_bench.py"
+    path = ROOT / "benchmarks" / "bench_modbus.py"
     if not path.exists():
-        return {"modbus_tcp_status_polls_per_s": None, "modbus_note": "benchmarks/_modbus_bench.py missing"}
+        return {"modbus_tcp_status_polls_per_s": None, "modbus_note": "benchmarks/bench_modbus.py missing"}
     try:
-        spec = importlib.util.spec_from_file_location("_modbus_bench", path)
+        spec = importlib.util.spec_from_file_location("bench_modbus", path)
         module = importlib.util.module_from_spec(spec)
         spec.loader.exec_module(module)
         return {"modbus_tcp_status_polls_per_s": module.modbus_tcp_polls_per_s()}

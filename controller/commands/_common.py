@@ -20,21 +20,23 @@ CONFIG_ENV = "HELIOCAL_CONFIG"
 DEFAULT_CONFIG = os.environ.get(CONFIG_ENV) or PACKAGED_CONFIG
 
 
-def add_config_option(parser: argparse.ArgumentParser) -> None:
+def add_config_option(parser: argparse.ArgumentParser, resolve: bool = True) -> None:
     """``--config FILE``; without it ``$HELIOCAL_CONFIG``, else the packaged demo plant
-    (:func:`resolve_config` fills it in and says which)."""
+    (:func:`resolve_config` fills it in and says which; with ``resolve=False`` the command
+    reads :data:`DEFAULT_CONFIG` itself, only where it needs a plant)."""
     parser.add_argument(
         "--config", default=None, metavar="FILE",
         help=f"plant configuration YAML (default: ${CONFIG_ENV}, else the packaged demo plant)",
     )
+    parser.set_defaults(config_resolve=resolve)
 
 
 def resolve_config(args: argparse.Namespace) -> None:
-    """Fill in an omitted ``--config`` and say on stderr which configuration is used (not for
-    a command that sets ``config_if_needed`` and reads :data:`DEFAULT_CONFIG` only when needed)."""
+    """Fill in an omitted ``--config`` of :func:`add_config_option` and say on stderr which
+    configuration is used."""
     import sys
 
-    if "config" not in vars(args) or args.config is not None or getattr(args, "config_if_needed", False):
+    if not getattr(args, "config_resolve", False) or args.config is not None:
         return
     env = os.environ.get(CONFIG_ENV)
     args.config = env or PACKAGED_CONFIG

@@ -35,8 +35,7 @@ def register(subparsers) -> None:
     p.add_argument("--pressure", metavar="MBAR", help="air pressure, mbar (default 1013.25)")
     p.add_argument("--temperature", metavar="C", help="air temperature, °C (default 12)")
     p.add_argument("--delta-t", dest="delta_t", metavar="S", help="ΔT = TT − UT1, s (default: estimated)")
-    add_config_option(p)
-    p.set_defaults(config_if_needed=True)  # only without --lat/--lon
+    add_config_option(p, resolve=False)  # a plant is read only without --lat/--lon
     add_json_option(p)
     p.set_defaults(func=run)
 

@@ -14,7 +14,7 @@ from controller.geometry.kinematics import HeliostatKinematics
 from controller.geometry.vectors import azel_to_vector
 
 REPO = Path(__file__).resolve().parents[2]
-REAL = REPO / "tests" / "data" / "real"  # copy of shared/data/real (see its README)
+REAL = REPO / "tests" / "data" / "real"  # the real Jülich records (see its README)
 
 
 def _load(path: Path) -> dict:

@@ -11,7 +11,7 @@ Four campaigns of ``--cases`` each (default 100,000), seeded:
 - ``resync``: garbage, then a valid frame, cut at random read boundaries; ``lost`` counts
   runs where the streaming decoder did not deliver the frame last (must be 0).
 
-Usage: .venv/bin/python benchmarks/fuzz_codec.py [--cases N] [--seed S]
+Usage: .venv/bin/python benchmarks/bench_fuzz_codec.py [--cases N] [--seed S]
 """
 
 from __future__ import annotations
