@@ -3,7 +3,7 @@
 Prints one JSON object: {"ours_ms", "opencv_robertson_ms", "opencv_debevec_ms",
 "speedup_vs_robertson", ...}, medians over --runs runs of one 1024x768 pair from the simulated
 sensors. OpenCV gets 3-channel images, float32 times and the explicit response (its HDR code
-needs all three; see shared NOTES.md). Extra keys: minima, table build time, render_spot time
+gives wrong values without all three). Extra keys: minima, table build time, render_spot time
 for a 256x256 grid, thread settings and load average, so numbers can be compared across machines.
 
 Usage: .venv/bin/python benchmarks/bench_merge.py [--runs 30] [--threads 1]

@@ -16,6 +16,7 @@ import argparse
 import importlib
 import json
 import pkgutil
+import re
 import signal
 import sys
 import threading
@@ -25,8 +26,26 @@ from controller.commands._common import resolve_config
 from controller.errors import HeliocalError
 
 
+class HeliocalParser(argparse.ArgumentParser):
+    """An argument parser whose help reads as plain text: the command modules' docstrings feed
+    descriptions, and their reStructuredText marks (``code``, :class:`name`) mean nothing in a
+    terminal. Sub-parsers inherit the class (argparse uses the parent's type)."""
+
+    def format_help(self) -> str:
+        return plain_text(super().format_help())
+
+    def format_usage(self) -> str:
+        return plain_text(super().format_usage())
+
+
+def plain_text(text: str) -> str:
+    """Strip reStructuredText roles and inline-literal marks."""
+    text = re.sub(r":(?:class|func|mod|meth|data|attr):`~?([^`]+)`", r"\1", text)
+    return text.replace("``", "")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = HeliocalParser(
         prog="heliocal",
         description="Heliostat calibration controller for CSP plants.",
     )

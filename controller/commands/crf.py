@@ -24,8 +24,9 @@ def register(subparsers) -> None:
     f = sub.add_parser("fit", help="fit a monotone response per sensor from integrating-sphere data",
                        description="Fit a monotone response per sensor from a CSV with columns "
                                    "sensor,exposure_value,pixel_mean and write the CRF YAML.")
-    f.add_argument("data", metavar="DATA.csv")
-    f.add_argument("--out", required=True, metavar="crf.yaml")
+    f.add_argument("data", metavar="DATA.csv",
+                   help="integrating-sphere data: CSV with columns sensor,exposure_value,pixel_mean")
+    f.add_argument("--out", required=True, metavar="crf.yaml", help="CRF file to write (YAML)")
     f.add_argument("--bit-depth", type=int, default=8, help="sensor bit depth (default 8)")
     add_json_option(f)
     f.set_defaults(func=run_fit)

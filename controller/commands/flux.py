@@ -227,9 +227,8 @@ def run(args: argparse.Namespace) -> int:
                                        disc.radius_px, gamma)
         result["total_power_w"] = phlux.total_power_w(flux, area)
         if args.known_power_w:
-            # E ∝ 1/ρ: the reflectivity that makes the measured power equal the known one
-            power_at_unit_rho = args.reflectivity * result["total_power_w"]
-            result["reflectivity_calibrated"] = power_at_unit_rho / args.known_power_w
+            result["reflectivity_calibrated"] = phlux.reflectivity_from_known_power(
+                result["total_power_w"], args.reflectivity, args.known_power_w)
     result["hotspots"] = [{"x": h.x, "y": h.y, "w_m2": h.w_m2}
                           for h in phlux.find_hotspots(flux, count=args.hotspots)] if args.hotspots else []
     write_float_image(args.out, flux)

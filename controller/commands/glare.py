@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import math
+from dataclasses import asdict
 
 import numpy as np
 
@@ -185,16 +186,6 @@ def _geometry_curve(args, eye, th) -> glare.GlareCurve:
                                 sun_angle_rad=args.sun_angle_mrad * 1e-3, eye=eye, thresholds=th)
 
 
-def _zone_ranges(curve: glare.GlareCurve) -> list[dict]:
-    ranges: list[dict] = []
-    for d, z in zip(curve.distance_m, curve.zones, strict=True):
-        if ranges and ranges[-1]["zone"] == z:
-            ranges[-1]["to_m"] = float(d)
-        else:
-            ranges.append({"zone": str(z), "from_m": float(d), "to_m": float(d)})
-    return ranges
-
-
 def _hazard_axes(ax, th: glare.HazardThresholds) -> None:
     omega = np.geomspace(1e-4, 1.0, 400)
     burn = th.burn_w_cm2(omega)
@@ -265,7 +256,7 @@ def run(args: argparse.Namespace) -> int:
                        "zone": str(z)}
                       for d, c, r, w, z in zip(curve.distance_m, curve.corneal_w_m2, curve.retinal_w_cm2,
                                                curve.omega_rad, curve.zones, strict=True)],
-            "zone_ranges": _zone_ranges(curve),
+            "zone_ranges": [asdict(r) for r in curve.zone_ranges()],
         }
         if args.png:
             _write_png(args.png, th, (curve.omega_rad, curve.retinal_w_cm2), curve)

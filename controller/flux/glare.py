@@ -176,6 +176,25 @@ class GlareCurve:
     retinal_w_cm2: np.ndarray
     zones: np.ndarray
 
+    def zone_ranges(self) -> list[ZoneRange]:
+        """Runs of equal zone along the curve, in sample order (distances in m, as sampled)."""
+        ranges: list[ZoneRange] = []
+        for d, z in zip(self.distance_m, self.zones, strict=True):
+            if ranges and ranges[-1].zone == z:
+                ranges[-1] = ZoneRange(ranges[-1].zone, ranges[-1].from_m, float(d))
+            else:
+                ranges.append(ZoneRange(str(z), float(d), float(d)))
+        return ranges
+
+
+@dataclass(frozen=True)
+class ZoneRange:
+    """One hazard zone over the sampled distances ``from_m`` to ``to_m`` (m, inclusive)."""
+
+    zone: str
+    from_m: float
+    to_m: float
+
 
 def _curve(distance, corneal, omega, eye, thresholds) -> GlareCurve:
     e_r = retinal_irradiance_w_cm2(corneal, omega, eye)

@@ -207,6 +207,18 @@ def reflectivity_from_beam_power(power_at_unit_reflectivity_w: float, dni_w_m2: 
     return float(power_at_unit_reflectivity_w / beam)
 
 
+def reflectivity_from_known_power(measured_power_w: float, assumed_reflectivity: float,
+                                  known_power_w: float) -> float:
+    """Target reflectivity that makes the measured beam power equal a known one (W).
+
+    E scales as 1/ρ, so a map evaluated with ρ_assumed giving P_measured gives
+    P₁ = ρ_assumed · P_measured at ρ = 1, and ρ = P₁ / P_known (Ho & Khalsa 2012).
+    """
+    if not known_power_w > 0:
+        raise ValueError(f"known power must be > 0 W, got {known_power_w}")
+    return float(assumed_reflectivity * measured_power_w / known_power_w)
+
+
 def reflectivity_from_coupon(target_values: np.ndarray, coupon_values: np.ndarray,
                              coupon_reflectivity: float) -> float:
     """Target reflectivity from a reference coupon under the same irradiance.

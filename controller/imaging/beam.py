@@ -285,7 +285,9 @@ def analyze(image: np.ndarray, threshold: float = 0.5, background="auto", mask: 
     bg = _background(img, background, m)
     region, _, level, bbox = segment(img, bg, float(threshold), m)
     r0, r1, c0, c1 = bbox
-    signal = np.asarray(img[r0:r1, c0:c1], dtype=np.float64)
+    # A copy: for float64 input asarray would be a view, and the subtraction would write into
+    # the caller's image.
+    signal = np.array(img[r0:r1, c0:c1], dtype=np.float64)
     signal -= bg.evaluate((r1 - r0, c1 - c0), origin=(r0, c0))
     weights = np.where(region, signal, 0.0)
     peak = float(weights.max())

@@ -1,6 +1,7 @@
 """Camera response functions (CRF) of the two sensors: document format, linear default, fitting.
 
-Pure; the files are read and written by :mod:`controller.imaging.crf_io`.
+Pure; the files are read and written by :mod:`controller.imaging.crf_io` (``Crf.load`` and
+``Crf.save`` remain as compatibility entry points that import it lazily).
 
 The CRF file (YAML) lists the sensors in image order, first = shorter exposure (LOW)::
 
@@ -161,8 +162,10 @@ class Crf:
         return doc
 
     def save(self, path: str | Path) -> None:
-        """Write the CRF YAML atomically (delegates to :func:`controller.imaging.crf_io.save_crf`,
-        like :meth:`load`)."""
+        """Write the CRF YAML atomically.
+
+        Like :meth:`load`, a public entry point older than the split of file handling out of the
+        domain: it delegates to :func:`controller.imaging.crf_io.save_crf` (imported here, lazily)."""
         from controller.imaging.crf_io import save_crf
 
         save_crf(self, path)

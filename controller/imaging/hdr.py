@@ -92,13 +92,15 @@ class MergeResult:
 def pair_bit_depth(low: np.ndarray, high: np.ndarray, crf: Crf | None = None) -> int:
     """Sensor bit depth for merging ``low`` and ``high`` (integer pixel arrays).
 
-    The CRF's when there is one; 8 when both arrays are 8-bit; otherwise the smallest depth
-    (at least 8) that holds the largest pixel value, since 10-, 12- and 14-bit sensors are
-    stored in 16-bit containers and the merge's tables must span only the sensor's range.
+    The CRF's when there is one; 8 when both arrays are 8-bit (or not integer, which the merge
+    rejects); otherwise the smallest depth (at least 8) that holds the largest pixel value,
+    since 10-, 12- and 14-bit sensors are stored in 16-bit containers and the merge's tables
+    must span only the sensor's range.
     """
     if crf is not None:
         return crf.bit_depth
-    if low.dtype.itemsize == 1 and high.dtype.itemsize == 1:
+    integer = np.issubdtype(low.dtype, np.integer) and np.issubdtype(high.dtype, np.integer)
+    if not integer or (low.dtype.itemsize == 1 and high.dtype.itemsize == 1) or not (low.size and high.size):
         return 8
     return max(8, max(int(low.max()), int(high.max()), 1).bit_length())
 

@@ -30,6 +30,19 @@ def test_gaussian_centroid_is_subpixel_exact():
     assert analyze(img).centroid_px == pytest.approx((71.37, 48.81), abs=0.02)
 
 
+@pytest.mark.parametrize("dtype", [np.float64, np.float32, np.uint16])
+def test_analyze_leaves_its_input_alone(dtype):
+    # A float64 crop used to be a view: the background was subtracted from the caller's image,
+    # so a second analysis of the same array saw a different image.
+    img = (gaussian((120, 160), 70.0, 50.0, 6.0, amp=1000.0) + 40.0 + 0.1 * np.arange(160)).astype(dtype)
+    before = img.copy()
+    first = analyze(img, background="auto")
+    np.testing.assert_array_equal(img, before)
+    again = analyze(img, background="auto")
+    assert again.centroid_px == first.centroid_px and again.total == first.total
+    np.testing.assert_array_equal(again.hu, first.hu)
+
+
 def test_uniform_disc_ellipse_and_d90():
     # Uniform disc radius R: variance R^2/4 per axis -> full axes 4 sqrt(R^2/4) = 2R;
     # enclosed energy grows as r^2, so d90 = 2 R sqrt(0.9).

@@ -218,8 +218,7 @@ def test_build_library_from_arrays_and_match_image_and_hu():
     query = gaussian((100, 120), 40, 55, 14, 5, amp=300.0)
     by_image = lib.match_image(query)
     by_hu = lib.match_hu(analyze(query, threshold=0.3, background="auto").hu)
-    # log|phi_3..7| of a symmetric spot is the log of rounding noise: distances agree loosely.
-    assert by_image.distance == pytest.approx(by_hu.distance, rel=0.05)
+    assert by_image == by_hu
     assert (by_image.label, by_image.index, by_image.unknown) == ("wide", 1, False)
     assert (by_hu.label, by_hu.index) == ("wide", 1)
     assert by_image.correction_deg == (0.05, -0.02)
@@ -252,3 +251,26 @@ def test_library_save_load_round_trip_keeps_matches(tmp_path):
     for img in images:
         assert back.match_image(img).label == lib.match_image(img).label
     np.testing.assert_allclose(back.scale, lib.scale)
+
+
+def test_beam_chain_match_is_the_library_match_as_the_machine_type():
+    from pathlib import Path
+
+    from controller.calibration.beam_chain import BeamChain
+    from controller.calibration.machine import Match
+    from controller.config import load_config
+    from controller.imaging.beam import analyze
+    from controller.recognition.library import build_library
+
+    cfg = load_config(Path(__file__).resolve().parents[2] / "configs" / "demo.yaml")
+    images, labels = _three_shapes()
+    lib = build_library(images, labels, kind="log-hu")
+    lib.entries[2].correction = {"az_deg": -0.1, "el_deg": 0.03}
+    hu = analyze(gaussian((100, 120), 50, 45, 5, 15, amp=50.0), threshold=lib.threshold).hu
+    m = BeamChain(cfg, library=lib).match(hu)
+    want = lib.match_hu(hu)
+    assert type(m) is Match
+    assert m == Match(want.label, want.distance, want.runner_up, want.runner_up_distance, want.unknown,
+                      want.correction_deg)
+    assert (m.label, m.correction_deg) == ("tall", (-0.1, 0.03))
+    assert BeamChain(cfg).match(hu) is None

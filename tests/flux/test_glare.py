@@ -107,3 +107,13 @@ def test_corneal_irradiance_from_images(camera, rng, disc_renderer):
     assert e_c == pytest.approx(400.0, rel=0.03)
     assert omega == pytest.approx(2.325e-3, rel=0.03)
     assert src.center_px == pytest.approx((70.4, 120.2), abs=0.1)
+
+
+def test_zone_ranges_are_runs_of_equal_zone():
+    from controller.flux.glare import GlareCurve, ZoneRange
+
+    d = np.array([10.0, 20.0, 40.0, 80.0, 160.0])
+    z = np.array(["red", "yellow", "yellow", "green", "green"])
+    curve = GlareCurve(d, d, d, d, z)
+    assert curve.zone_ranges() == [ZoneRange("red", 10.0, 10.0), ZoneRange("yellow", 20.0, 40.0),
+                                   ZoneRange("green", 80.0, 160.0)]

@@ -190,3 +190,14 @@ def test_hotspots_by_hand():
     # the 3x3 mean of the pair is a flat 3x2 top: any of its pixels may be reported, once
     assert spots[0].y in (29, 30, 31) and spots[0].x in (45, 46) and spots[0].w_m2 == pytest.approx(1200 / 9)
     assert abs(spots[1].x - 15) <= 1 and abs(spots[1].y - 10) <= 1 and spots[1].w_m2 == pytest.approx(100.0)
+
+
+def test_reflectivity_from_known_power_inverts_the_map_scale():
+    # A map made with ρ = 0.9 shows 1.1 kW; the beam is known to carry 1.0 kW: E ∝ 1/ρ.
+    from controller.flux.phlux import reflectivity_from_known_power
+
+    rho = reflectivity_from_known_power(1100.0, 0.9, 1000.0)
+    assert rho == pytest.approx(0.99)
+    assert 0.9 * 1100.0 / rho == pytest.approx(1000.0)  # re-evaluated with ρ, the power matches
+    with pytest.raises(ValueError, match="known power"):
+        reflectivity_from_known_power(1100.0, 0.9, 0.0)

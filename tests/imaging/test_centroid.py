@@ -47,3 +47,27 @@ def test_noise_only_frame_is_no_beam_not_a_clipped_one():
     spot += 500.0 * np.exp(-((xx - 400.0) ** 2 + (yy - 300.0) ** 2) / (2 * 15.0**2))
     obs = chain.analyze(spot)
     assert obs.centroid_px == pytest.approx((400, 300), abs=0.5)
+
+
+def test_beam_chain_centroid_is_the_energy_centroid_of_both_lobes():
+    """A dim detached lobe (canting error) is outside analyze()'s main region but pulls the aim."""
+    from controller.calibration.beam_chain import BeamChain
+    from controller.calibration.observations import BeamNotFound
+    from controller.config import load_config
+    from controller.imaging.background import subtract_background
+    from controller.imaging.beam import analyze
+
+    chain = BeamChain(load_config(REPO / "configs" / "demo.yaml"))
+    yy, xx = np.mgrid[0:768, 0:1024]
+    img = 20.0 + np.random.default_rng(1).normal(0.0, 1.0, xx.shape)
+    img += 800.0 * np.exp(-((xx - 400.0) ** 2 + (yy - 300.0) ** 2) / (2 * 12.0**2))
+    img += 200.0 * np.exp(-((xx - 520.0) ** 2 + (yy - 330.0) ** 2) / (2 * 10.0**2))
+    obs = chain.analyze(img)
+    r = analyze(img, threshold=chain.threshold, background="auto")
+    c = energy_centroid(subtract_background(img, r.background), chain.centroid_threshold)
+    assert obs.centroid_px == (c.x, c.y)
+    assert c.x - r.centroid_px[0] > 5.0  # the main-region centroid ignores the lobe
+    edge = img.copy()
+    edge += 800.0 * np.exp(-((xx - 2.0) ** 2 + (yy - 300.0) ** 2) / (2 * 12.0**2))
+    with pytest.raises(BeamNotFound, match="^beam spot clipped by the left edge of the camera view$"):
+        chain.analyze(edge)

@@ -172,6 +172,7 @@ def test_pair_bit_depth():
     assert pair_bit_depth(np.array([[4095]], np.uint16), np.array([[7]], np.uint16)) == 12
     assert pair_bit_depth(np.array([[3]], np.uint16), np.array([[7]], np.uint16)) == 8
     assert pair_bit_depth(np.array([[4095]], np.uint16), u8, Crf.linear(10)) == 10
+    assert pair_bit_depth(np.full((2, 2), np.nan), u8) == 8  # the merge then names the bad type
 
 
 def test_merge_above_offset_removes_the_offset_exactly():

@@ -1,6 +1,6 @@
 """Accuracy against the known irradiance, compared with OpenCV's MergeRobertson / MergeDebevec
 given the same inputs and the same response (3-channel images, float32 times, explicit
-response, as NOTES.md requires)."""
+response: OpenCV 5's HDR code gives wrong values for 1-channel input or float64 times)."""
 
 import json
 
