@@ -173,8 +173,40 @@ def _session(cfg, args, steps, drive, camera, library) -> int:
         print_json({"heliostat": args.heliostat, "ok": True, "steps": results})
     else:
         for name, res in results.items():
-            print(f"{name}: {res}")
+            print(f"{name}: {human(name, res)}")
     return 0
+
+
+def _drive_text(r: dict) -> str:
+    state = "moving" if r.get("moving") else ("in position" if r.get("in_position") else "stopped")
+    faults = ", ".join(r.get("faults") or []) or "no faults"
+    return f"az {r['az_steps']} el {r['el_steps']} steps, {state}, {faults}"
+
+
+def human(step: str, r: dict) -> str:
+    """One step's result in words (the --json output keeps the data)."""
+    if step in ("status", "move", "jog", "aim", "park"):
+        return _drive_text(r)
+    if step == "exit":
+        return _said(r)
+    if step == "capture":
+        if not r.get("beam"):
+            return f"no beam: {r['problem']}"
+        x, y = r["centroid_px"]
+        return (f"beam centroid at x {x:.1f}, y {y:.1f} px, {r['error_mrad']:.2f} mrad from the aim point, "
+                f"peak {r['peak']:.4g}; preview {r['png']}")
+    if step == "verify":
+        if not r.get("beam"):
+            return f"no beam: {r['problem']}"
+        verdict = "within" if r["ok"] else "OUTSIDE"
+        text = (f"pointing error {r['error_mrad']:.3f} mrad, {verdict} the tolerance of "
+                f"{r['tolerance_mrad']:g} mrad")
+        if "match" in r:
+            text += f"; looks like {r['match']['label']} (distance {r['match']['distance']:.3g})"
+        return text
+    if step == "reference":
+        return f"stored {r['label']!r} as {r['image']} ({r['entries']} entries in {r['library']})"
+    return str(r)
 
 
 def _said(done: dict) -> str:
@@ -254,6 +286,6 @@ def _interactive(c, args) -> int:
             if cmd in ("move", "jog", "aim", "park"):  # motion takes a while: say it started
                 c.needs_parking = True  # from here on, an interruption must park
                 print(f"{cmd} {' '.join(map(str, params))} …".replace("  ", " "), file=sys.stderr, flush=True)
-            print(_do(c, cmd, params, args))
+            print(human(cmd, _do(c, cmd, params, args)))
         except HeliocalError as exc:
             print(f"error: {exc}")

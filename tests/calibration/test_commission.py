@@ -10,8 +10,8 @@ import sys
 from pathlib import Path
 
 import pytest
-from controller.recognition.library_io import load_library
 
+from controller.recognition.library_io import load_library
 from tests.conftest import scaled_s
 
 REPO = Path(__file__).resolve().parents[2]
@@ -141,11 +141,11 @@ def test_end_of_input_parks_and_leave_in_place_does_not(small_config, tmp_path):
     p = _session(small_config, tmp_path / "b", "--leave-in-place")
     out, err = p.communicate("m 20000 20000\nq\n", timeout=scaled_s(120))
     assert p.returncode == 0 and "left in place" in err and "parked" not in err
-    assert "'az_steps': 20000" in out
+    assert "az 20000 el 20000 steps, in position, no faults" in out
 
 
 def test_bad_prompt_line_does_not_end_the_session(small_config, tmp_path):
     p = _session(small_config, tmp_path)
     out, err = p.communicate("m 1\nc\ns\nq\n", timeout=scaled_s(120))
     assert p.returncode == 0 and "Traceback" not in err
-    assert out.count("error: usage:") == 2 and "'az_steps'" in out  # status still ran
+    assert out.count("error: usage:") == 2 and "az 500 el 500 steps" in out  # status still ran
