@@ -10,6 +10,8 @@
   point, first measurement vs last), with the target outline;
 * ``time_per_heliostat.png``: plant-clock time per heliostat (slew to standby, waiting for the
   target, on target);
+* ``trend.png`` (with earlier campaigns in the database): each heliostat's error after
+  calibration, campaign by campaign;
 * ``confusion.png`` (with a reference truth only);
 * ``heliostats.csv``: the per-heliostat table for a spreadsheet;
 * ``thumbs/``: the first and last measurement's HIGH frame of each heliostat, linked to the
@@ -79,12 +81,12 @@ def _plots(store: CampaignStore, camp: CampaignRecord, runs: list[RunRecord],
         fin = sorted(last.values())
         ax.scatter(x[first], y[first], s=18, label="first measurement")
         ax.scatter(x[fin], y[fin], s=18, marker="x", label="final")
+        ax.legend(fontsize=8)
     ax.axhline(0, lw=0.5, color="k")
     ax.axvline(0, lw=0.5, color="k")
     ax.set_aspect("equal")
     ax.set_xlabel("horizontal offset on the target, m (+ = right as seen from the field)")
     ax.set_ylabel("vertical offset, m (up = +)")
-    ax.legend(fontsize=8)
     save_figure(fig, out / "centroids.png", dpi=110, bbox_inches="tight")
     figs.append(("Beam centroids on the target (relative to the aim point)", "centroids.png"))
 
@@ -103,6 +105,33 @@ def _plots(store: CampaignStore, camp: CampaignRecord, runs: list[RunRecord],
     save_figure(fig, out / "time_per_heliostat.png", dpi=110, bbox_inches="tight")
     figs.append(("Time per heliostat (plant clock)", "time_per_heliostat.png"))
     return figs
+
+
+def _trend(store: CampaignStore, camp: CampaignRecord, out: Path) -> tuple[str, str] | None:
+    """Each heliostat's measured error after calibration, night by night, over this campaign and
+    the earlier ones of the database (None with fewer than two campaigns)."""
+    nights = [c for c in store.campaigns() if c.id <= camp.id]
+    if len(nights) < 2:
+        return None
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    series: dict[str, list[tuple[int, float]]] = {}
+    for i, c in enumerate(nights):
+        for r in store.runs(c.id):
+            if r.error_after_mrad is not None:
+                series.setdefault(r.heliostat_id, []).append((i, r.error_after_mrad))
+    fig, ax = plt.subplots(figsize=(7, 3.6))
+    for hid, pts in sorted(series.items()):
+        ax.plot([p[0] for p in pts], [p[1] for p in pts], marker="o", lw=1, label=hid)
+    ax.set_xticks(range(len(nights)), [c.name for c in nights], rotation=30, ha="right", fontsize=8)
+    ax.set_ylabel("error after calibration, mrad (measured)")
+    if len(series) <= 20:  # a legend of a whole field says nothing
+        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), ncol=1 + len(series) // 12)
+    save_figure(fig, out / "trend.png", dpi=110, bbox_inches="tight")
+    return ("Per-heliostat trend across campaigns", "trend.png")
 
 
 def _diff(a, b) -> float:
@@ -148,6 +177,9 @@ def write_report(store: CampaignStore, out_dir: str | Path, campaign_id: int | N
     meta = camp.meta
     # Empty plots say nothing: with no recorded run the report says so in words instead.
     figs = _plots(store, camp, runs, out) if runs else []
+    trend = _trend(store, camp, out)
+    if trend:
+        figs.append(trend)
     conf = _confusion(runs, truth, out) if truth else None
 
     cols = ["heliostat", "status", "iterations", "matched case", "error before mrad", "error after mrad"]

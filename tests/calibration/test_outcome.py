@@ -105,3 +105,19 @@ def test_campaign_run_bad_options_exit_2_before_work(tmp_path, args, fragment):
                        cwd=tmp_path, capture_output=True, text=True)
     assert r.returncode == 2 and fragment in json.loads(r.stdout)["error"], r.stdout + r.stderr
     assert not (tmp_path / "c.db").exists()
+
+
+def test_report_shows_the_trend_across_campaigns(tmp_path):
+    db = tmp_path / "c.db"
+    for night, err in (("night-1", 0.4), ("night-2", 0.2)):
+        with CampaignStore(db) as store:
+            cid, _ = store.open_campaign(night, queue=["H1"], **OPEN)
+            run = _run("H1", "calibrated", 0.0, 1.0)
+            run.error_after_mrad = err
+            store.record_run(cid, run)
+            store.finish_campaign(cid, "finished")
+    with CampaignStore(db) as store:
+        md = write_report(store, tmp_path / "one", store.find_campaign("night-1").id).read_text()
+        assert "trend" not in md  # a single campaign has no trend
+        md = write_report(store, tmp_path / "two", cid).read_text()
+    assert "Per-heliostat trend across campaigns" in md and (tmp_path / "two" / "trend.png").is_file()
