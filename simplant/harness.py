@@ -15,15 +15,17 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from controller.recognition.library import Library
 
+from controller.calibration.daytime import sun_path
 from controller.calibration.records import MeasurementRecord, RunRecord
 from controller.calibration.runner import Campaign, CampaignObserver, CampaignOptions, CampaignResult
 from controller.config import PlantConfig, config_sha256
 from controller.devices.factory import LinkPool
+from controller.recognition.library import Library
 from controller.reports.summary import ReferenceTruth
 from controller.storage.db import CampaignStore
 from controller.storage.images import ImageArchive
+from simplant.daytime import DaytimeError, daytime_error
 from simplant.plant import SimulatedPlant, load_config_data
 from simplant.reference_set import write_reference_set
 from simplant.settings import SimulationSettings
@@ -129,6 +131,8 @@ class SimulatedRun:
     settings: SimulationSettings
     db: Path
     out: Path
+    daytime: DaytimeError  # open loop over the sun path, latest models, against the plant truth
+    daytime_uncalibrated: DaytimeError  # the same with the nominal kinematics
 
 
 def run_simulated(cfg: PlantConfig, config_path: str, out: Path, db_path: Path, ids: list[str], *,
@@ -162,7 +166,15 @@ def run_simulated(cfg: PlantConfig, config_path: str, out: Path, db_path: Path, 
                                 observers=[TruthRecorder(plant, db_path), *observers])
                 result = camp.run()
             safety = plant.safety.report()
-        store.update_meta(result.campaign_id, {"beam_safety_last_session": safety})
+        # What the night was for: open-loop tracking of the sun with each heliostat's latest
+        # model, scored against the plant's truth (and, for scale, with no model at all).
+        path = sun_path(cfg.site)
+        daytime = daytime_error(plant, cfg, {hid: store.latest_model(hid) for hid in ids}, path)
+        uncalibrated = daytime_error(plant, cfg, dict.fromkeys(ids), path)
+        store.update_meta(result.campaign_id, {"beam_safety_last_session": safety,
+                                               "daytime_error_mrad": daytime.to_json(),
+                                               "daytime_error_uncalibrated_mrad": uncalibrated.to_json()})
     finally:
         store.close()
-    return SimulatedRun(result, read_truth(db_path, result.campaign_id), safety, settings, db_path, out)
+    return SimulatedRun(result, read_truth(db_path, result.campaign_id), safety, settings, db_path, out,
+                        daytime, uncalibrated)

@@ -206,6 +206,16 @@ class SimulatedPlant:
         az, el = hh.controller.output_steps()
         return actual_normal(hh.kin, hh.params, az, el)
 
+    def true_normal_at(self, heliostat_id: str, az_steps: float, el_steps: float) -> np.ndarray:
+        """Unit ENU mirror normal of the hidden heliostat at the given motor steps: the plant's
+        truth, for scoring any aim (e.g. ``heliocal aim`` at a sun position) independently."""
+        hh = self.hidden[heliostat_id]
+        return actual_normal(hh.kin, hh.params, az_steps, el_steps)
+
+    def true_mirror_center(self, heliostat_id: str, az_steps: float, el_steps: float) -> np.ndarray:
+        """Centre of the hidden heliostat's mirror at the given steps, m ENU."""
+        return self.hidden[heliostat_id].kin.mirror_center(az_steps, el_steps)
+
     def beam_normals(self, hid: str) -> list[np.ndarray]:
         """True normal(s) of ``hid`` now: one, or the poses a rocking (worn) gear sweeps."""
         hh = self.hidden[hid]

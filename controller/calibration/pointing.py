@@ -108,10 +108,7 @@ class GeometryPointing:
                          "off the target")
 
     def _steps(self, point: np.ndarray, model: ModelRecord | None) -> tuple[int, int]:
-        if model is None:
-            return self.kin.aim(self.source_dir, point)
-        n = aim_normal(self.source_dir, self.heliostat_pos, point)
-        return steps_for_normal_with_errors(self.kin, TrackingErrorParams.from_dict(model.params), n)
+        return steps_to_aim(self.kin, model, self.source_dir, point)
 
     def aim_steps(self, model: ModelRecord | None) -> tuple[int, int]:
         return self._steps(self.aim_point, model)
@@ -148,6 +145,18 @@ class GeometryPointing:
             res = fit_tracking_errors(self.kin, ms, fit=("az_offset", "el_offset"), initial=initial)
         sigma = {k: (v if math.isfinite(v) else None) for k, v in res.sigma.to_dict().items()}
         return ModelRecord(res.params.to_dict(), sigma, float(res.residual_mrad_rms), len(ms))
+
+
+def steps_to_aim(kin: HeliostatKinematics, model: ModelRecord | None, source_dir: np.ndarray,
+                 point: np.ndarray) -> tuple[int, int]:
+    """Motor steps that reflect light from ``source_dir`` (unit ENU, towards the source) onto
+    ``point`` (m ENU): with the fitted tracking-error ``model`` (the bisector normal made the
+    *actual* normal, :func:`controller.geometry.error_model.steps_for_normal_with_errors`), or
+    the nominal kinematics without one. LimitError when the pose is out of reach."""
+    if model is None:
+        return kin.aim(source_dir, point)
+    n = aim_normal(source_dir, kin.position, point)
+    return steps_for_normal_with_errors(kin, TrackingErrorParams.from_dict(model.params), n)
 
 
 @dataclass(frozen=True)
