@@ -96,8 +96,9 @@ class AxisConfig(_Model):
     pivot_radius: float = Field(gt=0, description="lever arm from pivot to actuator rod end, m")
     initial_angle: float = Field(ge=-math.pi, le=math.pi, description="axis angle at step 0, rad")
     clockwise_axis_movement: bool = False
-    min_increment: int = Field(ge=0, description="hard range start, steps")
-    max_increment: int = Field(gt=0, description="hard range end, steps")
+    # Steps travel as int32 on both wire protocols (PROTOCOL.md, MODBUS.md).
+    min_increment: int = Field(ge=0, le=2**31 - 1, description="hard range start, steps")
+    max_increment: int = Field(gt=0, le=2**31 - 1, description="hard range end, steps")
     soft_limits: SoftLimits
     speed_steps_per_s: float = Field(default=1500.0, gt=0, le=100000)
     acceleration_steps_per_s2: float = Field(default=3000.0, gt=0, le=1000000)

@@ -35,5 +35,6 @@ class Reject(IntEnum):
     OUT_OF_RANGE = 0x03  # target outside the soft limits
     FAULT_ACTIVE = 0x04  # a latched fault blocks motion until CLEAR_FAULT
     BUSY = 0x05  # e.g. HOME in progress
-    BAD_LIMITS = 0x06  # SET_LIMITS outside the hard range or min >= max
+    BAD_LIMITS = 0x06  # SET_LIMITS outside the hard range, min >= max, or excluding position/target
     BAD_ADDRESS = 0x07
+    INTERNAL = 0x08  # the firmware could not execute the command (it stays up and answers)

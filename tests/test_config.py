@@ -70,6 +70,8 @@ CASES = [
     ("typo", _set("calibration.tolerence_mrad", 1.0), "calibration.tolerence_mrad",
      "unknown key (did you mean 'tolerance_mrad'?)"),
     ("simulation is not plant config", _set("simulation", {"seed": 1}), "simulation", "unknown key"),
+    ("beyond the int32 wire range", _set("heliostats.0.axes.azimuth.max_increment", 5000000000),
+     "heliostats[0].axes.azimuth.max_increment", "less than or equal to 2147483647"),
 ]
 
 

@@ -139,16 +139,21 @@ class _Unit:
         for name, p in (("az_target_steps", c.az), ("el_target_steps", c.el)):
             if name in new and not p.soft_min <= new[name] <= p.soft_max:
                 return ExcCodes.ILLEGAL_VALUE, new  # never stored: MOVE cannot pick it up
+        old_limits = (c.az.soft_min, c.az.soft_max, c.el.soft_min, c.el.soft_max)
         if any(n in new for n in _SOFT_LIMITS):
-            if c.status()["moving"]:
-                return ExcCodes.DEVICE_BUSY, new
             limits = {**self.holding_values(), **new}
-            if c.set_limits(*(limits[n] for n in _SOFT_LIMITS)) != Reject.OK:
+            refused = c.set_limits(*(limits[n] for n in _SOFT_LIMITS))
+            if refused == Reject.BUSY:
+                return ExcCodes.DEVICE_BUSY, new
+            if refused != Reject.OK:
                 return ExcCodes.ILLEGAL_VALUE, new
         image = {**self.holding, **{k: v for k, v in new.items() if k not in _SOFT_LIMITS}}
         if "command" in new:
             exc = self._execute(new["command"], image)
             if exc is not None:
+                # A refused request stores nothing: limits written with it are taken back.
+                if (c.az.soft_min, c.az.soft_max, c.el.soft_min, c.el.soft_max) != old_limits:
+                    c.restore_limits(*old_limits)
                 return exc, new
         self.holding = image
         return None, new

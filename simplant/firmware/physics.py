@@ -248,15 +248,31 @@ class SimController:
             return self._record("CLEAR_FAULT", (), Reject.OK)
 
     def set_limits(self, az_min: int, az_max: int, el_min: int, el_max: int) -> Reject:
+        """New soft limits, refused (nothing changed) while an axis moves (BUSY) or when they
+        leave the hard range or exclude an axis's present position or target (BAD_LIMITS): an
+        axis must never finish a move outside the soft range it is given."""
         with self._lock:
             self.update()
-            ok = (self.az.hard_min <= az_min < az_max <= self.az.hard_max
-                  and self.el.hard_min <= el_min < el_max <= self.el.hard_max)
-            if ok:
+            new = {"az": (az_min, az_max), "el": (el_min, el_max)}
+            if any(axis.moving for axis in self.axes.values()):
+                result = Reject.BUSY
+            elif not all(p.hard_min <= lo < hi <= p.hard_max for p, (lo, hi) in ((self.az, new["az"]),
+                                                                                  (self.el, new["el"]))):
+                result = Reject.BAD_LIMITS
+            elif not all(lo <= round(a.motor) <= hi and lo <= a.target <= hi
+                         for a, (lo, hi) in ((self.axes["az"], new["az"]), (self.axes["el"], new["el"]))):
+                result = Reject.BAD_LIMITS
+            else:
                 self.az.soft_min, self.az.soft_max = az_min, az_max
                 self.el.soft_min, self.el.soft_max = el_min, el_max
-            result = Reject.OK if ok else Reject.BAD_LIMITS
+                result = Reject.OK
             return self._record("SET_LIMITS", (az_min, az_max, el_min, el_max), result)
+
+    def restore_limits(self, az_min: int, az_max: int, el_min: int, el_max: int) -> None:
+        """Put back soft limits a refused request changed (the server's rollback; not a command)."""
+        with self._lock:
+            self.az.soft_min, self.az.soft_max = az_min, az_max
+            self.el.soft_min, self.el.soft_max = el_min, el_max
 
     # -- readings ---------------------------------------------------------------------------
     def status(self) -> dict:

@@ -17,6 +17,7 @@ import errno
 import os
 import pty
 import select
+import struct
 import threading
 import tty
 from collections import Counter
@@ -61,6 +62,7 @@ class SerialSimFirmware:
         self.link_path = link_path
         self.device: str | None = None
         self.stats: Counter[str] = Counter()
+        self.last_error: str | None = None  # the last command the firmware failed to execute
         self._master: int | None = None
         self._cache: dict[int, tuple[tuple[int, int, bytes], bytes]] = {}
         self._lock = threading.Lock()
@@ -161,7 +163,14 @@ class SerialSimFirmware:
             if cached is not None and cached[0] == key:
                 self.stats["duplicates"] += 1
                 return cached[1]
-            payload = self._execute(self.controllers[frame.address], frame)
+            try:
+                payload = self._execute(self.controllers[frame.address], frame)
+            except (struct.error, ValueError, OverflowError) as exc:
+                # A reply that cannot be built (e.g. a value beyond the wire type) must not kill
+                # the serving thread: the unit answers INTERNAL and keeps serving.
+                self.stats["internal_errors"] += 1
+                self.last_error = f"command 0x{frame.command:02x}: {exc}"
+                payload = nak(Reject.INTERNAL)
             reply = encode(Frame(frame.address, frame.seq, frame.command | REPLY_BIT, payload))
             self._cache[frame.address] = (key, reply)
             return reply

@@ -49,12 +49,16 @@ def test_info_and_limits(drive, controllers):
     assert (info.firmware_version, info.protocol_version, info.axes) == ("1.0.0", 1, 2)
     assert info.hard_limits == DriveLimits(AxisLimits(0, 75308), AxisLimits(0, 68745))
     assert drive.get_limits() == LIMITS
-    narrow = DriveLimits(AxisLimits(1000, 70000), AxisLimits(600, 60000))
+    narrow = DriveLimits(AxisLimits(500, 70000), AxisLimits(500, 60000))
     drive.set_limits(narrow)
     assert drive.get_limits() == narrow
-    assert (controllers[1].el.soft_min, controllers[1].el.soft_max) == (600, 60000)
+    assert (controllers[1].el.soft_min, controllers[1].el.soft_max) == (500, 60000)
     with pytest.raises(ModbusLimitError, match="exception 3"):
-        drive.set_limits(DriveLimits(AxisLimits(0, 80000), AxisLimits(600, 60000)))
+        drive.set_limits(DriveLimits(AxisLimits(0, 80000), AxisLimits(500, 60000)))
+    # limits that would leave the axis (at stow, 500) outside its soft range are refused too
+    with pytest.raises(ModbusLimitError, match="exception 3"):
+        drive.set_limits(DriveLimits(AxisLimits(1000, 70000), AxisLimits(500, 60000)))
+    assert drive.get_limits() == narrow
 
 
 def test_move_and_wait_and_jog(drive, controllers, sim):
@@ -84,7 +88,7 @@ def test_out_of_range_jog_never_reaches_the_device(drive, sim, controllers):
 def test_device_limits_narrower_than_config(drive, sim, controllers):
     """The configuration allows 600 but the device was set to [1000, ...]: the device
     refuses the setpoint with exception 3; nothing moves."""
-    controllers[1].set_limits(1000, 74800, 500, 68200)
+    controllers[1].restore_limits(1000, 74800, 500, 68200)  # as set on site, before this session
     with pytest.raises(ModbusLimitError) as exc:
         drive.move_abs(600, 600)
     err = exc.value
@@ -92,7 +96,7 @@ def test_device_limits_narrower_than_config(drive, sim, controllers):
     assert (err.unit, err.function_code, err.address, err.exception_code) == (1, 16, 0, 3)
     assert "unit 1" in str(err) and "az_target_steps..el_target_steps" in str(err)
     assert "Modbus exception 3 (illegal data value)" in str(err)
-    assert [e.command for e in controllers[1].log] == ["SET_LIMITS"]
+    assert controllers[1].log == []  # nothing executed
     assert drive.status().az_target == 500
 
 

@@ -100,9 +100,15 @@ def test_fault_blocks_motion_with_exception_4(raw_client, controllers):
 def test_soft_limits_read_write_busy(raw_client, controllers):
     assert raw_client.read_holding_registers(9, count=8, device_id=1).registers == [
         0, 500, 1, 74800 - 65536, 0, 500, 1, 68200 - 65536]
-    # narrow azimuth to [600, 70000]: 70000 = 0x0001_1170
-    assert _exc(raw_client.write_registers(9, [0, 600, 1, 0x1170], device_id=1)) is None
-    assert (controllers[1].az.soft_min, controllers[1].az.soft_max) == (600, 70000)
+    # narrow azimuth to [500, 70000]: 70000 = 0x0001_1170
+    assert _exc(raw_client.write_registers(9, [0, 500, 1, 0x1170], device_id=1)) is None
+    assert (controllers[1].az.soft_min, controllers[1].az.soft_max) == (500, 70000)
+    # a minimum above the axis's position (500) would leave it outside its range -> 3, unchanged
+    assert _exc(raw_client.write_registers(9, [0, 600, 1, 0x1170], device_id=1)) == 3
+    assert (controllers[1].az.soft_min, controllers[1].az.soft_max) == (500, 70000)
+    # a refused request stores nothing: limits written together with a bad command are not kept
+    assert _exc(raw_client.write_registers(8, [99, 0, 500, 0, 1000], device_id=1)) is not None
+    assert (controllers[1].az.soft_min, controllers[1].az.soft_max) == (500, 70000)
     # max beyond the hard range (75308) -> 3
     assert _exc(raw_client.write_registers(11, [1, 0x3000], device_id=1)) == 3   # 77824
     # busy while moving

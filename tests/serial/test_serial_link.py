@@ -101,8 +101,23 @@ def test_set_limits_outside_hard_range_refused(bus):
     d = SerialDrive(bus, 1, LIMITS)
     with pytest.raises(FirmwareLimitError, match="BAD_LIMITS"):
         d.set_limits(DriveLimits(AxisLimits(-5, 100), AxisLimits(500, 600)))
-    d.set_limits(DriveLimits(AxisLimits(1000, 2000), AxisLimits(500, 600)))
-    assert d.get_limits() == DriveLimits(AxisLimits(1000, 2000), AxisLimits(500, 600))
+    d.set_limits(DriveLimits(AxisLimits(500, 2000), AxisLimits(500, 600)))
+    assert d.get_limits() == DriveLimits(AxisLimits(500, 2000), AxisLimits(500, 600))
+    # the axes stand at 500: limits starting at 1000 would leave them outside -> refused, unchanged
+    with pytest.raises(FirmwareLimitError, match="BAD_LIMITS"):
+        d.set_limits(DriveLimits(AxisLimits(1000, 2000), AxisLimits(500, 600)))
+    assert d.get_limits() == DriveLimits(AxisLimits(500, 2000), AxisLimits(500, 600))
+
+
+def test_set_limits_refused_during_a_move(bus, firmware):
+    """Limits cannot change under a running move: the axis would end outside them."""
+    d = SerialDrive(bus, 1, LIMITS)
+    d.move_abs(60000, 60000)
+    with pytest.raises(NakError, match="BUSY"):
+        d.set_limits(DriveLimits(AxisLimits(500, 40000), AxisLimits(500, 40000)))
+    st = d.wait_in_position(scaled_s(10))
+    assert (st.az_steps, st.el_steps) == (60000, 60000)
+    assert firmware.controllers[1].az.soft_max == LIMITS.az.max_steps
 
 
 def test_unserved_address_times_out_with_link_error(bus):
@@ -232,3 +247,25 @@ def test_fault_mid_move_is_reported(bus, firmware, inject, faults):
     assert not d.status().in_position  # latched until cleared
     d.clear_fault()
     assert d.move_and_wait(1000, 1000, 5).el_steps == 1000
+
+
+def test_a_command_the_firmware_cannot_execute_is_nakd_and_serving_goes_on():
+    """A hard range beyond the int32 wire type (a config the controller refuses, see
+    tests/test_config.py) must not kill the firmware: GET_INFO gets NAK INTERNAL, the next
+    request is served."""
+    from simplant.firmware.physics import AxisParams, SimController
+    from simplant.firmware.serial import SerialSimFirmware
+
+    huge = AxisParams(500, 74800, 0, 5_000_000_000, speed=1540.0, acceleration=3000.0)
+    fw = SerialSimFirmware({1: SimController(1, huge, huge)})
+    fw.start()
+    try:
+        port = serial.Serial(fw.device, 115200, timeout=scaled_s(0.05))
+        wire = encode(Frame(1, 1, Command.GET_INFO)) + encode(Frame(1, 2, Command.GET_STATUS))
+        got = _raw_exchange(port, wire, expect=2, timeout=scaled_s(2))
+        port.close()
+        assert [(f.seq, f.payload[:1]) for f in got] == [(1, bytes([Reject.INTERNAL])),
+                                                         (2, bytes([Reject.OK]))]
+        assert fw.stats["internal_errors"] == 1 and "0x" in fw.last_error
+    finally:
+        fw.stop()
