@@ -86,7 +86,10 @@ def _main(argv: list[str] | None) -> int:
         return int(args.func(args) or 0)
     except HeliocalError as exc:
         if getattr(args, "json", False):
-            print(json.dumps({"ok": False, "error": str(exc)}))
+            out = {"ok": False, "error": str(exc)}
+            if exc.outcome is not None:
+                out["outcome"] = exc.outcome
+            print(json.dumps(out))
         else:
             print(f"heliocal {args.command}: error: {exc}", file=sys.stderr)
         return exc.exit_code

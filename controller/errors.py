@@ -9,9 +9,15 @@ from __future__ import annotations
 
 
 class HeliocalError(Exception):
-    """Base class of all errors the CLI reports cleanly. Exit status 1 unless overridden."""
+    """Base class of all errors the CLI reports cleanly. Exit status 1 unless overridden.
+
+    ``outcome`` says, for a command to a device, whether the device executed it:
+    ``"executed"``, ``"not_executed"`` or ``"unknown"`` (no answer after it was sent — a
+    script must check the device's state before sending it again); None where it does not
+    apply."""
 
     exit_code = 1
+    outcome: str | None = None
 
 
 class InputError(HeliocalError):
@@ -26,6 +32,8 @@ class ConfigError(InputError):
 
 class LimitError(InputError):
     """A requested position is outside an axis' soft limits. Nothing was sent."""
+
+    outcome = "not_executed"
 
 
 class DeviceError(HeliocalError):

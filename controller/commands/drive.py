@@ -21,7 +21,7 @@ import sys
 
 from controller.commands._common import DEFAULT_CONFIG, add_json_option, print_json
 from controller.commands._links import add_link_options, heliostat_for, link_model, load_plant
-from controller.devices.drive import AxisLimits, DriveLimits, MoveResult
+from controller.devices.drive import AxisLimits, DriveError, DriveLimits, MoveResult
 from controller.errors import DeviceError, HeliocalError, InputError
 
 _WIDE = DriveLimits(AxisLimits(-(2**31), 2**31 - 1), AxisLimits(-(2**31), 2**31 - 1))
@@ -128,6 +128,11 @@ def _act(args, drive, cfg_limits: DriveLimits | None, source: str | None) -> dic
             st = drive.wait_in_position(args.wait_timeout, expect=target)
         except KeyboardInterrupt:
             _interrupted(args, drive)
+            raise
+        except DriveError as exc:
+            # The command itself was acknowledged: whatever went wrong while waiting, it was
+            # executed, and sending it again would move the axes twice.
+            exc.outcome = "executed"
             raise
         az, el = st.az_steps, st.el_steps
     return MoveResult(True, az, el, retries=drive.retries_used).to_json()

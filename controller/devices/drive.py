@@ -20,11 +20,19 @@ class DriveError(DeviceError):
 
 
 class LinkError(DriveError):
-    """No valid answer within the timeout after all retries, or the link is down."""
+    """No valid answer within the timeout after all retries, or the link is down. Unless the
+    request never left (``outcome="not_executed"``, e.g. the port cannot be opened), whether
+    the device executed it is unknown."""
+
+    def __init__(self, message: str, outcome: str = "unknown") -> None:
+        super().__init__(message)
+        self.outcome = outcome
 
 
 class NakError(DriveError):
     """The firmware refused the command; ``code`` is the rejection code (firmware_proto.faults)."""
+
+    outcome = "not_executed"
 
     def __init__(self, message: str, code: int) -> None:
         super().__init__(message)
@@ -123,9 +131,9 @@ class MoveResult:
     extra: dict = field(default_factory=dict)
 
     def to_json(self) -> dict:
-        """The ``drive move|jog --json`` contract."""
+        """The ``drive move|jog --json`` contract (``outcome``: the command was executed)."""
         return {"ok": self.ok, "az_steps": self.az_steps, "el_steps": self.el_steps,
-                "retries": self.retries}
+                "retries": self.retries, "outcome": "executed"}
 
 
 class Drive(ABC):

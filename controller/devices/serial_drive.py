@@ -105,7 +105,7 @@ class SerialBus:
         try:
             self._ser = serial.Serial(self.device, self.baud, timeout=0, write_timeout=1.0, exclusive=True)
         except (serial.SerialException, OSError, ValueError) as exc:
-            raise LinkError(f"cannot open serial device {self.device}: {exc}") from None
+            raise LinkError(f"cannot open serial device {self.device}: {exc}", "not_executed") from None
         self._fd = self._ser.fileno()
         self._seq.clear()
         self._decoder.reset()
@@ -143,17 +143,25 @@ class SerialBus:
         """
         with self._lock:
             if self._closed:
-                raise LinkError(f"serial bus {self.device} is closed")
+                raise LinkError(f"serial bus {self.device} is closed", "not_executed")
             if self._ser is None:
                 self._open()
             retries = 0
-            if address not in self._seq:
-                seq = int.from_bytes(os.urandom(1), "little")
-                _, retries = self._transact(address, seq, Command.PING, os.urandom(8))
+            try:
+                if address not in self._seq:
+                    seq = int.from_bytes(os.urandom(1), "little")
+                    _, retries = self._transact(address, seq, Command.PING, os.urandom(8))
+                    self._seq[address] = (seq + 1) & 0xFF
+                seq = self._seq[address]
                 self._seq[address] = (seq + 1) & 0xFF
-            seq = self._seq[address]
-            self._seq[address] = (seq + 1) & 0xFF
-            reply, more = self._transact(address, seq, command, payload)
+                reply, more = self._transact(address, seq, command, payload)
+            except LinkError:
+                # After any link error the session starts anew (a fresh PING nonce): during a
+                # long outage the 8-bit sequence wraps, and a later request with the same bytes
+                # as the last one executed would otherwise be answered from the firmware's
+                # duplicate cache without being executed.
+                self._seq.pop(address, None)
+                raise
             return reply, retries + more
 
     def _transact(self, address: int, seq: int, command: int, payload: bytes) -> tuple[Frame, int]:

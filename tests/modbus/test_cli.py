@@ -64,9 +64,11 @@ def test_status_move_jog_json(firmware, heliocal):
     assert json.loads(out) == {"unit": 3, "az_steps": 500, "el_steps": 500, "moving": False,
                                "in_position": True, "faults": []}
     code, out, _ = heliocal(*base, "move", "--az-steps", "2500", "--el-steps", "1500", "--wait", "--json")
-    assert json.loads(out) == {"ok": True, "az_steps": 2500, "el_steps": 1500, "retries": 0}
+    assert json.loads(out) == {"ok": True, "az_steps": 2500, "el_steps": 1500, "retries": 0,
+                               "outcome": "executed"}
     code, out, _ = heliocal(*base, "jog", "--az-steps", "-500", "--el-steps", "250", "--wait", "--json")
-    assert json.loads(out) == {"ok": True, "az_steps": 2000, "el_steps": 1750, "retries": 0}
+    assert json.loads(out) == {"ok": True, "az_steps": 2000, "el_steps": 1750, "retries": 0,
+                               "outcome": "executed"}
     # errors: one JSON line on stdout, nothing on stderr, exit 2 for bad input, 1 for the device
     code, out, err = heliocal(*base, "move", "--az-steps", "80000", "--el-steps", "600", "--json")
     assert code == 2 and err == ""

@@ -67,11 +67,13 @@ def test_sim_firmware_and_drive_contract(sim_process, heliocal):
 
     rc, out, _ = heliocal(*drive, "--unit", "2", "move", "--az-steps", "3000", "--el-steps", "2000",
                           "--wait", "--json")
-    assert (rc, out) == (0, {"ok": True, "az_steps": 3000, "el_steps": 2000, "retries": 0})
+    assert (rc, out) == (0, {"ok": True, "az_steps": 3000, "el_steps": 2000, "retries": 0,
+                             "outcome": "executed"})
 
     rc, out, _ = heliocal(*drive, "--unit", "2", "jog", "--az-steps", "-250", "--el-steps", "75",
                           "--wait", "--json")
-    assert (rc, out) == (0, {"ok": True, "az_steps": 2750, "el_steps": 2075, "retries": 0})
+    assert (rc, out) == (0, {"ok": True, "az_steps": 2750, "el_steps": 2075, "retries": 0,
+                             "outcome": "executed"})
 
     # Out of range (demo.yaml azimuth soft limits 500..74800): exit 2, nothing moved.
     rc, out, _ = heliocal(*drive, "--unit", "2", "move", "--az-steps", "74801", "--el-steps", "2000",
@@ -131,7 +133,8 @@ def test_drive_cli_same_contract_over_modbus_tcp(heliocal):
     try:
         drive = ["drive", "--modbus-tcp", f"127.0.0.1:{port}", "--unit", "3", "--config", CONFIG]
         rc, out, _ = heliocal(*drive, "jog", "--az-steps", "1000", "--el-steps", "20", "--wait", "--json")
-        assert (rc, out) == (0, {"ok": True, "az_steps": 1500, "el_steps": 520, "retries": 0})
+        assert (rc, out) == (0, {"ok": True, "az_steps": 1500, "el_steps": 520, "retries": 0,
+                                 "outcome": "executed"})
         rc, out, _ = heliocal(*drive, "status", "--json")
         assert out == {"unit": 3, "az_steps": 1500, "el_steps": 520, "moving": False, "in_position": True,
                        "faults": []}
