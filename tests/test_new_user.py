@@ -28,10 +28,12 @@ def test_readme_session_outside_the_repository(tmp_path):
     assert "using configuration" in r.stderr and "packaged demo plant" in r.stderr
 
     r = heliocal(tmp_path, "campaign", "run", "--db", "night.db", "--simulate", "--heliostats", "H02",
-                 "--name", "first-night", "--report", "report", "--json", env=env)
+                 "--name", "first-night", "--report", "report", "--notify", "cat > notified.json", "--json",
+                 env=env)
     summary = json.loads(r.stdout)
     assert r.returncode == {"finished": 0, "partial": 3}[summary["status"]], r.stderr
     assert summary["heliostats"] == 1 and (tmp_path / "report" / "report.html").is_file()
+    assert json.loads((tmp_path / "notified.json").read_text()) == summary  # the scheduler's hook
 
     r = heliocal(tmp_path, "campaign", "list", "--db", "night.db", "--json")
     assert r.returncode == 0 and [c["name"] for c in json.loads(r.stdout)["campaigns"]] == ["first-night"]

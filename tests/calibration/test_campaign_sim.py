@@ -197,3 +197,34 @@ def test_firmware_power_cycle_mid_approach_is_recorded_and_parked(small_config, 
         assert result.status == "partial" and hit.hit[0] in result.cause and result.exit_code == 3
         ctl = plant.hidden[hit.hit[0]].controller
         assert ctl.faults == 0 and any(e.command == "POWER_CYCLE" for e in ctl.log)
+
+
+def test_ctrl_c_mid_campaign_parks_records_and_says_how_to_resume(small_config, tmp_path):
+    db = tmp_path / "night.db"
+    args = ["campaign", "run", "--config", str(small_config), "--db", str(db), "--simulate", "--heliostats",
+            "H02,H03,H08", "--name", "n1", "--json"]
+    p = _heliocal(*args)
+    deadline = time.monotonic() + scaled_s(120)
+    while time.monotonic() < deadline and p.poll() is None:
+        if db.is_file():
+            try:
+                with sqlite3.connect(db) as c:
+                    running = c.execute("SELECT 1 FROM campaigns WHERE status='running'").fetchone()
+            except sqlite3.OperationalError:
+                running = None
+            if running:
+                break
+        time.sleep(0.05)
+    assert p.poll() is None, "the campaign ended before it could be interrupted"
+    p.send_signal(signal.SIGINT)
+    out, err = p.communicate(timeout=scaled_s(120))
+    assert p.returncode == 130, err
+    summary = json.loads(out)
+    assert summary["status"] == "interrupted" and "Rerun the same command to resume" in err
+    with sqlite3.connect(db) as c:
+        status, cause = c.execute("SELECT status, cause FROM campaigns").fetchone()
+    assert status == "interrupted" and "interrupted by the operator" in cause
+    q = _heliocal(*args)
+    out, err = q.communicate(timeout=scaled_s(180))
+    assert q.returncode in (0, 3), err
+    assert json.loads(out)["resumed"] is True and json.loads(out)["heliostats"] == 3

@@ -2,7 +2,15 @@
 
 import pytest
 
-from controller.devices.drive import AxisLimits, Drive, DriveLimits, DriveStatus, FirmwareInfo
+from controller.devices.drive import (
+    AxisLimits,
+    Drive,
+    DriveError,
+    DriveLimits,
+    DriveStatus,
+    FirmwareInfo,
+    LinkError,
+)
 from controller.errors import LimitError
 
 
@@ -49,3 +57,56 @@ def test_jog_checked_against_resulting_target():
         d.jog(11, 0)  # the target is 990, so +11 would end at 1001
     d.jog(10, -50)
     assert d.sent == [("jog", 10, -50)]
+
+
+class FlakyDrive(RecordingDrive):
+    """Answers status from a script: a LinkError where the script says None."""
+
+    def __init__(self, script) -> None:
+        super().__init__()
+        self.script = list(script)
+
+    def status(self) -> DriveStatus:
+        st = self.script.pop(0)
+        if st is None:
+            raise LinkError("unit 3: no valid reply to GET_STATUS")
+        return st
+
+
+def _at(az, moving):
+    return DriveStatus(3, az, 0, 990, 0, moving, not moving)
+
+
+def test_wait_tolerates_single_missed_polls():
+    d = FlakyDrive([_at(10, True), None, _at(500, True), None, None, _at(990, False)])
+    st = d.wait_in_position(10.0, poll_s=0.0, sleep=lambda s: None, expect=(990, 0))
+    assert st.az_steps == 990 and d.script == []
+
+
+def test_wait_gives_up_after_three_missed_polls_with_outcome_unknown():
+    d = FlakyDrive([_at(10, True), None, None, None, _at(990, False)])
+    with pytest.raises(LinkError, match="3 status polls in a row unanswered") as exc:
+        d.wait_in_position(10.0, poll_s=0.0, sleep=lambda s: None)
+    assert exc.value.outcome == "unknown"
+
+
+def test_wait_deadline_uses_the_given_clock():
+    """One clock for the deadline and the polling: 5 plant seconds pass in 5 polls of 1 s."""
+    t = [0.0]
+    d = FlakyDrive([_at(10, True)] * 10)
+    with pytest.raises(DriveError, match="not in position after 5 s"):
+        d.wait_in_position(5.0, poll_s=1.0, sleep=lambda s: t.__setitem__(0, t[0] + s), clock=lambda: t[0])
+    assert len(d.script) == 10 - 6
+
+
+@pytest.mark.parametrize("args, fragment", [
+    (["--timeout", "nan", "status"], "--timeout must be in (0, 60]"),
+    (["--timeout", "inf", "status"], "--timeout must be in (0, 60]"),
+    (["--retries", "100000000", "status"], "--retries must be in 0..100"),
+    (["move", "--az-steps", "1", "--el-steps", "1", "--wait", "--wait-timeout", "nan"], "--wait-timeout"),
+])
+def test_drive_rejects_non_finite_and_huge_options(capsys, args, fragment):
+    from controller.cli import main
+
+    assert main(["drive", "--serial", "/dev/null-no-such", "--unit", "1", *args]) == 2
+    assert fragment in capsys.readouterr().err
