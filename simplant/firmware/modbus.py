@@ -38,6 +38,7 @@ from pymodbus.simulator import DataType, SimData, SimDevice
 
 from firmware_proto.faults import Reject
 from firmware_proto.registers import Register, RegisterMap, load_register_map
+from simplant.firmware.modbus_guard import ModbusGuard
 from simplant.firmware.physics import SimController
 
 # Why a command was refused -> the Modbus exception code returned (MODBUS.md, "Exceptions").
@@ -242,8 +243,8 @@ class ModbusSimServer:
         sim.stop()
     """
 
-    def __init__(self, controllers: dict[int, SimController],
-                 register_map: RegisterMap | None = None) -> None:
+    def __init__(self, controllers: dict[int, SimController], register_map: RegisterMap | None = None, *,
+                 idle_timeout_s: float = 60.0, max_connections: int = 16) -> None:
         for unit in controllers:
             if not 1 <= unit <= 247:
                 raise ValueError(f"Modbus unit ids are 1..247, got {unit}")
@@ -251,10 +252,13 @@ class ModbusSimServer:
         self.controllers = dict(controllers)
         self.units = {u: _Unit(c, self.map) for u, c in controllers.items()}
         self.silent_units: set[int] = set()
+        self.idle_timeout_s = idle_timeout_s  # TCP: a connection idle this long is closed
+        self.max_connections = max_connections  # TCP: clients served at once
         self.writes: list[WriteRecord] = []
         self._loop: asyncio.AbstractEventLoop | None = None
         self._thread: threading.Thread | None = None
         self._servers: dict[str, object] = {}
+        self.guard: ModbusGuard | None = None  # the TCP port's protocol checks
         self._tcp_address: tuple[str, int] | None = None
         self._rtu: tuple[_NullModem, int, Path | None] | None = None
 
@@ -318,16 +322,25 @@ class ModbusSimServer:
             raise RuntimeError("Modbus TCP is already being served")
 
         async def make():
-            server = ModbusTcpServer(self._devices(), address=(host, port))
+            # pymodbus serves the registers on an internal loopback port; the public port is the
+            # guard, which answers what the application protocol refuses (modbus_guard).
+            server = ModbusTcpServer(self._devices(), address=("127.0.0.1", 0))
             await server.serve_forever(background=True)
-            return server
+            guard = ModbusGuard(("127.0.0.1", server.transport.sockets[0].getsockname()[1]),
+                                idle_timeout_s=self.idle_timeout_s, max_connections=self.max_connections)
+            try:
+                bound = await guard.start(host, port)
+            except OSError:
+                await server.shutdown()
+                raise RuntimeError(f"cannot listen on {host}:{port}") from None
+            return server, guard, bound
 
         try:
-            server = self._call(make())
+            server, guard, bound = self._call(make())
         except RuntimeError:
             raise _listen_error(host, port) from None
-        bound = server.transport.sockets[0].getsockname()[1]
         self._servers["tcp"] = server
+        self.guard = guard
         self._tcp_address = (host, bound)
         return bound
 
@@ -367,6 +380,9 @@ class ModbusSimServer:
         server = self._servers.pop(kind, None)
         if server is not None:
             self._call(server.shutdown())
+        if kind == "tcp" and self.guard is not None:
+            self._call(self.guard.close())
+            self.guard = None
 
     def resume(self, kind: str = "tcp") -> None:
         """Fault hook: serve ``kind`` again, on the same port / pty as before."""
