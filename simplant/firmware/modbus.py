@@ -21,14 +21,10 @@ unit ids without a controller never answer (as on an RS-485 bus).
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
-import os
 import re
-import selectors
 import socket
 import threading
-import tty
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -39,6 +35,7 @@ from pymodbus.simulator import DataType, SimData, SimDevice
 from firmware_proto.faults import Reject
 from firmware_proto.registers import Register, RegisterMap, load_register_map
 from simplant.firmware.modbus_guard import ModbusGuard
+from simplant.firmware.null_modem import NullModem
 from simplant.firmware.physics import SimController
 
 # Why a command was refused -> the Modbus exception code returned (MODBUS.md, "Exceptions").
@@ -178,48 +175,6 @@ class _Unit:
         return _REJECT_EXCEPTION.get(result, ExcCodes.DEVICE_FAILURE)
 
 
-class _NullModem:
-    """Two pty pairs bridged by a thread: bytes written on one end come out of the other.
-
-    ``server_path`` and ``client_path`` are the slave device names. The master ends are raw
-    and the slaves are set raw at once, so nothing is echoed before pyserial opens them."""
-
-    def __init__(self) -> None:
-        self._m1, self._s1 = os.openpty()
-        self._m2, self._s2 = os.openpty()
-        for fd in (self._m1, self._s1, self._m2, self._s2):
-            tty.setraw(fd)
-        self.server_path = os.ttyname(self._s1)
-        self.client_path = os.ttyname(self._s2)
-        self._stop_r, self._stop_w = os.pipe()
-        self._thread = threading.Thread(target=self._run, name="modbus-null-modem", daemon=True)
-        self._thread.start()
-
-    def _run(self) -> None:
-        sel = selectors.DefaultSelector()
-        peer = {self._m1: self._m2, self._m2: self._m1}
-        for fd in peer:
-            sel.register(fd, selectors.EVENT_READ)
-        sel.register(self._stop_r, selectors.EVENT_READ)
-        while True:
-            for key, _ in sel.select():
-                if key.fd == self._stop_r:
-                    sel.close()
-                    return
-                try:
-                    data = os.read(key.fd, 4096)
-                    os.write(peer[key.fd], data)
-                except OSError:
-                    continue  # the far side is closed for a moment (client reconnecting)
-
-    def close(self) -> None:
-        os.write(self._stop_w, b"x")
-        self._thread.join(timeout=2)
-        for fd in (self._m1, self._s1, self._m2, self._s2, self._stop_r, self._stop_w):
-            with contextlib.suppress(OSError):
-                os.close(fd)
-
-
 def _listen_error(host: str, port: int) -> OSError:
     """pymodbus only says "Could not start listen"; bind once more to get the reason."""
     try:
@@ -260,7 +215,7 @@ class ModbusSimServer:
         self._servers: dict[str, object] = {}
         self.guard: ModbusGuard | None = None  # the TCP port's protocol checks
         self._tcp_address: tuple[str, int] | None = None
-        self._rtu: tuple[_NullModem, int, Path | None] | None = None
+        self._rtu: tuple[NullModem, int, Path | None] | None = None
 
     # -- event loop -------------------------------------------------------------------------
     def _ensure_loop(self) -> asyncio.AbstractEventLoop:
@@ -349,7 +304,7 @@ class ModbusSimServer:
         created there, replacing an old symlink) or the pty slave's own name."""
         if "rtu" in self._servers:
             raise RuntimeError("Modbus RTU is already being served")
-        modem = _NullModem()
+        modem = NullModem()
         link = None
         if path is not None:
             link = Path(path)

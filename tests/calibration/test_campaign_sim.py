@@ -35,6 +35,22 @@ def _heliocal(*args, **kw):
                             stderr=subprocess.PIPE, text=True, **kw)
 
 
+def _wait_for_rows(p: subprocess.Popen, db: Path, sql: str, seconds: float) -> list[tuple]:
+    """Poll ``db`` until ``sql`` returns rows (a state of the campaign), while ``p`` runs."""
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline and p.poll() is None:
+        if db.is_file():
+            try:
+                with sqlite3.connect(db) as c:
+                    rows = c.execute(sql).fetchall()
+            except sqlite3.OperationalError:
+                rows = []  # the schema is not there yet
+            if rows:
+                return rows
+        time.sleep(0.05)
+    return []
+
+
 def test_campaign_end_to_end(small_config, tmp_path):
     from controller.commands.demo import simulated_campaign
     from controller.storage.paint import export_paint
@@ -82,18 +98,7 @@ def test_kill_9_mid_campaign_then_resume(small_config, tmp_path):
             "--json"]
     p = _heliocal(*args)
     db = out / "campaign.db"
-    deadline = time.monotonic() + scaled_s(90)
-    before: list[tuple] = []
-    while time.monotonic() < deadline and p.poll() is None:
-        if db.is_file():
-            try:
-                with sqlite3.connect(db) as c:
-                    before = c.execute("SELECT id, heliostat_id FROM heliostat_runs ORDER BY id").fetchall()
-            except sqlite3.OperationalError:
-                before = []
-            if before:
-                break
-        time.sleep(0.05)
+    before = _wait_for_rows(p, db, "SELECT id, heliostat_id FROM heliostat_runs ORDER BY id", scaled_s(90))
     assert p.poll() is None, "the campaign finished before it could be killed"
     os.kill(p.pid, signal.SIGKILL)
     p.wait(scaled_s(10))
@@ -204,17 +209,7 @@ def test_ctrl_c_mid_campaign_parks_records_and_says_how_to_resume(small_config, 
     args = ["campaign", "run", "--config", str(small_config), "--db", str(db), "--simulate", "--heliostats",
             "H02,H03,H08", "--name", "n1", "--json"]
     p = _heliocal(*args)
-    deadline = time.monotonic() + scaled_s(120)
-    while time.monotonic() < deadline and p.poll() is None:
-        if db.is_file():
-            try:
-                with sqlite3.connect(db) as c:
-                    running = c.execute("SELECT 1 FROM campaigns WHERE status='running'").fetchone()
-            except sqlite3.OperationalError:
-                running = None
-            if running:
-                break
-        time.sleep(0.05)
+    _wait_for_rows(p, db, "SELECT 1 FROM campaigns WHERE status='running'", scaled_s(120))
     assert p.poll() is None, "the campaign ended before it could be interrupted"
     p.send_signal(signal.SIGINT)
     out, err = p.communicate(timeout=scaled_s(120))
