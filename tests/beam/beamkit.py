@@ -11,7 +11,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 REPO = Path(__file__).resolve().parents[2]
-REAL = REPO / "tests" / "data" / "real"  # copy of shared/data/real (see its README)
+REAL = REPO / "tests" / "data" / "real"  # the real Jülich records (see its README)
 PAINT = REAL / "paint"
 TOWER = REAL / "aa39" / "tower-measurements.json"
 
@@ -47,7 +47,7 @@ def project_to_image(point_wgs84, target: dict, size_px: int = 256) -> np.ndarra
     The four measured corners span the image; the point's bilinear coordinates (s, t) in
     [0, 1]^2 are found by least squares in local ENU and scaled by the image size (x = s N,
     y = t N). This is the projection under which UTIS lies within ~0.6 px of the flux centroid
-    (README of shared/data/real).
+    (README of tests/data/real).
     """
     c = target["coordinates"]
     ref = c["center"]
