@@ -247,7 +247,7 @@ class Drive(ABC):
                 raise DriveError(f"unit {self.unit}: not in position after {timeout_s:g} s{where}")
             sleep(poll_s)
 
-    def move_and_wait(self, az_steps: int, el_steps: int, timeout_s: float, *,
+    def move_and_wait(self, az_steps: int, el_steps: int, *, timeout_s: float,
                       clock: Callable[[], float] = time.monotonic,
                       sleep: Callable[[float], None] = time.sleep, poll_s: float = 0.02,
                       cancelled: Callable[[], bool] | None = None) -> DriveStatus:

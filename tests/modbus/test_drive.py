@@ -66,7 +66,7 @@ def test_move_and_wait_and_jog(drive, controllers, sim):
     assert (st.az_steps, st.el_steps) == (4000, 3000)
     drive.jog(-250, 125)
     assert drive.last_targets == (3750, 3125)
-    st = drive.wait_in_position(5)
+    st = drive.wait_in_position(scaled_s(5))
     assert (st.az_steps, st.el_steps) == (3750, 3125)
     assert [e.command for e in controllers[1].log] == ["MOVE_ABS", "JOG"]
     assert controllers[1].log[1].args == (-250, 125)
@@ -108,7 +108,7 @@ def test_fault_refusal_names_the_reason(drive, controllers):
     assert "write holding register 8 (command)" in str(exc.value)
     assert "MOVE rejected by the firmware: FAULT_ACTIVE" in str(exc.value)
     with pytest.raises(ActuatorFault, match="stall_az"):
-        drive.wait_in_position(1)
+        drive.wait_in_position(scaled_s(1))
     drive.clear_fault()
     assert drive.status().faults == ()
 
@@ -142,7 +142,7 @@ def test_server_stops_mid_move_then_comes_back(drive, sim):
     sim.resume("tcp")
     st = drive.status()                          # the same drive reconnects by itself
     assert (st.az_target, st.el_target) == (9000, 8000)
-    st = drive.wait_in_position(10)
+    st = drive.wait_in_position(scaled_s(10))
     assert (st.az_steps, st.el_steps) == (9000, 8000)
 
 
@@ -198,7 +198,7 @@ def test_lost_request_is_resent(drive, controllers, monkeypatch):
 def test_home_and_stow(drive, controllers):
     drive.move_and_wait(3000, 3000, timeout_s=scaled_s(5))
     drive.home()
-    assert drive.wait_in_position(5).az_steps == 500
+    assert drive.wait_in_position(scaled_s(5)).az_steps == 500
     drive.stow()
     assert [e.command for e in controllers[1].log][-2:] == ["HOME", "STOW"]
 

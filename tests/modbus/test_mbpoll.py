@@ -16,6 +16,7 @@ import pytest
 
 from controller.devices.modbus_drive import ModbusDrive
 from firmware_proto.registers import load_register_map
+from tests.conftest import scaled_s
 
 from .conftest import LIMITS
 
@@ -78,7 +79,7 @@ def test_mbpoll_moves_the_actuator(sim, link, controllers, capsys):
     assert write_holding(sim.port, 2, "el_target_steps", 2468).returncode == 0
     out = write_holding(sim.port, 2, "command", MAP.code("command", "move"))
     assert out.returncode == 0, out.stderr
-    st = ModbusDrive(link, 2, LIMITS).wait_in_position(10)
+    st = ModbusDrive(link, 2, LIMITS).wait_in_position(scaled_s(10))
     assert (st.az_steps, st.el_steps) == (4321, 2468)
     assert controllers[2].log[-1].command == "MOVE_ABS" and controllers[2].log[-1].args == (4321, 2468)
     assert (read_int32(sim.port, 2, "az_actual_steps"), read_int32(sim.port, 2, "el_actual_steps")) == (
@@ -93,7 +94,7 @@ def test_mbpoll_negative_jog(sim, link, controllers):
     assert write_holding(sim.port, 2, "jog_el_steps", -300).returncode == 0
     assert write_holding(sim.port, 2, "command", MAP.code("command", "jog")).returncode == 0
     assert controllers[2].log[-1].command == "JOG" and controllers[2].log[-1].args == (-21, -300)
-    st = ModbusDrive(link, 2, LIMITS).wait_in_position(10)
+    st = ModbusDrive(link, 2, LIMITS).wait_in_position(scaled_s(10))
     assert (st.az_steps, st.el_steps) == (1000 - 21, 2000 - 300)
 
 

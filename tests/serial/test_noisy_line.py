@@ -96,5 +96,5 @@ def test_cut_line_fails_clearly_then_recovers(firmware, noisy_line_factory, limi
         drive._send_jog(200, 0)  # (limits were checked above; the raw send shows the timeout)
     assert not [e for e in firmware.controllers[2].log if e.command == "JOG"]
     line.restore()
-    st = drive.move_and_wait(4000, 4000, scaled_s(5.0))
+    st = drive.move_and_wait(4000, 4000, timeout_s=scaled_s(5.0))
     assert (st.az_steps, st.el_steps) == (4000, 4000)

@@ -94,7 +94,7 @@ def test_fault_blocks_motion_until_cleared(bus, firmware):
         d.move_abs(1000, 1000)
     assert nak.value.code == Reject.FAULT_ACTIVE
     d.clear_fault()
-    assert d.move_and_wait(1000, 1000, 5).az_steps == 1000
+    assert d.move_and_wait(1000, 1000, timeout_s=scaled_s(5)).az_steps == 1000
 
 
 def test_set_limits_outside_hard_range_refused(bus):
@@ -216,7 +216,7 @@ def test_bus_reopens_after_firmware_restart(make_ctl, tmp_path):
     fw.start()
     b = SerialBus(link, timeout_s=scaled_s(0.05), retries=1)
     d = SerialDrive(b, 1, LIMITS)
-    d.move_and_wait(3000, 3000, 5)
+    d.move_and_wait(3000, 3000, timeout_s=scaled_s(5))
     fw.stop()
     with pytest.raises(LinkError, match="lost|no valid reply"):
         d.status()
@@ -246,7 +246,7 @@ def test_fault_mid_move_is_reported(bus, firmware, inject, faults):
     assert info.value.faults == faults
     assert not d.status().in_position  # latched until cleared
     d.clear_fault()
-    assert d.move_and_wait(1000, 1000, 5).el_steps == 1000
+    assert d.move_and_wait(1000, 1000, timeout_s=scaled_s(5)).el_steps == 1000
 
 
 def test_a_command_the_firmware_cannot_execute_is_nakd_and_serving_goes_on():
