@@ -47,7 +47,7 @@ from controller.geometry.error_model import TrackingErrorParams, actual_normal_f
 from controller.geometry.kinematics import HeliostatKinematics, angles_from_normal
 from controller.geometry.vectors import unit, vector_to_azel
 from controller.imaging.hdr import HdrMerger
-from controller.io.images import write_float_image
+from controller.io.images import write_float_image, write_preview
 from controller.recognition.library_io import write_manifest
 from simplant.optics import MirrorSurface, TargetGrid, render_spot
 from simplant.sensor import SensorModel
@@ -237,7 +237,8 @@ def write_errorset(out: str | Path, scene: Scene, seed: int = 0, cases: int = 6,
     """Render the library (one nominal view per case) and test views; write both manifests.
 
     Files: ``OUT/library.csv``, ``OUT/test.csv`` (``image,label,az_deg,el_deg``, az/el = the
-    case's beam pointing error in degrees) and ``OUT/images/*.npy`` (float32 HDR).
+    case's beam pointing error in degrees) and ``OUT/images/*.npy`` (float32 HDR), each with a PNG
+    preview beside it.
     """
     if not 1 <= cases <= len(CASES):
         raise ValueError(f"cases must be in 1..{len(CASES)}")
@@ -256,6 +257,7 @@ def write_errorset(out: str | Path, scene: Scene, seed: int = 0, cases: int = 6,
             hdr = expose_and_merge(scene, render_irradiance(scene, case, view), view, reference_peak, merger)
             name = f"images/{kind}-{case.label}-{k:02d}.npy"
             write_float_image(out / name, hdr)
+            write_preview((out / name).with_suffix(".png"), hdr)  # for a person to look at
             rows.append((name, case.label, f"{az:.6f}", f"{el:.6f}"))
             done += 1
             if progress:

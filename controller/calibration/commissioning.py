@@ -29,7 +29,7 @@ from controller.calibration.pointing import GeometryPointing
 from controller.config import PlantConfig
 from controller.errors import HeliocalError, InputError
 from controller.geometry.aiming import pointing_error_mrad
-from controller.io.images import write_atomic
+from controller.io.images import write_preview
 
 
 @dataclass
@@ -125,19 +125,7 @@ class Commissioning:
     @staticmethod
     def save_png(hdr: np.ndarray, path: str | Path) -> Path:
         """The HDR frame as an 8-bit grey PNG scaled to its 99.9th percentile (for a person)."""
-        import cv2
-
-        p = Path(path)
-        if p.suffix.lower() != ".png":
-            raise InputError(f"{p}: the frame preview must be a .png file")
-        top = float(np.percentile(hdr, 99.9)) or 1.0
-        img = np.clip(hdr / top * 255.0, 0, 255).astype(np.uint8)
-
-        def w(t: Path) -> None:
-            if not cv2.imwrite(str(t), img):
-                raise InputError(f"{p}: could not write PNG")
-        write_atomic(p, w)
-        return p
+        return write_preview(path, hdr)
 
     def store_reference(self, label: str, library_path: str | Path, capture: Capture | None = None) -> dict:
         """Add the (last) captured frame to the library as a reference case ``label``."""

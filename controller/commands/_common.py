@@ -95,3 +95,19 @@ def output_dir(path: str | Path, option: str = "--out") -> Path:
     if not os.access(parent, os.W_OK | os.X_OK):
         raise InputError(f"{option} {p}: cannot create it, {parent} is not writable")
     return p
+
+
+def output_file(path: str | Path, option: str = "--out") -> Path:
+    """Check an output file before any work: its folder exists and is writable, and the path
+    is not a folder. InputError (exit 2) names the option and the path; nothing is created."""
+    import os
+
+    p = Path(path)
+    if p.is_dir():
+        raise InputError(f"{option} {p}: is a folder, not a file")
+    parent = p.parent
+    if not parent.is_dir():
+        raise InputError(f"{option} {p}: folder {parent} does not exist (create it first)")
+    if not os.access(parent, os.W_OK | os.X_OK) or (p.exists() and not os.access(p, os.W_OK)):
+        raise InputError(f"{option} {p}: not writable")
+    return p

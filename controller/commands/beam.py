@@ -8,11 +8,12 @@ centre of the top-left pixel. ``--plot DIR`` writes one PNG per intermediate ste
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 import numpy as np
 
-from controller.commands._common import add_json_option, existing_file, print_json
+from controller.commands._common import add_json_option, existing_file, output_dir, print_json
 from controller.errors import InputError
 from controller.imaging.beam import BeamResult, analyze
 from controller.io.images import read_image, save_figure
@@ -36,7 +37,17 @@ def register(subparsers) -> None:
     p.set_defaults(func=run)
 
 
+def saturated_px(image: np.ndarray) -> int | None:
+    """Pixels at the image's top code (integer images; None for float HDR, whose clipping the
+    merge reports). A flat-topped core biases the centroid and breaks the Hu moments."""
+    if not np.issubdtype(image.dtype, np.integer):
+        return None
+    return int(np.count_nonzero(image == np.iinfo(image.dtype).max))
+
+
 def run(args: argparse.Namespace) -> int:
+    if args.plot:
+        output_dir(args.plot, "--plot")
     image = read_image(existing_file(args.image, "image"))
     background = args.background
     if background not in ("auto", "none"):
@@ -46,8 +57,13 @@ def run(args: argparse.Namespace) -> int:
                      keep_steps=bool(args.plot))
     if args.plot:
         plot_steps(result, Path(args.plot))
+    sat = saturated_px(image)
+    if sat:
+        print(f"heliocal beam: warning: {args.image}: {sat} pixels saturated at the top code; the "
+              "centroid and shape of a clipped core are biased (shorter exposure or the HDR pair)",
+              file=sys.stderr)
     if args.json:
-        print_json(result.as_dict())
+        print_json({**result.as_dict(), "saturated_px": sat})
     else:
         d = result.as_dict()
         print(f"centroid (x, y) = ({d['centroid_px'][0]:.3f}, {d['centroid_px'][1]:.3f}) px, "

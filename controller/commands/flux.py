@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from controller.commands._common import add_json_option, existing_file, print_json
+from controller.commands._common import add_json_option, existing_file, output_file, print_json
 from controller.errors import InputError
 from controller.flux import phlux
 from controller.flux.sun_disc import SunDiscError, find_sun_disc
@@ -131,8 +131,11 @@ def _check_args(args: argparse.Namespace) -> None:
         raise InputError("--ambient-pair and --exposures go with --receiver-pair")
     if Path(args.out).suffix.lower() not in (".npy", ".tif", ".tiff"):
         raise InputError(f"--out {args.out}: must end in .npy or .tiff")
+    output_file(args.out)
     if args.png and Path(args.png).suffix.lower() != ".png":
         raise InputError(f"--png {args.png}: must end in .png")
+    if args.png:
+        output_file(args.png, "--png")
 
 
 def _same_shape(images: dict[str, np.ndarray]) -> None:

@@ -18,7 +18,7 @@ from dataclasses import asdict
 
 import numpy as np
 
-from controller.commands._common import add_json_option, existing_file, print_json
+from controller.commands._common import add_json_option, existing_file, output_file, print_json
 from controller.errors import InputError
 from controller.flux import glare
 from controller.flux.phlux import SUN_ANGLE_RAD
@@ -247,6 +247,8 @@ def run(args: argparse.Namespace) -> int:
     eye, th = _eye_and_thresholds(args)
     if args.png and not args.png.lower().endswith(".png"):
         raise InputError(f"--png {args.png}: must end in .png")
+    if args.png:
+        output_file(args.png, "--png")
     if mode == "geometry":
         curve = _geometry_curve(args, eye, th)
         result = {

@@ -15,7 +15,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from controller.commands._common import add_json_option, existing_file, print_json
+from controller.commands._common import add_json_option, existing_file, output_file, print_json
 from controller.commands.beam import add_threshold_option
 from controller.recognition.library import FEATURE_KINDS
 from controller.recognition.library_io import build_library_from_manifest, save_library
@@ -55,6 +55,7 @@ def register(subparsers) -> None:
 
 
 def run_build(args: argparse.Namespace) -> int:
+    output_file(args.out)
     manifest = existing_file(args.manifest, "manifest")
     with progress("building library", not args.json) as update:
         lib = build_library_from_manifest(manifest, args.features, args.threshold, progress=update)

@@ -89,6 +89,23 @@ def write_float_image(path: str | Path, img: np.ndarray) -> None:
         raise InputError(f"{p}: output must end in .npy or .tiff, not {ext or '(none)'}")
 
 
+def write_preview(path: str | Path, image: np.ndarray) -> Path:
+    """A float image as an 8-bit grey PNG scaled to its 99.9th percentile, for a person to look
+    at beside the data file (written atomically)."""
+    p = Path(path)
+    if p.suffix.lower() != ".png":
+        raise InputError(f"{p}: a preview must be a .png file")
+    data = np.nan_to_num(np.asarray(image, dtype=np.float64))
+    top = float(np.percentile(data, 99.9)) or 1.0
+    img = np.clip(data / top * 255.0, 0, 255).astype(np.uint8)
+
+    def w(t: Path) -> None:
+        if not cv2.imwrite(str(t), img):
+            raise InputError(f"{p}: could not write PNG")
+    write_atomic(p, w)
+    return p
+
+
 def save_figure(fig, path: str | Path, **savefig_kw) -> None:
     """Save a matplotlib figure as PNG atomically, then close it (also on failure)."""
     try:

@@ -138,7 +138,7 @@ def test_cli_json_contract_and_plots(tmp_path):
     r = heliocal("beam", str(path), "--plot", str(plots), "--json")
     assert r.returncode == 0, r.stderr
     d = json.loads(r.stdout)
-    assert set(d) == {"centroid_px", "peak", "total", "pixels", "hu", "ellipse", "d90_px"}
+    assert set(d) == {"centroid_px", "peak", "total", "pixels", "hu", "ellipse", "d90_px", "saturated_px"}
     assert set(d["ellipse"]) == {"major_px", "minor_px", "angle_deg"}
     assert len(d["hu"]) == 7
     assert d["centroid_px"] == pytest.approx([60.25, 30.5], abs=0.15)

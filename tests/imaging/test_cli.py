@@ -36,7 +36,12 @@ def test_merge_json_contract(capsys, pair, ext):
                                    "--exposures", "0.010", "0.020", "--out", str(out), "--json"])
     assert code == 0
     info = json.loads(stdout)
-    assert set(info) == {"shape", "min", "max", "saturated_both", "dark_both"}
+    assert set(info) == {"shape", "min", "max", "saturated_both", "saturated_px", "dark_both",
+                         "inconsistent_fraction", "preview"}
+    # lit and unsaturated in both: (0, 2), (1, 0), (1, 1); (1, 0) is 40 in LOW but 4 in HIGH
+    assert info["saturated_px"] == info["saturated_both"]
+    assert info["inconsistent_fraction"] == pytest.approx(1 / 3)
+    assert Path(info["preview"]).is_file() and Path(info["preview"]).suffix == ".png"
     assert info["shape"] == [2, 3] and info["saturated_both"] == 1 and info["dark_both"] == 2
     img = np.load(out) if ext == ".npy" else cv2.imread(str(out), cv2.IMREAD_UNCHANGED)
     assert img.dtype == np.float32 and img.shape == (2, 3)
@@ -90,7 +95,8 @@ def test_crf_fit_cli(capsys, tmp_path):
     res = json.loads(stdout)
     assert [s["name"] for s in res["sensors"]] == ["ccd1", "ccd2"]
     assert all(0 < s["uncertainty_pct"] < 3 for s in res["sensors"])
-    assert (tmp_path / "c.yaml").is_file()
+    assert (tmp_path / "c.yaml").is_file() and res["plot"] == str(tmp_path / "c.png")
+    assert (tmp_path / "c.png").read_bytes()[:4] == b"\x89PNG"  # the fit against the data, to look at
     code, _, err = run(capsys, ["crf", "fit", str(tmp_path / "none.csv"), "--out", str(tmp_path / "x.yaml")])
     assert code == 2 and "not found" in err and not (tmp_path / "x.yaml").exists()
 
@@ -112,3 +118,44 @@ def test_report_weighting_contract(capsys, tmp_path):
                                                                           abs=1e-5)
     code, _, err = run(capsys, ["report", "weighting", "--pairs", "1", "--out", str(out), "--config", DEMO])
     assert code == 2 and "--pairs" in err
+
+
+def test_merge_refuses_a_swapped_pair_and_mismatched_depths(capsys, tmp_path):
+    yy, xx = np.mgrid[0:60, 0:80]
+    spot = 150.0 * np.exp(-((xx - 40.0) ** 2 + (yy - 30.0) ** 2) / 200.0)
+    low = (10 + spot).astype(np.uint8)
+    high = np.clip(10 + 1.8 * spot, 0, 255).astype(np.uint8)
+    cv2.imwrite(str(tmp_path / "low.png"), low)
+    cv2.imwrite(str(tmp_path / "high.png"), high)
+    cv2.imwrite(str(tmp_path / "high16.png"), high.astype(np.uint16) * 256)
+    swapped = ["merge", str(tmp_path / "high.png"), str(tmp_path / "low.png"), "--exposures", "0.01", "0.02",
+               "--out", str(tmp_path / "s.npy")]
+    code, _, err = run(capsys, swapped)
+    assert code == 2 and "brighter in LOW than in HIGH: swapped" in err and not (tmp_path / "s.npy").exists()
+    mixed = ["merge", str(tmp_path / "low.png"), str(tmp_path / "high16.png"), "--exposures", "0.01", "0.02",
+             "--out", str(tmp_path / "m.npy")]
+    code, _, err = run(capsys, mixed)
+    assert code == 2 and "uint8" in err and "uint16" in err and not (tmp_path / "m.npy").exists()
+    ok = ["merge", str(tmp_path / "low.png"), str(tmp_path / "high.png"), "--exposures", "0.01", "0.02",
+          "--out", str(tmp_path / "ok.npy"), "--json"]
+    code, out, _ = run(capsys, ok)
+    assert code == 0 and json.loads(out)["inconsistent_fraction"] < 0.01
+
+
+@pytest.mark.parametrize("args, option", [
+    (["merge", "L", "H", "--exposures", "0.01", "0.02", "--out", "{tmp}/no/dir/o.npy"], "--out"),
+    (["crf", "fit", "D.csv", "--out", "{tmp}/no/dir/crf.yaml"], "--out"),
+    (["library", "build", "M.csv", "--out", "{tmp}"], "--out"),
+    (["beam", "I.png", "--plot", "{tmp}/no/dir/plots"], "--plot"),
+])
+def test_output_paths_are_checked_before_any_work(capsys, tmp_path, args, option):
+    code, _, err = run(capsys, [a.replace("{tmp}", str(tmp_path)) for a in args])
+    assert code == 2 and option in err and "Traceback" not in err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_documented_example_runs(capsys, tmp_path):
+    """docs/imaging.md: heliocal crf fit docs/examples/sphere.csv --out crf.yaml"""
+    sample = Path(__file__).resolve().parents[2] / "docs" / "examples" / "sphere.csv"
+    code, stdout, _ = run(capsys, ["crf", "fit", str(sample), "--out", str(tmp_path / "crf.yaml"), "--json"])
+    assert code == 0 and len(json.loads(stdout)["sensors"]) == 2
