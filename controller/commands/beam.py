@@ -53,8 +53,11 @@ def run(args: argparse.Namespace) -> int:
     if background not in ("auto", "none"):
         background = read_image(existing_file(background, "background image"))
     mask = read_image(existing_file(args.mask, "mask image")) if args.mask else None
-    result = analyze(image, threshold=args.threshold, background=background, mask=mask,
-                     keep_steps=bool(args.plot))
+    try:
+        result = analyze(image, threshold=args.threshold, background=background, mask=mask,
+                         keep_steps=bool(args.plot))
+    except InputError as exc:
+        raise InputError(f"{args.image}: {exc}") from None  # e.g. "image is all zeros"
     if args.plot:
         plot_steps(result, Path(args.plot))
     sat = saturated_px(image)

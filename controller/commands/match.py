@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 
 from controller.commands._common import add_json_option, existing_file, print_json
+from controller.errors import InputError
 from controller.io.images import read_image
 from controller.recognition.library import Library
 from controller.recognition.library_io import load_library
@@ -46,7 +47,11 @@ def match_image(lib: Library, image) -> dict:
 
 def run(args: argparse.Namespace) -> int:
     lib = load_library(existing_file(args.library, "library"))
-    result = match_image(lib, read_image(existing_file(args.image, "image")))
+    image = read_image(existing_file(args.image, "image"))
+    try:
+        result = match_image(lib, image)
+    except InputError as exc:
+        raise InputError(f"{args.image}: {exc}") from None  # e.g. "image is all zeros"
     if args.json:
         print_json(result)
     else:

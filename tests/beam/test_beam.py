@@ -194,3 +194,16 @@ def test_cli_reads_16bit_colour_and_float_tiff(tmp_path, capsys, kind):
     code, out, err = cli(capsys, "beam", str(path), "--json")
     assert code == 0, err
     assert json.loads(out)["centroid_px"] == pytest.approx([40.5, 22.25], abs=0.1)
+
+
+def test_cli_names_the_file_of_an_empty_image(tmp_path):
+    import subprocess
+    import sys
+
+    import cv2
+
+    path = tmp_path / "dark.png"
+    cv2.imwrite(str(path), np.zeros((40, 50), np.uint8))
+    r = subprocess.run([sys.executable, "-m", "controller.cli", "beam", str(path)], capture_output=True,
+                       text=True)
+    assert r.returncode == 2 and f"{path}: image is all zeros" in r.stderr

@@ -382,3 +382,17 @@ def test_real_images_are_refused_as_sun_images(capsys, tmp_path, sun, words):
     code, res = _run(capsys, [*argv, "--out", str(tmp_path / "f.npy"), "--json"])
     assert code == 2 and words in res["error"] and sun in res["error"]
     assert not (tmp_path / "f.npy").exists()
+
+
+def test_documented_examples_run(capsys, tmp_path):
+    """docs/flux.md and docs/glare.md run their examples on docs/examples/."""
+    ex = Path(__file__).resolve().parents[2] / "docs" / "examples"
+    code, out = _run(capsys, ["flux", str(ex / "rx.png"), "--sun", str(ex / "sun.png"), "--ambient",
+                                 str(ex / "amb.png"), "--dni", "900", "--reflectivity", "0.85",
+                                 "--sun-transmittance", "0.01", "--distance", "100", "--view-angle-deg", "30",
+                                 "--out", str(tmp_path / "flux.npy"), "--png", str(tmp_path / "flux.png"),
+                                 "--json"])
+    assert code == 0 and out["total_power_w"] == pytest.approx(556.06e3, rel=0.01)
+    code, out = _run(capsys, ["glare", "--sun", str(ex / "sun.png"), "--source", str(ex / "rx.png"),
+                                 "--dni", "900", "--sun-transmittance", "0.01", "--json"])
+    assert code == 0 and out["zone"] == "green"
