@@ -216,6 +216,27 @@ class Camera(_Model):
         return self
 
 
+class ModelSettings(_Model):
+    """The tracking-model fit (docs/tracking-model.md)."""
+
+    noise_mrad: float = Field(default=0.3, gt=0, le=50,
+                              description="1-σ noise of one measured mirror normal, mrad")
+    prior_sigma: dict[str, float] = Field(
+        default_factory=dict,
+        description="prior 1-σ of tracking-model terms, by key (e.g. base_yaw_mrad, az_stroke0_mm); "
+                    "terms not listed keep the documented defaults")
+
+    @field_validator("prior_sigma")
+    @classmethod
+    def _positive(cls, v: dict[str, float]) -> dict[str, float]:
+        for key, sigma in v.items():
+            if not (key.endswith("_mrad") or key.endswith("_mm")):
+                raise ValueError(f"{key}: a term key ends in _mrad or _mm")
+            if not (math.isfinite(sigma) and 0 < sigma <= 1000):
+                raise ValueError(f"{key}: prior σ must be in (0, 1000], got {sigma}")
+        return v
+
+
 class Calibration(_Model):
     light_source: str = Field(description="id of the light source used for calibration")
     target: str = Field(description="id of the calibration target")
@@ -231,6 +252,7 @@ class Calibration(_Model):
     standby_offset_m: float = Field(default=15.0, gt=0, le=200,
                                     description="standby aim point distance beside the target")
     library: str | None = Field(default=None, description="error library YAML; None: built")
+    model: ModelSettings = Field(default_factory=ModelSettings)
 
 
 class PlantConfig(_Model):

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from controller.calibration.daytime import sun_path
+from controller.calibration.daytime import PredictedDaytime, predicted_daytime, sun_path
 from controller.calibration.records import MeasurementRecord, RunRecord
 from controller.calibration.runner import Campaign, CampaignObserver, CampaignOptions, CampaignResult
 from controller.config import PlantConfig, config_sha256
@@ -133,6 +133,7 @@ class SimulatedRun:
     out: Path
     daytime: DaytimeError  # open loop over the sun path, latest models, against the plant truth
     daytime_uncalibrated: DaytimeError  # the same with the nominal kinematics
+    predicted: PredictedDaytime  # what the models' own covariance predicts for ``daytime``
 
 
 def run_simulated(cfg: PlantConfig, config_path: str, out: Path, db_path: Path, ids: list[str], *,
@@ -169,12 +170,15 @@ def run_simulated(cfg: PlantConfig, config_path: str, out: Path, db_path: Path, 
         # What the night was for: open-loop tracking of the sun with each heliostat's latest
         # model, scored against the plant's truth (and, for scale, with no model at all).
         path = sun_path(cfg.site)
-        daytime = daytime_error(plant, cfg, {hid: store.latest_model(hid) for hid in ids}, path)
+        models = {hid: store.latest_model(hid) for hid in ids}
+        daytime = daytime_error(plant, cfg, models, path)
         uncalibrated = daytime_error(plant, cfg, dict.fromkeys(ids), path)
+        predicted = predicted_daytime(cfg, models, path)
         store.update_meta(result.campaign_id, {"beam_safety_last_session": safety,
                                                "daytime_error_mrad": daytime.to_json(),
+                                               "daytime_error_predicted_mrad": predicted.to_json(),
                                                "daytime_error_uncalibrated_mrad": uncalibrated.to_json()})
     finally:
         store.close()
     return SimulatedRun(result, read_truth(db_path, result.campaign_id), safety, settings, db_path, out,
-                        daytime, uncalibrated)
+                        daytime, uncalibrated, predicted)

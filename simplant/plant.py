@@ -8,14 +8,16 @@ What it runs, all in this process but reachable only through the real wire proto
   symlinked inside the run directory (the config's device paths are rewritten to it);
 * the Modbus TCP heliostats behind :class:`simplant.firmware.modbus.ModbusSimServer` on
   127.0.0.1, an ephemeral port (written back into the links); Modbus RTU on a pty;
-* hidden per-heliostat tracking errors (:class:`controller.geometry.error_model.TrackingErrorParams`,
-  each parameter ~ N(0, (``tracking_error_mrad``/2)²), seeded) and an injected error *case*
-  from the error set (its mirror shape: deformation, focus, wind rocking), so that the
-  morning report can score the Hu-moment recognition against the truth;
+* a hidden heliostat per id (:mod:`simplant.truth`, written independently of the controller's
+  kinematics and error model: perturbed actuators, pedestal, joints, canting, position, gravity
+  droop, nightly drift, per-move repeatability; seeded, angular errors scaled by
+  ``tracking_error_mrad``/3) and an injected error *case* from the error set (its mirror
+  shape: deformation, focus, wind rocking, and its own pointing), so that the morning report
+  can score the Hu-moment recognition against the truth;
 * a simulated double-CCD camera (:class:`PlantCamera`) looking at the target under the lamp.
   Its scene is the sum of the beams of every heliostat whose reflected central ray lands
-  within the view (plus margin), each ray traced from the TRUE normal: the error model
-  evaluated at the rods' true positions (``SimController.output_steps``, backlash included).
+  within the view (plus margin), each ray traced from the TRUE normal: the hidden heliostat
+  at the rods' true positions (``SimController.output_steps``, backlash included).
 
 The plant clock stands still while the simulator renders a scene (that is the simulator's
 work, not the plant's) and advances by the exposure time instead; the controller's own image
@@ -37,8 +39,6 @@ import yaml
 
 from controller.config import PlantConfig, parse_config
 from controller.devices.camera import DoubleCcdCamera, FramePair
-from controller.geometry.error_model import TrackingErrorParams, actual_normal
-from controller.geometry.kinematics import HeliostatKinematics
 from controller.geometry.vectors import unit
 from simplant.clock import PlantClock
 from simplant.errorset import CASES, ErrorCase
@@ -47,6 +47,7 @@ from simplant.grids import camera_grid, coarse_grid
 from simplant.optics import MirrorSurface, TargetGrid, render_spot
 from simplant.safety import BeamSafetyMonitor
 from simplant.settings import SimulationSettings
+from simplant.truth import REPEATABILITY_RAD, HeliostatTruth, hidden_truth
 
 RENDER_RAYS = 80_000
 TRUTH_RAYS = 100_000
@@ -60,11 +61,24 @@ class HiddenHeliostat:
     """The simulated truth of one heliostat (what the controller must find out)."""
 
     heliostat_id: str
-    kin: HeliostatKinematics
-    params: TrackingErrorParams
+    truth: HeliostatTruth
     case: ErrorCase
     mirror: MirrorSurface
     controller: SimController
+    rng: np.random.Generator
+    moved_to: tuple[float, float] | None = None
+    jitter: tuple[float, float] = (0.0, 0.0)
+
+    @property
+    def position(self) -> np.ndarray:
+        return self.truth.position
+
+    def settle(self, steps: tuple[float, float]) -> tuple[float, float]:
+        """The repeatability error of the present pose: a new draw whenever the rods moved."""
+        if steps != self.moved_to:
+            self.moved_to = steps
+            self.jitter = tuple(self.rng.normal(0.0, REPEATABILITY_RAD, 2))
+        return self.jitter
 
 
 def field_selection(cfg: PlantConfig, n: int) -> list[str]:
@@ -100,26 +114,21 @@ class SimulatedPlant:
         self.seed = sim.seed if seed is None else seed
         self.clock = PlantClock(sim.clock_speedup, start=clock_start)
         self.hidden: dict[str, HiddenHeliostat] = {}
-        scale = sim.tracking_error_mrad * 1e-3 / 2.0
-        names = ("az_offset", "el_offset", "tilt_north", "tilt_east", "base_yaw", "non_orthogonality",
-                 "mirror_offset")
+        self.night = 0
         index = {h.id: i for i, h in enumerate(cfg.heliostats)}
         for hid in self.ids:
             h = cfg.heliostat(hid)
             # One generator per heliostat: its truth does not depend on which others are in the run.
             rng = np.random.default_rng([self.seed, 7, index[hid]])
             case = CASES[int(rng.integers(0, cases))]
-            draws = rng.normal(0.0, scale, len(names))
-            base = case.params
-            params = TrackingErrorParams(**{n: getattr(base, n) + float(d) for n, d in zip(names, draws,
-                                                                                            strict=True)})
+            truth = hidden_truth(h, rng, sim.tracking_error_mrad / 3.0, case)
             mirror = replace(MirrorSurface.from_config(h.mirror), deformation=case.deformation,
                              focal_length_m=h.mirror.focal_length_m / case.focus_factor)
             ctl = SimController(unit=h.link.station,
                                 az=axis_params_from_config(h.axes.azimuth),
                                 el=axis_params_from_config(h.axes.elevation), clock=self.clock)
-            kin = HeliostatKinematics.from_config(h)
-            self.hidden[hid] = HiddenHeliostat(hid, kin, params, case, mirror, ctl)
+            self.hidden[hid] = HiddenHeliostat(hid, truth, case, mirror, ctl,
+                                               np.random.default_rng([self.seed, 13, index[hid]]))
         self.serial: dict[str, object] = {}
         self.modbus = None
         self.safety = BeamSafetyMonitor(self)
@@ -201,32 +210,35 @@ class SimulatedPlant:
         return self.serial[self.cfg.heliostat(heliostat_id).link.device]
 
     # -- truth --------------------------------------------------------------------------------------
+    def set_night(self, night: int) -> None:
+        """Which night it is (0 the first): the hidden heliostats drift between nights."""
+        self.night = int(night)
+
     def true_normal(self, hid: str) -> np.ndarray:
+        """True normal of ``hid`` at its rods' present positions (repeatability included)."""
         hh = self.hidden[hid]
-        az, el = hh.controller.output_steps()
-        return actual_normal(hh.kin, hh.params, az, el)
+        steps = hh.controller.output_steps()
+        return hh.truth.normal(*steps, night=self.night, jitter=hh.settle(tuple(steps)))
 
     def true_normal_at(self, heliostat_id: str, az_steps: float, el_steps: float) -> np.ndarray:
-        """Unit ENU mirror normal of the hidden heliostat at the given motor steps: the plant's
-        truth, for scoring any aim (e.g. ``heliocal aim`` at a sun position) independently."""
-        hh = self.hidden[heliostat_id]
-        return actual_normal(hh.kin, hh.params, az_steps, el_steps)
+        """Unit ENU mirror normal of the hidden heliostat at the given motor steps (tonight's
+        drift, no repeatability error): the plant's truth, for scoring any aim (e.g.
+        ``heliocal aim`` at a sun position) independently."""
+        return self.hidden[heliostat_id].truth.normal(az_steps, el_steps, night=self.night)
 
     def true_mirror_center(self, heliostat_id: str, az_steps: float, el_steps: float) -> np.ndarray:
         """Centre of the hidden heliostat's mirror at the given steps, m ENU."""
-        return self.hidden[heliostat_id].kin.mirror_center(az_steps, el_steps)
+        return self.hidden[heliostat_id].truth.mirror_center(az_steps, el_steps, night=self.night)
 
     def beam_normals(self, hid: str) -> list[np.ndarray]:
         """True normal(s) of ``hid`` now: one, or the poses a rocking (worn) gear sweeps."""
         hh = self.hidden[hid]
         if not hh.case.rock_az_rad:
             return [self.true_normal(hid)]
-        from controller.geometry.error_model import actual_normal_from_angles
-
-        az, el = hh.controller.output_steps()
-        alpha, eps = hh.kin.angles(az, el)
+        steps = hh.controller.output_steps()
+        j_el, j_az = hh.settle(tuple(steps))
         band = hh.case.rock_az_rad * NIGHT_ROCK_FRACTION
-        return [actual_normal_from_angles(replace(hh.params, az_offset=hh.params.az_offset + d), alpha, eps)
+        return [hh.truth.normal(*steps, night=self.night, jitter=(j_el, j_az + d))
                 for d in np.linspace(-0.5, 0.5, 5) * band]
 
     def true_error_mrad(self, hid: str) -> float:
@@ -236,7 +248,7 @@ class SimulatedPlant:
         noise-free ray trace of the true mirror (deformation included) on a 12 m grid about
         the central ray; for an undeformed mirror this is the reflected central ray."""
         hh = self.hidden[hid]
-        pos = hh.kin.position
+        pos = hh.truth.mirror_center(*hh.controller.output_steps(), night=self.night)
         tgt = self.cfg.target()
         c, nrm = np.asarray(tgt.center_enu_m, float), unit(np.asarray(tgt.normal, float))
         lamp = np.asarray(self.cfg.light_source().position_enu_m, float)
@@ -285,7 +297,7 @@ class SimulatedPlant:
         half = np.array([grid.width_m, grid.height_m]) / 2 + 1.5  # margin for the spot size
         for hid, hh in self.hidden.items():
             n = self.true_normal(hid)
-            pos = hh.kin.position
+            pos = hh.truth.mirror_center(*hh.controller.output_steps(), night=self.night)
             s = unit(lamp - pos)
             beam = 2.0 * (s @ n) * n - s
             denom = float(grid.normal @ beam)
@@ -341,7 +353,7 @@ class PlantCamera(DoubleCcdCamera):
         hid = p.ids[0]
         hh = p.hidden[hid]
         lamp = np.asarray(p.cfg.light_source().position_enu_m, float)
-        pos = hh.kin.position
+        pos = hh.position
         n = unit(unit(lamp - pos) + unit(self.grid.center - pos))
         d = float(p.cfg.light_source().diameter_m) / float(np.linalg.norm(lamp - pos))
         nominal = MirrorSurface.from_config(p.cfg.heliostat(hid).mirror)

@@ -7,11 +7,13 @@ from pathlib import Path
 
 import numpy as np
 
+from controller.geometry.kinematics import HeliostatKinematics
 from controller.geometry.vectors import unit
 from simplant.errorset import CASES
 from simplant.firmware.physics import SimController
 from simplant.optics import MirrorSurface
 from simplant.plant import PlantCamera, SimulatedPlant
+from simplant.truth import hidden_truth
 
 
 def write_reference_set(cfg_data: dict, out_dir: str | Path, heliostat_ids: list[str], *, seed: int = 0,
@@ -42,11 +44,13 @@ def write_reference_set(cfg_data: dict, out_dir: str | Path, heliostat_ids: list
     for hid in heliostat_ids:
         hh = plant.hidden[hid]
         h = cfg.heliostat(hid)
-        s = unit(np.asarray(src.position_enu_m, float) - hh.kin.position)
-        aim = hh.kin.aim(s, np.asarray(cfg.target().center_enu_m, float))
+        kin = HeliostatKinematics.from_config(h)
+        s = unit(np.asarray(src.position_enu_m, float) - kin.position)
+        aim = kin.aim(s, np.asarray(cfg.target().center_enu_m, float))
         stow = hh.controller
         for case in CASES[:cases]:
-            hh.case, hh.params = case, case.params
+            # The reference heliostat is the surveyed one with only the case's own error.
+            hh.case, hh.truth = case, hidden_truth(h, np.random.default_rng(0), 0.0, case)
             hh.mirror = replace(MirrorSurface.from_config(h.mirror), deformation=case.deformation,
                                 focal_length_m=h.mirror.focal_length_m / case.focus_factor)
             hh.controller = SimController(unit=stow.unit, az=stow.az, el=stow.el, clock=plant.clock,

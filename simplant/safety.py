@@ -39,7 +39,7 @@ class BeamSafetyMonitor:
         out = []
         for hid, hh in p.hidden.items():
             n = p.true_normal(hid)
-            pos = hh.kin.position
+            pos = hh.truth.mirror_center(*hh.controller.output_steps(), night=p.night)
             s = unit(lamp - pos)
             beam = 2.0 * (s @ n) * n - s
             den = float(nrm @ beam)

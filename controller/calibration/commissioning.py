@@ -60,7 +60,8 @@ class Commissioning:
         self.chain = BeamChain(cfg, library)
         st = drive.status()
         self.pointing = GeometryPointing(self.h, cfg.target(), cfg.light_source(), self.chain.frame,
-                                         cfg.calibration.standby_offset_m, (st.az_steps, st.el_steps))
+                                         cfg.calibration.standby_offset_m, (st.az_steps, st.el_steps),
+                                         cfg.calibration.model)
         self.model = model
         self.move_timeout_s = move_timeout_s
         self.last: Capture | None = None

@@ -19,7 +19,9 @@ from controller.calibration.records import ModelRecord
 from controller.config import Heliostat, Site
 from controller.errors import LimitError
 from controller.geometry.kinematics import HeliostatKinematics
+from controller.geometry.model_fit import predicted_error
 from controller.geometry.sun import solar_position
+from controller.geometry.tracking_model import TERMS, TrackingModel, prior_sigma
 from controller.geometry.vectors import azel_to_vector
 
 EVALUATION_DAYS = ((3, 20), (6, 21), (9, 22), (12, 21))  # (month, day): equinoxes and solstices
@@ -63,3 +65,47 @@ def tracking_steps(heliostat: Heliostat, model: ModelRecord | None, sun_dirs: np
         except (LimitError, ValueError):
             continue  # outside the soft limits at this sun position: not tracked then
     return steps, ok
+
+
+@dataclass(frozen=True)
+class PredictedDaytime:
+    """Daytime error the models' own uncertainty predicts (mrad, reflected beam, open loop):
+    field ``rms`` and ``p95`` over heliostats × sun positions × covariance draws, and each
+    heliostat's RMS (``per_heliostat``)."""
+
+    rms: float
+    p95: float
+    per_heliostat: dict[str, float]
+
+    def to_json(self) -> dict:
+        return {"rms": self.rms, "p95": self.p95}
+
+
+def model_covariance(model: ModelRecord | None, prior: dict[str, float] | None = None) -> tuple[TrackingModel,
+                                                                                                 np.ndarray]:
+    """(model, covariance SI²) of a stored model; the nominal model with the prior covariance
+    when there is none (or it predates covariances)."""
+    cov = None if model is None else model.detail.get("covariance_si")
+    if cov is None or len(cov) != len(TERMS):
+        base = TrackingModel.zero() if model is None else TrackingModel.from_dict(model.params)
+        return base, np.diag(prior_sigma(prior, "calibration.model.prior_sigma") ** 2)
+    return TrackingModel.from_dict(model.params), np.asarray(cov, float)
+
+
+def predicted_daytime(cfg, models: dict[str, ModelRecord | None],
+                      path: SunPath | None = None) -> PredictedDaytime:
+    """:class:`PredictedDaytime` of the heliostats in ``models`` at the calibration target's
+    centre over ``path`` (default: :func:`sun_path` of the site)."""
+    path = path or sun_path(cfg.site)
+    target = np.asarray(cfg.target().center_enu_m, float)
+    per, pooled = {}, []
+    for hid, rec in models.items():
+        model, cov = model_covariance(rec, cfg.calibration.model.prior_sigma)
+        kin = HeliostatKinematics.from_config(cfg.heliostat(hid))
+        pe = predicted_error(kin, model, cov, path.directions, target, draws=100)
+        per[hid] = pe.rms
+        pooled.append(pe.draws_mrad.ravel())
+    mags = np.concatenate(pooled) if pooled else np.empty(0)
+    if not mags.size:
+        return PredictedDaytime(float("nan"), float("nan"), per)
+    return PredictedDaytime(float(np.sqrt(np.mean(mags**2))), float(np.percentile(mags, 95)), per)

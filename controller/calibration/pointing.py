@@ -10,23 +10,15 @@ import numpy as np
 
 from controller.calibration.observations import Step
 from controller.calibration.records import MeasurementRecord, ModelRecord
-from controller.config import Heliostat, LampSource, PlantConfig, Target
+from controller.config import Heliostat, LampSource, ModelSettings, PlantConfig, Target
 from controller.errors import HeliocalError, InputError, LimitError
 from controller.geometry.aiming import aim_normal, source_direction
 from controller.geometry.correction import correction_from_offset
-from controller.geometry.error_model import (
-    Measurement,
-    TrackingErrorParams,
-    fit_tracking_errors,
-    steps_for_normal_with_errors,
-)
 from controller.geometry.kinematics import HeliostatKinematics
+from controller.geometry.model_fit import NotIdentifiable, Sample, fit_model
 from controller.geometry.target_frame import TargetFrame
+from controller.geometry.tracking_model import TrackingModel, model_aim, prior_sigma
 from controller.geometry.vectors import vector_to_azel
-
-# Below this spread of joint angles the measurements cannot separate tilt and non-orthogonality
-# from the reference offsets: the fit then estimates only the two offsets (error_model docs).
-_FULL_FIT_SPREAD_RAD = math.radians(10.0)
 
 
 class UnsafePath(HeliocalError):
@@ -42,7 +34,9 @@ class GeometryPointing:
     """
 
     def __init__(self, heliostat: Heliostat, target: Target, source, frame: TargetFrame,
-                 standby_offset_m: float, current_steps: tuple[int, int] | None = None) -> None:
+                 standby_offset_m: float, current_steps: tuple[int, int] | None = None,
+                 model_settings: ModelSettings | None = None) -> None:
+        self.model_settings = model_settings or ModelSettings()
         self.kin = HeliostatKinematics.from_config(heliostat)
         self.heliostat_pos = np.asarray(heliostat.position_enu_m, float)
         self.target = target
@@ -128,35 +122,44 @@ class GeometryPointing:
         return Step(daz_deg, del_deg, int(round(float(daz))), int(round(float(dele))))
 
     def fit(self, measurements: list[MeasurementRecord], prior: ModelRecord | None) -> ModelRecord | None:
-        """Tracking-error fit over all measurements of this heliostat (earlier runs included).
+        """Tracking-model fit over all measurements of this heliostat (earlier runs included),
+        by identifiability: every term is regularised towards its nominal value with the
+        plant's prior σ (``calibration.model``), so the data move only what they observe
+        (:func:`controller.geometry.model_fit.fit_model`). ``prior`` (the last model) is kept
+        when there is nothing to fit or the data identify no term."""
+        return fit_measurements(self.kin, measurements, self.model_settings) or prior
 
-        With a small spread of joint angles only the two reference offsets are fitted (the
-        other parameters keep their prior values)."""
-        ms = [Measurement(np.asarray(m.source_dir), m.az_steps, m.el_steps, np.asarray(m.centroid_enu))
-              for m in measurements if m.centroid_enu is not None]
-        if not ms:
-            return prior
-        ang = np.array([self.kin.angles(m.az_steps, m.el_steps) for m in ms])
-        spread = float(np.max(np.ptp(ang, axis=0)))
-        initial = TrackingErrorParams.from_dict(prior.params) if prior else TrackingErrorParams()
-        if spread >= _FULL_FIT_SPREAD_RAD and len(ms) >= 4:
-            res = fit_tracking_errors(self.kin, ms, initial=initial)
-        else:
-            res = fit_tracking_errors(self.kin, ms, fit=("az_offset", "el_offset"), initial=initial)
-        sigma = {k: (v if math.isfinite(v) else None) for k, v in res.sigma.to_dict().items()}
-        return ModelRecord(res.params.to_dict(), sigma, float(res.residual_mrad_rms), len(ms))
+
+def fit_measurements(kin: HeliostatKinematics, measurements: list[MeasurementRecord],
+                     settings: ModelSettings) -> ModelRecord | None:
+    """:class:`ModelRecord` of the MAP fit to ``measurements`` (those with a centroid), with the
+    noise and prior σ of ``settings`` (:class:`controller.config.ModelSettings`); None when no
+    measurement has a centroid or the data identify no term."""
+    samples = [Sample(np.asarray(m.source_dir, float), m.az_steps, m.el_steps,
+                      np.asarray(m.centroid_enu, float))
+               for m in measurements if m.centroid_enu is not None]
+    if not samples:
+        return None
+    try:
+        fit = fit_model(kin, samples, noise_mrad=settings.noise_mrad,
+                        prior_sigma=prior_sigma(settings.prior_sigma, "calibration.model.prior_sigma"))
+    except NotIdentifiable:
+        return None
+    detail = {"covariance_si": fit.covariance.tolist(), "identified": fit.identified_terms(),
+              "noise_scale": fit.noise_scale}
+    return ModelRecord(fit.model.to_dict(), fit.sigma_dict(), float(fit.residual_mrad_rms), len(samples),
+                       detail)
 
 
 def steps_to_aim(kin: HeliostatKinematics, model: ModelRecord | None, source_dir: np.ndarray,
                  point: np.ndarray) -> tuple[int, int]:
     """Motor steps that reflect light from ``source_dir`` (unit ENU, towards the source) onto
     ``point`` (m ENU): with the fitted tracking-error ``model`` (the bisector normal made the
-    *actual* normal, :func:`controller.geometry.error_model.steps_for_normal_with_errors`), or
-    the nominal kinematics without one. LimitError when the pose is out of reach."""
+    *actual* normal, :func:`controller.geometry.tracking_model.model_aim`), or the nominal
+    kinematics without one. LimitError when the pose is out of reach."""
     if model is None:
         return kin.aim(source_dir, point)
-    n = aim_normal(source_dir, kin.position, point)
-    return steps_for_normal_with_errors(kin, TrackingErrorParams.from_dict(model.params), n)
+    return model_aim(kin, TrackingModel.from_dict(model.params), source_dir, point)
 
 
 @dataclass(frozen=True)

@@ -65,10 +65,16 @@ class CorrectionRecord:
 
 @dataclass
 class ModelRecord:
+    """A heliostat's fitted tracking model: ``params`` and 1-σ ``sigma`` by term key (mrad or
+    mm, docs/tracking-model.md), training residual RMS (mrad), number of measurements, and
+    ``detail``: ``covariance_si`` (terms × terms, SI²), ``identified`` (term names) and
+    ``noise_scale`` (empty for models of older versions)."""
+
     params: dict[str, float]
     sigma: dict[str, float | None]
     residual_mrad: float | None
     n_measurements: int
+    detail: dict = field(default_factory=dict)
 
 
 @dataclass

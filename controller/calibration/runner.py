@@ -206,7 +206,8 @@ class Campaign:
             except DriveError:  # unreachable now: its cycle will record the failure
                 pass
         pointing = {hid: GeometryPointing(self.cfg.heliostat(hid), target, source, self.chain.frame,
-                                          cal.standby_offset_m, current.get(hid)) for hid in self.ids}
+                                          cal.standby_offset_m, current.get(hid), cal.model)
+                    for hid in self.ids}
         existing = self.store.campaign_by_name(self.opt.name)
         queue = existing.queue if existing is not None else order_queue(self.cfg, self.ids, current, pointing)
         site = self.cfg.site

@@ -87,6 +87,7 @@ def simulated_campaign(cfg, config_path: str, out: Path, db: Path, ids: list[str
         report = write_report(store, out / "report", sim.result.campaign_id, truth=sim.truth)
         summary = summarize(store, sim.result.campaign_id, truth=sim.truth)
     summary["daytime_error_mrad"] = sim.daytime.to_json()
+    summary["daytime_error_predicted_mrad"] = sim.predicted.to_json()
     summary["db"] = str(db)
     summary["report"] = str(report)
     return summary, sim
@@ -110,6 +111,11 @@ def _print_summary(s: dict, sim) -> None:
 
     result, safety = sim.result, sim.safety
     con = Console()
+    d, u = sim.daytime, sim.daytime_uncalibrated
+    con.print(f"[bold]daytime tracking error (open loop, sun path of 4 days, plant truth): RMS {d.rms:.2f} "
+              f"mrad, p95 {d.p95:.2f}, max {d.max:.2f}[/bold] "
+              f"(model-predicted from σ: RMS {sim.predicted.rms:.2f}, p95 {sim.predicted.p95:.2f}; "
+              f"uncalibrated: RMS {u.rms:.2f}, p95 {u.p95:.2f})")
     t = Table(title=f"campaign {result.name}" + (" (resumed)" if result.resumed else ""))
     failures = any(r.fault_cause for r in result.runs)
     for col in ("id", "status", "matched case (✓ = truth)", "it", "mrad before", "after", "target s") + (
@@ -123,14 +129,11 @@ def _print_summary(s: dict, sim) -> None:
                _f(truth.error_after_mrad, 2), _f(r.target_occupancy_s, 1)]
         t.add_row(*row, *([r.fault_cause or ""] if failures else []))
     con.print(t)
-    d, u = sim.daytime, sim.daytime_uncalibrated
-    con.print(f"[bold]daytime tracking error (open loop, sun path of 4 days, plant truth): RMS {d.rms:.2f} "
-              f"mrad, p95 {d.p95:.2f}, max {d.max:.2f}[/bold] "
-              f"(uncalibrated: RMS {u.rms:.2f}, p95 {u.p95:.2f})")
     con.print(f"simulated plant clock: {sim.settings.clock_speedup:g}x real time; the table's errors are "
               "true reflected-beam errors at the calibration geometry (closed loop)")
     con.print(f"campaign {s['status']}" + (f": {s['cause']}" if s["cause"] else ""))
-    con.print(f"calibrated {s['calibrated']}/{s['heliostats']}, failed {s['failed']}; error before "
+    con.print(f"calibrated {s['calibrated']}/{s['heliostats']}, failed {s['failed']}; "
+              "closed-loop error before "
               f"mean {_f(s['error_before_mrad']['mean'])} max {_f(s['error_before_mrad']['max'])} mrad, "
               f"after mean {_f(s['error_after_mrad']['mean'])} max {_f(s['error_after_mrad']['max'])} mrad")
     con.print(f"{_f(s['heliostats_per_hour'], 0)} heliostats/hour/target (plant time), mean target "

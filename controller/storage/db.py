@@ -258,10 +258,11 @@ class CampaignStore:
                            (run_id, k.iteration, k.kind, k.daz_deg, k.del_deg, k.daz_steps, k.del_steps))
             if run.model is not None:
                 db.execute("INSERT INTO model_params (heliostat_id, campaign_id, run_id, params_json, "
-                           "sigma_json, residual_mrad, n_measurements, created_utc) VALUES (?,?,?,?,?,?,?,?)",
+                           "sigma_json, residual_mrad, n_measurements, created_utc, detail_json) "
+                           "VALUES (?,?,?,?,?,?,?,?,?)",
                            (run.heliostat_id, campaign_id, run_id, json.dumps(run.model.params),
                             json.dumps(run.model.sigma), run.model.residual_mrad,
-                            run.model.n_measurements, utc_now()))
+                            run.model.n_measurements, utc_now(), json.dumps(run.model.detail)))
             return run_id
 
     # -- queries ----------------------------------------------------------------------------
@@ -311,7 +312,8 @@ class CampaignStore:
         if row is None:
             return None
         return ModelRecord(json.loads(row["params_json"]), json.loads(row["sigma_json"]),
-                           row["residual_mrad"], row["n_measurements"])
+                           row["residual_mrad"], row["n_measurements"],
+                           json.loads(row["detail_json"] or "{}"))
 
     def count(self, table: str) -> int:
         if table not in ("campaigns", "heliostat_runs", "measurements", "corrections", "model_params",

@@ -114,6 +114,10 @@ MIGRATIONS: tuple[str, ...] = (
     """
     ALTER TABLE campaigns ADD COLUMN cause TEXT;
     """,
+    # v4: the tracking model's covariance and identified terms.
+    """
+    ALTER TABLE model_params ADD COLUMN detail_json TEXT;
+    """,
 )
 
 SCHEMA_VERSION = len(MIGRATIONS)

@@ -59,7 +59,7 @@ def test_commission_steps(small_config, tmp_path):
     assert steps["status"]["az_steps"] == 500  # the simulated plant starts at stow
     assert steps["jog"]["az_steps"] == steps["aim"]["az_steps"] + 20
     assert steps["capture"]["beam"] and (tmp_path / "f.png").is_file()
-    assert steps["verify"]["tolerance_mrad"] == 0.3 and steps["verify"]["error_mrad"] > 0
+    assert steps["verify"]["tolerance_mrad"] == 0.5 and steps["verify"]["error_mrad"] > 0
     assert steps["park"]["in_position"] and not steps["park"]["moving"]
     entries = load_library(lib).entries
     assert [e.label for e in entries] == ["twist"] and Path(entries[0].image).is_file()

@@ -1,0 +1,8 @@
+"""``heliocal model {fit,predict,validate}``: the tracking model on PAINT/ARTIST records."""
+
+from controller.commands._groups import register_group
+
+
+def register(subparsers) -> None:
+    register_group(subparsers, __name__, "fit, apply and cross-validate a heliostat's tracking model "
+                                         "on PAINT/ARTIST calibration records")

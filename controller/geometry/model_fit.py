@@ -1,0 +1,250 @@
+"""Fit of the tracking model (:mod:`controller.geometry.tracking_model`) by identifiability.
+
+Maximum a posteriori least squares. Each measurement k (source direction s_k, commanded
+steps, measured spot) gives the measured normal m_k, the bisector of s_k and the direction
+from the mirror centre to the spot; the model gives n_k(p). With t₁, t₂ a tangent basis at
+m_k, σ_n the noise of a measured normal (rad) and w_k a weight (robust or age), minimise
+
+    Σ_k w_k [(t₁·n_k(p))² + (t₂·n_k(p))²] / σ_n²  +  Σ_i ((p_i − p₀,i) / σ₀,i)²        (1)
+
+— a Gaussian prior N(p₀, σ₀²) on every term, so the fit is defined for any data and the
+data move only the combinations they observe. At the optimum, with J the Jacobian of the
+whitened residuals of (1),
+
+    Σ = s² (JᵀJ)⁻¹,   s² = χ²_data / (2m − p_eff),   p_eff = Σ_i (1 − Σ_ii/σ₀,i²)      (2)
+
+(the posterior covariance, scaled by the residuals' own noise estimate when they have at least
+10 degrees of freedom; with fewer, s² = max(1, χ²/dof): the residuals can only show that the
+noise was larger than stated). A term is
+*identified* when the data shrink its σ below half its prior σ; the others stay at the
+prior and are reported as such. The fit refuses when no term is identified.
+
+Outliers: iteratively reweighted least squares with Huber weights on each measurement's
+whitened residual norm r_k, w_k = min(1, c / r_k), c = 3.
+
+Predicted pointing error: for a set of aims (sun direction, aim point), the reflected beam
+r = 2(s·n)n − s at the model's steps moves by δr ≈ J_r δp for a parameter error δp ~ N(0, Σ);
+its RMS over the aims is sqrt(mean_k tr(J_r,k Σ J_r,kᵀ)) and the p95 is taken over draws.
+
+References
+----------
+.. [1] A. Tarantola, "Inverse Problem Theory", SIAM 2005, Sec. 3.2: least squares with a
+   Gaussian prior; posterior covariance (GᵀC_d⁻¹G + C_p⁻¹)⁻¹.
+.. [2] P. J. Huber, "Robust Statistics", Wiley 1981: Huber weights, IRLS.
+.. [3] M. Pargmann et al., ARTIST, Nature Communications 15, 6997, 2024: actuator initial
+   stroke and angle as calibration parameters.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from controller.errors import InputError
+from controller.geometry.aiming import aim_normal, angle_mrad
+from controller.geometry.kinematics import HeliostatKinematics
+from controller.geometry.tracking_model import (
+    NAMES,
+    PRIOR_SIGMA_SI,
+    TERMS,
+    TrackingModel,
+    model_aim,
+    model_mirror_center,
+    model_normal,
+)
+from controller.geometry.vectors import unit
+
+HUBER_C = 3.0
+IDENTIFIED_RATIO = 0.5
+MIN_DOF_FOR_NOISE = 10.0
+
+
+class NotIdentifiable(InputError):
+    """The measurements determine no term of the model: they cannot support a fit."""
+
+
+@dataclass(frozen=True, eq=False)  # numpy fields
+class Sample:
+    """One pointing measurement: unit ENU ``source_dir`` (towards the source), commanded
+    motor steps, measured beam centroid ``spot_enu`` (m ENU), and a ``weight`` (1: full; less
+    for an old measurement after drift)."""
+
+    source_dir: np.ndarray
+    az_steps: float
+    el_steps: float
+    spot_enu: np.ndarray
+    weight: float = 1.0
+
+
+@dataclass(frozen=True, eq=False)  # numpy fields
+class ModelFit:
+    """Result of :func:`fit_model`.
+
+    ``model``: fitted values; ``sigma``: 1-σ per term (SI); ``covariance`` (SI²);
+    ``identified``: per term, whether the data determined it (σ < ½ prior σ); ``residual_mrad``
+    per sample (angle between model and measured normals) and its RMS before/after;
+    ``weights``: final robust weights; ``noise_scale`` s of Eq. (2); ``condition``: condition
+    number of the data Jacobian over the identified terms (prior-whitened)."""
+
+    model: TrackingModel
+    sigma: np.ndarray
+    covariance: np.ndarray
+    identified: np.ndarray
+    residual_mrad: np.ndarray
+    residual_mrad_rms: float
+    initial_residual_mrad_rms: float
+    weights: np.ndarray
+    noise_scale: float
+    condition: float
+
+    def sigma_dict(self) -> dict[str, float]:
+        return {t.key: 1e3 * float(s) for t, s in zip(TERMS, self.sigma, strict=True)}
+
+    def identified_terms(self) -> list[str]:
+        return [n for n, ok in zip(NAMES, self.identified, strict=True) if ok]
+
+
+def measured_normal(kin: HeliostatKinematics, model: TrackingModel, s: Sample) -> np.ndarray:
+    """The normal a sample implies: bisector of the source direction and the direction from the
+    mirror centre (with ``model``, at the commanded steps) to the measured spot."""
+    return aim_normal(s.source_dir, model_mirror_center(kin, model, s.az_steps, s.el_steps), s.spot_enu)
+
+
+def _tangents(n: np.ndarray) -> np.ndarray:
+    helper = np.array([0.0, 0.0, 1.0]) if abs(n[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    t1 = unit(np.cross(helper, n))
+    return np.stack([t1, np.cross(n, t1)])
+
+
+def _jacobian(fun, x: np.ndarray, step: np.ndarray) -> np.ndarray:
+    """Central-difference Jacobian of ``fun`` at ``x`` with per-coordinate ``step``."""
+    cols = []
+    for i in range(len(x)):
+        d = np.zeros_like(x)
+        d[i] = step[i]
+        cols.append((fun(x + d) - fun(x - d)) / (2.0 * step[i]))
+    return np.stack(cols, axis=-1)
+
+
+def fit_model(kin: HeliostatKinematics, samples: Sequence[Sample], *, noise_mrad: float = 0.3,
+              prior: TrackingModel | None = None, prior_sigma: np.ndarray | None = None,
+              robust: bool = True) -> ModelFit:
+    """MAP fit of Eq. (1); Σ of Eq. (2). ``prior`` (default zero) is p₀; ``prior_sigma`` (SI,
+    default :data:`TERMS`' σ) may be narrowed (e.g. the posterior of a previous night).
+
+    Raises InputError when there are no samples, a sample is not finite, or the samples
+    identify no term (they cannot support a fit)."""
+    from scipy.optimize import least_squares
+
+    if not samples:
+        raise InputError("model fit: no measurements")
+    if not (np.isfinite(noise_mrad) and noise_mrad > 0):
+        raise InputError(f"model fit: noise must be a positive number of mrad, got {noise_mrad}")
+    for i, s in enumerate(samples):
+        vals = np.concatenate([np.ravel(s.source_dir), [s.az_steps, s.el_steps, s.weight],
+                               np.ravel(s.spot_enu)])
+        if not np.all(np.isfinite(vals)) or s.weight <= 0:
+            raise InputError(f"model fit: measurement {i + 1} has a non-finite value or weight <= 0")
+    p0 = (prior or TrackingModel.zero()).values
+    s0 = PRIOR_SIGMA_SI if prior_sigma is None else np.asarray(prior_sigma, float)
+    sig_n = noise_mrad * 1e-3
+    # The measured normals depend on the mirror centre only through |c|/distance (< 1e-2 of
+    # the error): take them at the prior and keep them fixed, so (1) is a plain least squares.
+    targets = [measured_normal(kin, TrackingModel(p0), s) for s in samples]
+    bases = [_tangents(m) for m in targets]
+    age_w = np.array([s.weight for s in samples])
+
+    def data_res(x: np.ndarray) -> np.ndarray:
+        m = TrackingModel(p0 + x * s0)
+        return np.concatenate([b @ model_normal(kin, m, s.az_steps, s.el_steps)
+                               for s, b in zip(samples, bases, strict=True)]) / sig_n
+
+    weights = np.ones(len(samples))
+    x = np.zeros(len(TERMS))
+    for _ in range(4 if robust else 1):
+        w = np.repeat(np.sqrt(weights * age_w), 2)
+        sol = least_squares(lambda z, w=w: np.concatenate([w * data_res(z), z]), x, method="lm",
+                            xtol=1e-12, ftol=1e-12, gtol=1e-12)
+        x = sol.x
+        r = data_res(x).reshape(-1, 2)
+        norms = np.sqrt(age_w) * np.linalg.norm(r, axis=1)
+        new = np.minimum(1.0, HUBER_C / np.maximum(norms, 1e-12)) if robust else weights
+        if np.allclose(new, weights, atol=1e-3):
+            break
+        weights = new
+    w = np.repeat(np.sqrt(weights * age_w), 2)
+    jd = w[:, None] * _jacobian(data_res, x, np.full(len(x), 1e-4))
+    post_x = np.linalg.inv(jd.T @ jd + np.eye(len(x)))  # covariance of x (prior-whitened)
+    ratio2 = np.clip(np.diag(post_x), 0.0, 1.0)
+    p_eff = float(np.sum(1.0 - ratio2))
+    chi2 = float(np.sum((w * data_res(x)) ** 2))
+    dof = 2 * len(samples) - p_eff
+    # With enough redundancy the residuals estimate the noise themselves (either way); with
+    # little, they can only show that it was larger than stated.
+    if dof >= MIN_DOF_FOR_NOISE:
+        s2 = chi2 / dof
+    else:
+        s2 = max(1.0, chi2 / dof) if dof > 0.5 else 1.0
+    cov = s2 * post_x * np.outer(s0, s0)
+    sigma = np.sqrt(np.diag(cov))
+    identified = np.sqrt(ratio2) * np.sqrt(s2) < IDENTIFIED_RATIO
+    if not identified.any():
+        raise NotIdentifiable(f"model fit: {len(samples)} measurement(s) identify no term of the model "
+                         f"(every σ stays above {IDENTIFIED_RATIO:g}× its prior); measure more geometries")
+    sv = np.linalg.svd(jd[:, identified], compute_uv=False)
+    model = TrackingModel(p0 + x * s0)
+    res = np.array([angle_mrad(model_normal(kin, model, s.az_steps, s.el_steps), m)
+                    for s, m in zip(samples, targets, strict=True)])
+    res0 = np.array([angle_mrad(model_normal(kin, TrackingModel(p0), s.az_steps, s.el_steps), m)
+                     for s, m in zip(samples, targets, strict=True)])
+    return ModelFit(model, sigma, cov, identified, res, float(np.sqrt(np.mean(res**2))),
+                    float(np.sqrt(np.mean(res0**2))), weights, float(np.sqrt(s2)), float(sv[0] / sv[-1]))
+
+
+@dataclass(frozen=True, eq=False)  # numpy field
+class PredictedError:
+    """Predicted reflected-beam error over a set of aims, mrad: ``rms``, ``p95``, the number
+    of aims the heliostat could reach (``aims``), and ``draws_mrad`` (draws × aims), the error
+    magnitudes of the covariance draws (to pool several heliostats)."""
+
+    rms: float
+    p95: float
+    aims: int
+    draws_mrad: np.ndarray
+
+    def to_json(self) -> dict:
+        return {"rms": self.rms, "p95": self.p95, "aims": self.aims}
+
+
+def predicted_error(kin: HeliostatKinematics, model: TrackingModel, covariance: np.ndarray,
+                    source_dirs: np.ndarray, aim_point, *, draws: int = 400, seed: int = 0) -> PredictedError:
+    """Reflected-beam error (mrad) that the model's uncertainty ``covariance`` (SI²) leaves when
+    the heliostat aims at ``aim_point`` (m ENU) from each of ``source_dirs`` (n, 3): the
+    linearised propagation of the module docstring. Unreachable aims are skipped."""
+    from controller.errors import LimitError
+
+    aim_point = np.asarray(aim_point, float)
+    step = np.maximum(1e-6, 1e-2 * np.sqrt(np.clip(np.diag(covariance), 0.0, None)))
+    jacobians = []
+    for s in np.asarray(source_dirs, float).reshape(-1, 3):
+        try:
+            az, el = model_aim(kin, model, s, aim_point)
+        except (LimitError, ValueError):
+            continue
+
+        def beam(v: np.ndarray, s=s, az=az, el=el) -> np.ndarray:
+            n = model_normal(kin, TrackingModel(v), az, el)
+            return 2.0 * float(s @ n) * n - s
+
+        jacobians.append(_jacobian(beam, model.values, step))
+    if not jacobians:
+        raise InputError("predicted error: the heliostat reaches none of the aims")
+    j = np.stack(jacobians)  # (k, 3, p)
+    var = np.einsum("kip,pq,kiq->k", j, covariance, j)
+    rng = np.random.default_rng(seed)
+    dp = rng.multivariate_normal(np.zeros(len(model.values)), covariance, size=draws, method="eigh")
+    mags = np.linalg.norm(np.einsum("kip,dp->kdi", j, dp), axis=-1)
+    return PredictedError(1e3 * float(np.sqrt(np.mean(var))), 1e3 * float(np.percentile(mags, 95)), len(j),
+                          1e3 * mags.T)

@@ -1,0 +1,170 @@
+"""The simulated plant's hidden heliostats — written independently of the controller's models.
+
+Nothing here comes from ``controller.geometry`` or ``controller.calibration`` (a test checks
+the imports): the forward kinematics below is its own, built from axis-angle rotations
+(Rodrigues) about physical joint axes, and it contains effects that no controller model has.
+The controller must find this heliostat out from what it measures, as it would a real one.
+
+A heliostat (two linear actuators, elevation joint first, as the Jülich heliostats):
+
+* **actuators** — law-of-cosines lever (ARTIST's linear actuator): stroke L = L₀ + k·s/inc
+  with a stroke-scale error k = 1 + κ (lead-screw pitch tolerance), joint-side angle
+  φ = acos((o² + r² − L²)/(2or)), joint angle θ = θ₀ ∓ (φ(L₀) − φ(L)); each of L₀, θ₀, o, r
+  perturbed from the surveyed values;
+* **pedestal** — tilted (two angles) and turned about the vertical (yaw);
+* **joints** — the azimuth joint's axis is carried by the elevation joint and is off
+  perpendicular by a small angle; the elevation joint turns about the pedestal's east axis,
+  angle measured from the zenith (normal up at 0, facing south at α = 0);
+* **mirror** — canting error (two small angles), centre displaced by the concentrator offset;
+* **position** — the pivot is a few centimetres from its surveyed position;
+* **gravity droop** — the elevation joint sags by g·sin ε (ε from the zenith: largest with the
+  mirror vertical);
+* **thermal drift** — each night both joint references move by a random step;
+* **repeatability** — each move lands within a small random error (applied by the plant per
+  move, :meth:`HeliostatTruth.normal` takes it as ``jitter``).
+
+Magnitudes (1-σ, at the default ``scale`` 1, which multiplies all of them), from the
+literature on heliostat tracking and actuator tolerances (docs/tracking-model.md lists the
+sources): pedestal tilt 1.5 mrad, yaw
+3 mrad, non-orthogonality 1 mrad, canting 1 mrad, actuator initial angle 3 mrad, initial
+stroke 1 mm, lever offset and pivot radius 0.5 mm, stroke scale 2·10⁻⁴, position 3 cm, droop
+0.3 ± 0.1 mrad, nightly drift 0.1 mrad, repeatability 0.07 mrad per axis.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+EAST, NORTH, UP = np.eye(3)
+FACING_SOUTH = -NORTH
+
+
+def rodrigues(axis: np.ndarray, angle_rad: float) -> np.ndarray:
+    """Rotation matrix by ``angle_rad`` about the unit ``axis`` (right-handed):
+    R = I + sin θ K + (1 − cos θ) K², K the cross-product matrix of the axis."""
+    a = np.asarray(axis, float) / np.linalg.norm(axis)
+    k = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+    return np.eye(3) + math.sin(angle_rad) * k + (1.0 - math.cos(angle_rad)) * (k @ k)
+
+
+@dataclass(frozen=True)
+class ActuatorTruth:
+    """One true linear actuator (lengths m, angles rad, ``increment`` steps per m)."""
+
+    increment: float
+    stroke0: float
+    offset: float
+    pivot_radius: float
+    angle0: float
+    clockwise: bool
+    stroke_scale: float = 1.0
+
+    def _phi(self, stroke: float) -> float:
+        o, r = self.offset, self.pivot_radius
+        return math.acos(max(-1.0, min(1.0, (o * o + r * r - stroke * stroke) / (2.0 * o * r))))
+
+    def angle(self, steps: float) -> float:
+        """True joint angle, rad, at motor ``steps``."""
+        stroke = self.stroke0 + self.stroke_scale * float(steps) / self.increment
+        turn = self._phi(self.stroke0) - self._phi(stroke)
+        return self.angle0 + turn if self.clockwise else self.angle0 - turn
+
+
+@dataclass(frozen=True, eq=False)  # numpy fields
+class HeliostatTruth:
+    """The hidden heliostat (module docstring). Angles rad, lengths m, ENU."""
+
+    position: np.ndarray
+    elevation: ActuatorTruth
+    azimuth: ActuatorTruth
+    pedestal: np.ndarray
+    non_orthogonality: float
+    canting: tuple[float, float]
+    concentrator: np.ndarray
+    droop: float
+    drift_per_night: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+
+    def _drift(self, night: int) -> np.ndarray:
+        if night <= 0 or not len(self.drift_per_night):
+            return np.zeros(2)
+        return self.drift_per_night[:min(night, len(self.drift_per_night))].sum(axis=0)
+
+    def _frame(self, az_steps: float, el_steps: float, night: int, jitter) -> np.ndarray:
+        d_el, d_az = self._drift(night)
+        eps = self.elevation.angle(el_steps) + d_el
+        eps += self.droop * math.sin(eps)
+        alpha = self.azimuth.angle(az_steps) + d_az
+        if jitter is not None:
+            eps, alpha = eps + float(jitter[0]), alpha + float(jitter[1])
+        joint_up = rodrigues(NORTH, self.non_orthogonality) @ UP
+        return self.pedestal @ rodrigues(EAST, eps - math.pi / 2.0) @ rodrigues(joint_up, alpha)
+
+    def normal(self, az_steps: float, el_steps: float, night: int = 0, jitter=None) -> np.ndarray:
+        """Unit ENU mirror normal at the given motor steps on ``night`` (0: the first)."""
+        cant = rodrigues(EAST, self.canting[0]) @ rodrigues(UP, self.canting[1])
+        n = self._frame(az_steps, el_steps, night, jitter) @ cant @ FACING_SOUTH
+        return n / np.linalg.norm(n)
+
+    def mirror_center(self, az_steps: float, el_steps: float, night: int = 0) -> np.ndarray:
+        """Centre of the mirror, m ENU."""
+        return self.position + self._frame(az_steps, el_steps, night, None) @ self.concentrator
+
+
+def draw_truth(position, elevation: dict, azimuth: dict, concentrator, rng: np.random.Generator, *,
+               scale: float = 1.0, nights: int = 8, extra: dict | None = None) -> HeliostatTruth:
+    """A hidden heliostat about its surveyed description.
+
+    ``elevation``/``azimuth``: surveyed actuator values (keys ``increment``,
+    ``initial_stroke_length``, ``offset``, ``pivot_radius``, ``initial_angle``,
+    ``clockwise_axis_movement``); ``position``: surveyed pivot, m ENU; ``concentrator``: body
+    offset of the mirror centre, m. ``scale`` multiplies every error (0: exactly as
+    surveyed); ``extra`` adds an error case's own pointing (``az_offset``, ``el_offset``,
+    ``tilt_east``, rad)."""
+    extra = extra or {}
+    mrad = 1e-3 * scale
+    mm = 1e-3 * scale
+
+    def actuator(a: dict, offset_extra: float) -> ActuatorTruth:
+        return ActuatorTruth(float(a["increment"]),
+                             float(a["initial_stroke_length"]) + rng.normal(0.0, 1.0 * mm),
+                             float(a["offset"]) + rng.normal(0.0, 0.5 * mm),
+                             float(a["pivot_radius"]) + rng.normal(0.0, 0.5 * mm),
+                             float(a["initial_angle"]) + rng.normal(0.0, 3.0 * mrad) + offset_extra,
+                             bool(a["clockwise_axis_movement"]),
+                             1.0 + rng.normal(0.0, 2e-4 * scale))
+
+    el = actuator(elevation, float(extra.get("el_offset", 0.0)))
+    az = actuator(azimuth, float(extra.get("az_offset", 0.0)))
+    tilt_n, tilt_e = rng.normal(0.0, 1.5 * mrad, 2)
+    tilt_e += float(extra.get("tilt_east", 0.0))
+    pedestal = (rodrigues(UP, rng.normal(0.0, 3.0 * mrad)) @ rodrigues(NORTH, tilt_e)
+                @ rodrigues(EAST, -tilt_n))
+    return HeliostatTruth(
+        position=np.asarray(position, float) + rng.normal(0.0, 30.0 * mm, 3),
+        elevation=el, azimuth=az, pedestal=pedestal,
+        non_orthogonality=float(rng.normal(0.0, 1.0 * mrad)),
+        canting=(float(rng.normal(0.0, 1.0 * mrad)), float(rng.normal(0.0, 1.0 * mrad))),
+        concentrator=np.asarray(concentrator, float),
+        droop=float(rng.normal(0.3, 0.1)) * mrad,
+        drift_per_night=rng.normal(0.0, 0.1 * mrad, (nights, 2)))
+
+
+REPEATABILITY_RAD = 0.07e-3  # per axis: ≈ 0.1 mrad of normal in all
+
+
+def hidden_truth(h, rng: np.random.Generator, scale: float, case=None) -> HeliostatTruth:
+    """A hidden heliostat about the surveyed description of ``h`` (a configured heliostat:
+    ``position_enu_m``, ``axes.elevation``/``axes.azimuth`` with the actuator fields), with an
+    error ``case``'s own pointing error (``case.params``: az_offset, el_offset, tilt_east, rad)
+    added. Duck-typed, so this module needs nothing of the controller."""
+    def axis(a) -> dict:
+        return {k: getattr(a, k) for k in ("increment", "initial_stroke_length", "offset", "pivot_radius",
+                                            "initial_angle", "clockwise_axis_movement")}
+
+    pointing = ("az_offset", "el_offset", "tilt_east")
+    extra = {} if case is None else {k: getattr(case.params, k) for k in pointing}
+    return draw_truth(h.position_enu_m, axis(h.axes.elevation), axis(h.axes.azimuth), (0.0, 0.0, 0.0), rng,
+                      scale=scale, extra=extra)
