@@ -225,6 +225,9 @@ class ModelSettings(_Model):
         default_factory=dict,
         description="prior 1-σ of tracking-model terms, by key (e.g. base_yaw_mrad, az_stroke0_mm); "
                     "terms not listed keep the documented defaults")
+    age_halflife_days: float = Field(default=30.0, gt=0, le=3650,
+                                     description="a measurement this many days older than the newest "
+                                                 "weighs half in the fit (drift)")
 
     @field_validator("prior_sigma")
     @classmethod
@@ -235,6 +238,27 @@ class ModelSettings(_Model):
             if not (math.isfinite(sigma) and 0 < sigma <= 1000):
                 raise ValueError(f"{key}: prior σ must be in (0, 1000], got {sigma}")
         return v
+
+
+class AimGrid(_Model):
+    """Aim points on a grid over the calibration target (planned nights, docs/campaigns.md)."""
+
+    rows: int = Field(default=1, ge=1, le=9, description="aim points down the target")
+    cols: int = Field(default=1, ge=1, le=9, description="aim points across the target")
+    margin_m: float = Field(default=1.0, ge=0, le=50,
+                            description="distance kept from the target's edges, m")
+
+
+class Planner(_Model):
+    """The nightly planner (docs/campaigns.md, "Planned nights")."""
+
+    geometries_per_night: int = Field(default=3, ge=1, le=50,
+                                      description="measurements planned per heliostat and night")
+    check_geometries: int = Field(default=1, ge=0, le=50,
+                                  description="measurements for a heliostat whose predicted daytime "
+                                              "error is already below tolerance")
+    sun_positions: int = Field(default=48, ge=4, le=2000,
+                               description="sun positions of the yearly path the planner scores against")
 
 
 class Calibration(_Model):
@@ -253,6 +277,13 @@ class Calibration(_Model):
                                     description="standby aim point distance beside the target")
     library: str | None = Field(default=None, description="error library YAML; None: built")
     model: ModelSettings = Field(default_factory=ModelSettings)
+    lamps: tuple[str, ...] = Field(default=(), description="ids of the lamps planned nights may light "
+                                   "(default: light_source only)")
+    aim_grid: AimGrid = Field(default_factory=AimGrid)
+    planner: Planner = Field(default_factory=Planner)
+
+    def planned_lamps(self) -> tuple[str, ...]:
+        return self.lamps or (self.light_source,)
 
 
 class PlantConfig(_Model):
@@ -275,6 +306,13 @@ class PlantConfig(_Model):
         if self.calibration.light_source not in {s.id for s in self.light_sources}:
             raise ValueError(f"calibration.light_source: {self.calibration.light_source!r} "
                              "is not the id of any entry of light_sources")
+        lamps = {s.id for s in self.light_sources if s.kind == "lamp"}
+        for index, lamp in enumerate(self.calibration.lamps):
+            if lamp not in lamps:
+                raise ValueError(f"calibration.lamps[{index}]: {lamp!r} is not the id of a lamp "
+                                 "of light_sources")
+            if lamp in self.calibration.lamps[:index]:
+                raise ValueError(f"calibration.lamps[{index}]: {lamp!r} is listed twice")
         if self.calibration.target not in {t.id for t in self.targets}:
             raise ValueError(f"calibration.target: {self.calibration.target!r} "
                              "is not the id of any entry of targets")

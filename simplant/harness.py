@@ -17,6 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from controller.calibration.daytime import PredictedDaytime, predicted_daytime, sun_path
+from controller.calibration.nights import Pass, run_night
+from controller.calibration.planner import plan_night
 from controller.calibration.records import MeasurementRecord, RunRecord
 from controller.calibration.runner import Campaign, CampaignObserver, CampaignOptions, CampaignResult
 from controller.config import PlantConfig, config_sha256
@@ -25,6 +27,7 @@ from controller.recognition.library import Library
 from controller.reports.summary import ReferenceTruth
 from controller.storage.db import CampaignStore
 from controller.storage.images import ImageArchive
+from controller.storage.plans import load_plan, record_plan
 from simplant.daytime import DaytimeError, daytime_error
 from simplant.plant import SimulatedPlant, load_config_data
 from simplant.reference_set import write_reference_set
@@ -120,6 +123,34 @@ def demo_library(cfg: PlantConfig, config_path: str, out: Path, ids: list[str], 
     return lib
 
 
+class LampSwitch(CampaignObserver):
+    """Lights the lamp a campaign asks for in the simulated plant (a lamp controller's job)."""
+
+    def __init__(self, plant: SimulatedPlant) -> None:
+        self.plant = plant
+
+    def light_source_needed(self, source_id: str) -> None:
+        self.plant.set_light(source_id)
+
+
+@dataclass(frozen=True)
+class NightReport:
+    """After one simulated night: its name, the measurements planned and taken, and the
+    field's daytime error (true, against the plant, and predicted from the models' σ)."""
+
+    night: int
+    name: str
+    planned: int
+    measured: int
+    daytime: DaytimeError
+    predicted: PredictedDaytime
+
+    def to_json(self) -> dict:
+        return {"night": self.night, "name": self.name, "planned": self.planned, "measured": self.measured,
+                "daytime_error_mrad": self.daytime.to_json(),
+                "daytime_error_predicted_mrad": self.predicted.to_json()}
+
+
 @dataclass
 class SimulatedRun:
     """What :func:`run_simulated` hands back: the campaign result, the plant truth per
@@ -134,13 +165,17 @@ class SimulatedRun:
     daytime: DaytimeError  # open loop over the sun path, latest models, against the plant truth
     daytime_uncalibrated: DaytimeError  # the same with the nominal kinematics
     predicted: PredictedDaytime  # what the models' own covariance predicts for ``daytime``
+    nights: list[NightReport]  # after each planned night (empty with nights=0)
 
 
 def run_simulated(cfg: PlantConfig, config_path: str, out: Path, db_path: Path, ids: list[str], *,
                   settings: SimulationSettings, name: str, sequential: bool = False,
-                  library_dir: Path | None = None, observers=(), progress=None) -> SimulatedRun:
+                  library_dir: Path | None = None, observers=(), progress=None, nights: int = 0,
+                  strategy: str = "design") -> SimulatedRun:
     """Start the simulated plant in ``out``, run (or resume) campaign ``name`` into ``db_path``
-    through the real drivers, and return what happened with the plant's truth."""
+    through the real drivers — the closed-loop calibration at the calibration lamp — then
+    ``nights`` planned nights (:mod:`controller.calibration.nights`, planner ``strategy``), and
+    return what happened with the plant's truth. ``progress(text)`` hears of each pass."""
     store = CampaignStore(db_path)
     try:
         # Refuse a database in use before any slow work (the error set takes a while to render).
@@ -157,28 +192,62 @@ def run_simulated(cfg: PlantConfig, config_path: str, out: Path, db_path: Path, 
             cal = cfg.calibration
             opts = CampaignOptions(name=name, pipeline_depth=1 if sequential else cal.pipeline_depth,
                                    settle_s=cal.settle_s)
+            truth = TruthRecorder(plant, db_path)
+            path = sun_path(cfg.site)
             with LinkPool(timeout_s=0.5, retries=2) as pool:
-                camp = Campaign(plant_cfg, config_path, store, pool, plant.camera,
-                                config_sha256=config_sha256(config_path), heliostat_ids=ids, library=lib,
-                                options=opts, images=ImageArchive(out / "images"), clock=plant.clock,
-                                sleep=plant.clock.sleep, compute=plant.clock.realtime,
-                                meta={"plant": "simulated", "seed": settings.seed,
-                                      "clock_speedup": settings.clock_speedup},
-                                observers=[TruthRecorder(plant, db_path), *observers])
-                result = camp.run()
+                def campaign(options: CampaignOptions, hids: list[str], extra=()) -> CampaignResult:
+                    return Campaign(plant_cfg, config_path, store, pool, plant.camera,
+                                    config_sha256=config_sha256(config_path), heliostat_ids=hids, library=lib,
+                                    options=options, images=ImageArchive(out / "images"), clock=plant.clock,
+                                    sleep=plant.clock.sleep, compute=plant.clock.realtime, utc=plant.utc,
+                                    meta={"plant": "simulated", "seed": settings.seed,
+                                          "clock_speedup": settings.clock_speedup},
+                                    observers=[LampSwitch(plant), truth, *extra]).run()
+
+                result = campaign(opts, ids, observers)
+                reports = []
+                for k in range(nights if result.status in ("finished", "partial") else 0):
+                    plant.set_night(k)
+                    night = f"{name}/night-{k + 1}"
+                    reports.append(_planned_night(cfg, store, plant, campaign, ids, k, night, strategy, path,
+                                                  progress))
+                plant.set_light(cfg.calibration.light_source)
             safety = plant.safety.report()
-        # What the night was for: open-loop tracking of the sun with each heliostat's latest
+        # What the nights were for: open-loop tracking of the sun with each heliostat's latest
         # model, scored against the plant's truth (and, for scale, with no model at all).
-        path = sun_path(cfg.site)
         models = {hid: store.latest_model(hid) for hid in ids}
-        daytime = daytime_error(plant, cfg, models, path)
+        daytime = reports[-1].daytime if reports else daytime_error(plant, cfg, models, path)
+        predicted = reports[-1].predicted if reports else predicted_daytime(cfg, models, path)
         uncalibrated = daytime_error(plant, cfg, dict.fromkeys(ids), path)
-        predicted = predicted_daytime(cfg, models, path)
         store.update_meta(result.campaign_id, {"beam_safety_last_session": safety,
                                                "daytime_error_mrad": daytime.to_json(),
                                                "daytime_error_predicted_mrad": predicted.to_json(),
-                                               "daytime_error_uncalibrated_mrad": uncalibrated.to_json()})
+                                               "daytime_error_uncalibrated_mrad": uncalibrated.to_json(),
+                                               "nights": [r.to_json() for r in reports]})
     finally:
         store.close()
     return SimulatedRun(result, read_truth(db_path, result.campaign_id), safety, settings, db_path, out,
-                        daytime, uncalibrated, predicted)
+                        daytime, uncalibrated, predicted, reports)
+
+
+def _planned_night(cfg: PlantConfig, store: CampaignStore, plant: SimulatedPlant, campaign, ids: list[str],
+                   k: int, night: str, strategy: str, path, progress) -> NightReport:
+    """Plan (or reload the stored plan of) night ``k``, run its passes, score the field."""
+    plan = load_plan(store, night)
+    if not plan:
+        plan = plan_night(cfg, {hid: store.latest_model(hid) for hid in ids}, night, strategy=strategy,
+                          night_index=k)
+        record_plan(store, plan)
+
+    def run_pass(p: Pass) -> CampaignResult:
+        if progress is not None:
+            progress(f"{p.name}: {len(p.aims)} heliostat(s) under {p.lamp}")
+        return campaign(CampaignOptions(name=p.name, light_source=p.lamp, aims=p.aims, observe=True,
+                                        pipeline_depth=cfg.calibration.pipeline_depth,
+                                        settle_s=cfg.calibration.settle_s), list(p.aims))
+
+    results = run_night(plan, night, run_pass)
+    models = {hid: store.latest_model(hid) for hid in ids}
+    measured = sum(1 for r in results for run in r.runs if run.status == "measured")
+    return NightReport(k + 1, night, len(plan), measured, daytime_error(plant, cfg, models, path),
+                       predicted_daytime(cfg, models, path))

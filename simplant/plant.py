@@ -32,24 +32,25 @@ from __future__ import annotations
 
 import copy
 from dataclasses import dataclass, replace
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
 import numpy as np
 import yaml
 
 from controller.config import PlantConfig, parse_config
-from controller.devices.camera import DoubleCcdCamera, FramePair
 from controller.geometry.vectors import unit
 from simplant.clock import PlantClock
 from simplant.errorset import CASES, ErrorCase
 from simplant.firmware.physics import SimController, axis_params_from_config
 from simplant.grids import camera_grid, coarse_grid
 from simplant.optics import MirrorSurface, TargetGrid, render_spot
+from simplant.plant_camera import RENDER_RAYS, PlantCamera
 from simplant.safety import BeamSafetyMonitor
 from simplant.settings import SimulationSettings
 from simplant.truth import REPEATABILITY_RAD, HeliostatTruth, hidden_truth
 
-RENDER_RAYS = 80_000
+NIGHT_ONE = datetime(2026, 3, 1, 20, 0, tzinfo=UTC)  # first simulated night, plant calendar
 TRUTH_RAYS = 100_000
 # A worn gear rocks across its dead band when gusts push the mirror (the error set renders the
 # full band). Calibration nights are calm: the plant lets the mirror sweep this fraction of it.
@@ -115,6 +116,7 @@ class SimulatedPlant:
         self.clock = PlantClock(sim.clock_speedup, start=clock_start)
         self.hidden: dict[str, HiddenHeliostat] = {}
         self.night = 0
+        self.lit = self.cfg.calibration.light_source
         index = {h.id: i for i, h in enumerate(cfg.heliostats)}
         for hid in self.ids:
             h = cfg.heliostat(hid)
@@ -214,6 +216,22 @@ class SimulatedPlant:
         """Which night it is (0 the first): the hidden heliostats drift between nights."""
         self.night = int(night)
 
+    def set_light(self, source_id: str) -> None:
+        """Light lamp ``source_id`` (the others go dark): one lamp at a time, as a campaign asks."""
+        if getattr(self.cfg.light_source(source_id), "kind", "") != "lamp":
+            raise ValueError(f"the simulated plant lights lamps only, not {source_id!r}")
+        self.lit = source_id
+
+    def lamp(self):
+        """The lamp lit now (config entry)."""
+        return self.cfg.light_source(self.lit)
+
+    def utc(self) -> str:
+        """Plant time as an ISO 8601 UTC stamp: night k starts at 20:00 on day k of the plant's
+        calendar, plus the plant clock."""
+        t = NIGHT_ONE + timedelta(days=self.night, seconds=self.clock())
+        return t.astimezone(UTC).isoformat(timespec="milliseconds")
+
     def true_normal(self, hid: str) -> np.ndarray:
         """True normal of ``hid`` at its rods' present positions (repeatability included)."""
         hh = self.hidden[hid]
@@ -251,7 +269,7 @@ class SimulatedPlant:
         pos = hh.truth.mirror_center(*hh.controller.output_steps(), night=self.night)
         tgt = self.cfg.target()
         c, nrm = np.asarray(tgt.center_enu_m, float), unit(np.asarray(tgt.normal, float))
-        lamp = np.asarray(self.cfg.light_source().position_enu_m, float)
+        lamp = np.asarray(self.lamp().position_enu_m, float)
         s = unit(lamp - pos)
         with self.clock.frozen():
             normals = self.beam_normals(hid)
@@ -262,7 +280,7 @@ class SimulatedPlant:
             # Bilinear splatting keeps every ray's first moment, so a coarse grid gives the
             # exact energy centroid of the traced rays.
             grid = TargetGrid(hit, nrm, base.u_axis, base.v_axis, 12.0, 12.0, (64, 64))
-            diameter = float(self.cfg.light_source().diameter_m) / float(np.linalg.norm(lamp - pos))
+            diameter = float(self.lamp().diameter_m) / float(np.linalg.norm(lamp - pos))
             img = sum(render_spot(pos, nn, lamp, diameter, hh.mirror, grid, rng=np.random.default_rng(1),
                                   n_rays=TRUTH_RAYS // len(normals)) for nn in normals)
         yy, xx = np.mgrid[0:64, 0:64]
@@ -275,7 +293,7 @@ class SimulatedPlant:
         return self.hidden[hid].case.label
 
     def _source_dir(self, pos: np.ndarray) -> np.ndarray:
-        src = self.cfg.light_source()
+        src = self.lamp()
         if getattr(src, "kind", "") == "lamp":
             return unit(np.asarray(src.position_enu_m, float) - pos)
         raise ValueError("the simulated plant renders the lamp only (nightly campaigns)")
@@ -289,7 +307,7 @@ class SimulatedPlant:
         a large defocused spot would otherwise dwarf the sensor noise (a simulation artefact)."""
         import cv2
 
-        src = self.cfg.light_source()
+        src = self.lamp()
         lamp = np.asarray(src.position_enu_m, float)
         rows, cols = grid.shape
         coarse = coarse_grid(grid)
@@ -318,71 +336,6 @@ class SimulatedPlant:
             return img
         # Pixel centres of both grids span the same plane area: resize maps them consistently.
         return cv2.resize(img.astype(np.float32), (cols, rows), interpolation=cv2.INTER_LINEAR).astype(float)
-
-
-class PlantCamera(DoubleCcdCamera):
-    """The plant's double-CCD camera: :class:`simplant.camera.SimulatedCamera`
-    (two sensors with their own non-linear responses and gains) over :meth:`SimulatedPlant.scene`.
-
-    The lamp brightness is set once so that a nominal spot of the first heliostat at the
-    target centre peaks at 1.6x the HIGH sensor's full scale (HIGH saturates in the core,
-    LOW does not), as in the error set. A capture stops the plant clock while it is simulated
-    and advances it by the HIGH exposure. :meth:`inject_failure` makes the next captures
-    raise :class:`CameraError` (fault tests).
-    """
-
-    def __init__(self, plant: SimulatedPlant, cfg: PlantConfig, seed: int = 0) -> None:
-        from simplant.camera import SimulatedCamera
-
-        cam = cfg.camera
-        self.plant = plant
-        self.grid = camera_grid(cfg)
-        self._scene_rng = np.random.default_rng([seed, 11])
-        t_high = cam.sensors[1].exposure_s
-        span = (1 << cam.bit_depth) - 1 - cam.dark_offset_counts
-        self.counts_per_s = 1.6 * span / t_high / max(self._nominal_peak(), 1e-12)
-        rows, cols = self.grid.shape
-        yy, xx = np.mgrid[0:rows, 0:cols]
-        # Stray light on the target: a dim pedestal (0.25 % of the nominal peak) with a gradient.
-        self._ambient = (0.0025 + 0.0012 * xx / cols) * 1.6 * span / t_high
-        self.sim = SimulatedCamera(cam, self._scene, seed=seed, clock=plant.clock)
-        self.captures = 0
-
-    def _nominal_peak(self) -> float:
-        p = self.plant
-        hid = p.ids[0]
-        hh = p.hidden[hid]
-        lamp = np.asarray(p.cfg.light_source().position_enu_m, float)
-        pos = hh.position
-        n = unit(unit(lamp - pos) + unit(self.grid.center - pos))
-        d = float(p.cfg.light_source().diameter_m) / float(np.linalg.norm(lamp - pos))
-        nominal = MirrorSurface.from_config(p.cfg.heliostat(hid).mirror)
-        coarse = coarse_grid(self.grid)
-        return float(render_spot(pos, n, lamp, d, nominal, coarse, rng=np.random.default_rng(0),
-                                 n_rays=RENDER_RAYS).max())
-
-    def _scene(self) -> np.ndarray:
-        return self.plant.scene(self.grid, self._scene_rng) * self.counts_per_s + self._ambient
-
-    def true_crf(self):
-        """The sensors' exact inverse responses (stand-in for an integrating-sphere CRF fit)."""
-        return self.sim.true_crf()
-
-    def inject_failure(self, count: int = 1) -> None:
-        self.sim.inject_failure(count)
-
-    @property
-    def exposures(self) -> tuple[float, float]:
-        return self.sim.exposures
-
-    def set_exposures(self, t_low: float, t_high: float) -> None:
-        self.sim.set_exposures(t_low, t_high)
-
-    def capture(self) -> FramePair:
-        with self.plant.clock.frozen(advance_s=self.sim.exposures[1]):
-            frame = self.sim.capture()
-        self.captures += 1
-        return frame
 
 
 def load_config_data(path: str | Path) -> dict:

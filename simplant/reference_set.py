@@ -12,7 +12,8 @@ from controller.geometry.vectors import unit
 from simplant.errorset import CASES
 from simplant.firmware.physics import SimController
 from simplant.optics import MirrorSurface
-from simplant.plant import PlantCamera, SimulatedPlant
+from simplant.plant import SimulatedPlant
+from simplant.plant_camera import PlantCamera
 from simplant.truth import hidden_truth
 
 

@@ -35,7 +35,7 @@ class BeamSafetyMonitor:
         tgt = p.cfg.target()
         c, nrm = np.asarray(tgt.center_enu_m, float), unit(np.asarray(tgt.normal, float))
         base = camera_grid(p.cfg)
-        lamp = np.asarray(p.cfg.light_source().position_enu_m, float)
+        lamp = np.asarray(p.lamp().position_enu_m, float)
         out = []
         for hid, hh in p.hidden.items():
             n = p.true_normal(hid)

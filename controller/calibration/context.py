@@ -16,7 +16,7 @@ import numpy as np
 
 from controller.calibration.gate import TargetGate
 from controller.calibration.observations import Match, Observation, Step
-from controller.calibration.records import MeasurementRecord, ModelRecord
+from controller.calibration.records import MeasurementRecord, ModelRecord, utc_now
 
 
 class Pointing(Protocol):
@@ -61,6 +61,8 @@ class CycleContext:
     observer: CycleObserver | None = None  # told of state changes and measurements
     ticket: int | None = None  # turn on the target (TargetGate); default: queue_index
     compute: Callable[[], Any] = contextlib.nullcontext  # context around the controller's computing
+    observe_only: bool = False  # a planned observation: one measurement, no correction
+    utc: Callable[[], str] = utc_now  # the time stamped on measurements (ISO 8601, UTC)
 
 
 class CycleObserver:

@@ -299,7 +299,8 @@ class CalibrationCycle:
             iteration=self.iteration, az_steps=self.az, el_steps=self.el,
             source_dir=tuple(float(c) for c in p.source_dir), source_az_deg=float(saz),
             source_el_deg=float(sel), aim_enu=tuple(float(c) for c in p.aim_point),
-            plant_time_s=self.ctx.clock(), centroid_enu=tuple(float(c) for c in obs.centroid_enu),
+            plant_time_s=self.ctx.clock(), measured_utc=self.ctx.utc(),
+            centroid_enu=tuple(float(c) for c in obs.centroid_enu),
             centroid_px=(float(obs.centroid_px[0]), float(obs.centroid_px[1])), error_mrad=err,
             matched_label=None if m is None or m.unknown else m.label,
             match_distance=None if m is None else m.distance,
@@ -314,8 +315,12 @@ class CalibrationCycle:
             self.run_rec.matched_label = "unknown" if m is not None and m.unknown else rec.matched_label
         self.run_rec.error_after_mrad = err
         self.run_rec.iterations = self.iteration
-        if err <= self.ctx.tolerance_mrad or self.iteration >= self.ctx.max_iterations:
-            self.status = "calibrated" if err <= self.ctx.tolerance_mrad else "not_converged"
+        done = err <= self.ctx.tolerance_mrad or self.iteration >= self.ctx.max_iterations
+        if self.ctx.observe_only or done:
+            if self.ctx.observe_only:
+                self.status = "measured"
+            else:
+                self.status = "calibrated" if err <= self.ctx.tolerance_mrad else "not_converged"
             self.measured = True
             self.run_rec.model = p.fit(self.ctx.history + self.run_rec.measurements, self.ctx.model)
             return "verified"

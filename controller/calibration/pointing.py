@@ -35,12 +35,13 @@ class GeometryPointing:
 
     def __init__(self, heliostat: Heliostat, target: Target, source, frame: TargetFrame,
                  standby_offset_m: float, current_steps: tuple[int, int] | None = None,
-                 model_settings: ModelSettings | None = None) -> None:
+                 model_settings: ModelSettings | None = None, aim_point=None) -> None:
         self.model_settings = model_settings or ModelSettings()
         self.kin = HeliostatKinematics.from_config(heliostat)
         self.heliostat_pos = np.asarray(heliostat.position_enu_m, float)
         self.target = target
-        self.aim_point = np.asarray(target.center_enu_m, float)
+        # The target centre, or a point of the aim grid on a planned night.
+        self.aim_point = np.asarray(target.center_enu_m if aim_point is None else aim_point, float)
         self.source_dir = np.asarray(source_direction(source, self.heliostat_pos), float)
         self.heliostat = heliostat
         self.frame = frame
@@ -135,11 +136,13 @@ def fit_measurements(kin: HeliostatKinematics, measurements: list[MeasurementRec
     """:class:`ModelRecord` of the MAP fit to ``measurements`` (those with a centroid), with the
     noise and prior σ of ``settings`` (:class:`controller.config.ModelSettings`); None when no
     measurement has a centroid or the data identify no term."""
-    samples = [Sample(np.asarray(m.source_dir, float), m.az_steps, m.el_steps,
-                      np.asarray(m.centroid_enu, float))
-               for m in measurements if m.centroid_enu is not None]
-    if not samples:
+    used = [m for m in measurements if m.centroid_enu is not None]
+    if not used:
         return None
+    weights = age_weights([m.measured_utc for m in used], settings.age_halflife_days)
+    samples = [Sample(np.asarray(m.source_dir, float), m.az_steps, m.el_steps,
+                      np.asarray(m.centroid_enu, float), float(w))
+               for m, w in zip(used, weights, strict=True)]
     try:
         fit = fit_model(kin, samples, noise_mrad=settings.noise_mrad,
                         prior_sigma=prior_sigma(settings.prior_sigma, "calibration.model.prior_sigma"))
@@ -149,6 +152,26 @@ def fit_measurements(kin: HeliostatKinematics, measurements: list[MeasurementRec
               "noise_scale": fit.noise_scale}
     return ModelRecord(fit.model.to_dict(), fit.sigma_dict(), float(fit.residual_mrad_rms), len(samples),
                        detail)
+
+
+def age_weights(stamps: list[str], halflife_days: float) -> np.ndarray:
+    """Fit weight of each measurement, w = 2^(−age / half-life), its age counted in days back
+    from the newest of ``stamps`` (ISO 8601 UTC): the heliostat drifts, so old measurements
+    tell less about it now. An unreadable stamp weighs 1."""
+    from datetime import datetime
+
+    def parse(s: str) -> float | None:
+        try:
+            return datetime.fromisoformat(s.replace("Z", "+00:00")).timestamp()
+        except (AttributeError, ValueError):
+            return None
+
+    t = [parse(s) for s in stamps]
+    known = [v for v in t if v is not None]
+    if not known:
+        return np.ones(len(stamps))
+    newest = max(known)
+    return np.array([1.0 if v is None else 0.5 ** ((newest - v) / 86400.0 / halflife_days) for v in t])
 
 
 def steps_to_aim(kin: HeliostatKinematics, model: ModelRecord | None, source_dir: np.ndarray,

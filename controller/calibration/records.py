@@ -81,7 +81,8 @@ class ModelRecord:
 class RunRecord:
     """Outcome of one heliostat's calibration cycle, written atomically with its children.
 
-    ``status``: ``calibrated`` (within tolerance), ``not_converged`` (max iterations reached)
+    ``status``: ``calibrated`` (within tolerance), ``not_converged`` (max iterations reached),
+    ``measured`` (an observation of a planned night: one measurement, no correction)
     or ``failed`` (fault; ``fault_cause`` says why, ``fault_state`` where). ``id`` and
     ``finished_utc`` are set when read back from the store."""
 

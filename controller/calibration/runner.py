@@ -85,6 +85,10 @@ class CampaignObserver(CycleObserver):
     def campaign_finished(self, campaign_id: int, status: str) -> None:
         """The session ended with ``status`` (one of ``records.CAMPAIGN_STATUSES``)."""
 
+    def light_source_needed(self, source_id: str) -> None:
+        """The campaign is about to move heliostats for light source ``source_id``: it must be
+        lit now (an operator or a lamp controller does so; a simulated plant switches it)."""
+
 
 class _Observers(CampaignObserver):
     """Fans every hook out to several observers, in order."""
@@ -111,6 +115,10 @@ class _Observers(CampaignObserver):
     def campaign_finished(self, campaign_id: int, status: str) -> None:
         for o in self._all:
             o.campaign_finished(campaign_id, status)
+
+    def light_source_needed(self, source_id: str) -> None:
+        for o in self._all:
+            o.light_source_needed(source_id)
 
 
 @dataclass
@@ -140,6 +148,9 @@ class CampaignOptions:
     timeouts: dict[str, float] = field(default_factory=dict)
     move_timeout_s: float = 120.0  # plant seconds
     poll_s: float = 0.1  # status polling interval, plant seconds
+    light_source: str | None = None  # lamp lit for this campaign (default: calibration.light_source)
+    aims: dict[str, tuple[float, float, float]] | None = None  # per-heliostat aim point (planned night)
+    observe: bool = False  # planned observations: one measurement each, no correction
 
 
 class Campaign:
@@ -155,7 +166,7 @@ class Campaign:
                  options: CampaignOptions | None = None, images: ImageSink | None = None,
                  clock: Callable[[], float] = time.monotonic, sleep: Callable[[float], None] = time.sleep,
                  meta: dict | None = None, compute=None,
-                 observers: Sequence[CampaignObserver] = ()) -> None:
+                 observers: Sequence[CampaignObserver] = (), utc: Callable[[], str] | None = None) -> None:
         self.cfg = cfg
         self.config_path = str(config_path)
         self.config_sha256 = config_sha256
@@ -174,11 +185,33 @@ class Campaign:
         self.sleep = sleep
         self.meta = meta or {}
         self.compute = compute
+        self.utc = utc
         self.observer = _Observers([_StateTable(self), *observers])
         self.chain = BeamChain(cfg, library)
         self._camera_lock = threading.Lock()
         self._drives: dict[str, Any] = {}
         self.states: dict[str, str] = {}
+        # Stop and pause from another thread (a user interface): request_stop, pause, resume.
+        self._stop = threading.Event()
+        self._go = threading.Event()
+        self._go.set()
+        self._cycles: dict[str, CalibrationCycle] = {}
+
+    def request_stop(self) -> None:
+        """Stop the campaign from another thread, as Ctrl-C does: every cycle in flight parks
+        its beam (fault path), nothing new starts, and the session is recorded ``interrupted``
+        (rerun to resume)."""
+        self._stop.set()
+        self._go.set()
+        for cyc in list(self._cycles.values()):
+            cyc.request_abort(INTERRUPTED)
+
+    def pause(self) -> None:
+        """No new heliostat starts its cycle until :meth:`resume`; cycles in flight finish."""
+        self._go.clear()
+
+    def resume(self) -> None:
+        self._go.set()
 
     # -- devices ------------------------------------------------------------------------------
     def drive(self, hid: str):
@@ -196,8 +229,9 @@ class Campaign:
     # -- run ----------------------------------------------------------------------------------
     def run(self) -> CampaignResult:
         cal = self.cfg.calibration
-        source = self.cfg.light_source()
+        source = self.cfg.light_source(self.opt.light_source)
         target = self.cfg.target()
+        aims = self.opt.aims or {}
         current = {}
         for hid in self.ids:
             try:
@@ -206,7 +240,7 @@ class Campaign:
             except DriveError:  # unreachable now: its cycle will record the failure
                 pass
         pointing = {hid: GeometryPointing(self.cfg.heliostat(hid), target, source, self.chain.frame,
-                                          cal.standby_offset_m, current.get(hid), cal.model)
+                                          cal.standby_offset_m, current.get(hid), cal.model, aims.get(hid))
                     for hid in self.ids}
         existing = self.store.campaign_by_name(self.opt.name)
         queue = existing.queue if existing is not None else order_queue(self.cfg, self.ids, current, pointing)
@@ -216,6 +250,7 @@ class Campaign:
         cid, resumed = self.store.open_campaign(
             self.opt.name, config_path=self.config_path, config_sha256=self.config_sha256,
             light_source=source.id, target=target.id, queue=queue, meta=self.meta)
+        self.observer.light_source_needed(source.id)
         try:
             return self._session(cid, resumed, queue, pointing)
         except KeyboardInterrupt:
@@ -237,11 +272,13 @@ class Campaign:
         gate = TargetGate()
         t0 = self.clock()
         session: list[RunRecord] = []
-        cycles: dict[str, CalibrationCycle] = {}
-        stop = threading.Event()
+        cycles = self._cycles
+        stop = self._stop
         self.observer.campaign_started(cid, list(queue), set(done))
 
         def one(ticket: int, qi: int, hid: str) -> RunRecord | None:
+            while not self._go.wait(0.1) and not stop.is_set():
+                pass  # paused: this heliostat waits in the queue
             if gate.blocked or stop.is_set():
                 gate.release(ticket)
                 return None
@@ -276,6 +313,8 @@ class Campaign:
         t1 = self.clock()
         runs = self.store.runs(cid)
         status, cause = _outcome(runs, queue, gate.blocked)
+        if stop.is_set() and not gate.blocked:  # request_stop: parked, resumable
+            status, cause = "interrupted", f"{INTERRUPTED}; start it again to resume"
         self._finish(cid, status, cause)
         return CampaignResult(cid, self.opt.name, resumed, runs, t1 - t0,
                               sum(r.sequential_share_s for r in session), status, cause, len(session))
@@ -295,10 +334,11 @@ class Campaign:
             camera=_CameraView(self._capture), pointing=pointing,
             merge=chain.merge, analyze=chain.analyze, match=chain.match, gate=gate,
             model=self.store.latest_model(hid), history=self.store.measurements(heliostat_id=hid),
-            tolerance_mrad=cal.tolerance_mrad, max_iterations=cal.max_iterations, settle_s=self.opt.settle_s,
+            tolerance_mrad=cal.tolerance_mrad, max_iterations=1 if self.opt.observe else cal.max_iterations,
+            observe_only=self.opt.observe, settle_s=self.opt.settle_s,
             move_timeout_s=self.opt.move_timeout_s, poll_s=self.opt.poll_s, clock=self.clock,
             sleep=self.sleep, timeouts=self.opt.timeouts, save_images=save, observer=self.observer,
-            **({"compute": self.compute} if self.compute else {}))
+            **({"compute": self.compute} if self.compute else {}), **({"utc": self.utc} if self.utc else {}))
 
 
 class _StateTable(CampaignObserver):
@@ -323,7 +363,7 @@ def _outcome(runs: list[RunRecord], queue: list[str], target_blocked: bool) -> t
     if target_blocked:
         return "aborted", ("a beam may have been left on the target (a heliostat could not be parked); "
                            "nobody else was sent onto it")
-    failed = [r for r in runs if r.status != "calibrated"]
+    failed = [r for r in runs if r.status not in ("calibrated", "measured")]
     missing = len(queue) - len(runs)
     if not failed and not missing:
         return "finished", None

@@ -27,6 +27,9 @@ def register(subparsers) -> None:
                    help="seed of the hidden errors and noise (default 0)")
     p.add_argument("--out", default="demo-out", metavar="DIR",
                    help="run directory: database, report, images, ptys (default demo-out/)")
+    p.add_argument("--nights", type=int, default=3, metavar="N",
+                   help="planned nights after the first calibration (several lamps and aim points, "
+                        "chosen for the daytime error; default 3, 0: the calibration only)")
     p.add_argument("--sequential", action="store_true",
                    help="no pipelining: one heliostat after another (for the speedup comparison)")
     p.add_argument("--aim-only", action="store_true",
@@ -42,6 +45,8 @@ def run(args: argparse.Namespace) -> int:
     if not 1 <= args.heliostats <= len(cfg.heliostats):
         raise InputError(f"--heliostats must be 1 … {len(cfg.heliostats)} (the heliostats of {args.config}), "
                          f"got {args.heliostats}")
+    if not 0 <= args.nights <= 30:
+        raise InputError(f"--nights must be 0 … 30, got {args.nights}")
     ids = field_selection(cfg, args.heliostats)
     if args.aim_only:
         from controller.calibration.pointing import nominal_aims
@@ -61,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
     quiet = args.json or not sys.stderr.isatty()
     summary, sim = simulated_campaign(cfg, args.config, Path(args.out), Path(args.out) / "campaign.db", ids,
                                       SimulationSettings(seed=args.seed), name, sequential=args.sequential,
-                                      quiet=quiet, library_dir=Path(args.out))
+                                      quiet=quiet, library_dir=Path(args.out), nights=args.nights)
     if args.json:
         # The demo's --json keys are a contract (docs/campaigns.md); the outcome is the exit code.
         print_json({k: v for k, v in summary.items() if k not in ("status", "cause")})
@@ -71,7 +76,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def simulated_campaign(cfg, config_path: str, out: Path, db: Path, ids: list[str], settings, name: str, *,
-                       sequential: bool = False, quiet: bool = True, library_dir: Path | None = None):
+                       sequential: bool = False, quiet: bool = True, library_dir: Path | None = None,
+                       nights: int = 0):
     """Run the campaign on the simulated plant and write its morning report (with the plant's
     truth); returns (summary dict, :class:`simplant.harness.SimulatedRun`)."""
     from controller.commands._progress import TerminalProgress
@@ -82,12 +88,15 @@ def simulated_campaign(cfg, config_path: str, out: Path, db: Path, ids: list[str
 
     sim = run_simulated(cfg, config_path, out, db, ids, settings=settings, name=name, sequential=sequential,
                         library_dir=library_dir, observers=[] if quiet else [TerminalProgress()],
-                        progress=None if quiet else (lambda text: print(text, file=sys.stderr)))
+                        progress=None if quiet else (lambda text: print(text, file=sys.stderr)),
+                        nights=nights)
     with open_existing(db) as store:
         report = write_report(store, out / "report", sim.result.campaign_id, truth=sim.truth)
         summary = summarize(store, sim.result.campaign_id, truth=sim.truth)
     summary["daytime_error_mrad"] = sim.daytime.to_json()
     summary["daytime_error_predicted_mrad"] = sim.predicted.to_json()
+    summary["daytime_error_uncalibrated_mrad"] = sim.daytime_uncalibrated.to_json()
+    summary["nights"] = [r.to_json() for r in sim.nights]
     summary["db"] = str(db)
     summary["report"] = str(report)
     return summary, sim
@@ -116,6 +125,14 @@ def _print_summary(s: dict, sim) -> None:
               f"mrad, p95 {d.p95:.2f}, max {d.max:.2f}[/bold] "
               f"(model-predicted from σ: RMS {sim.predicted.rms:.2f}, p95 {sim.predicted.p95:.2f}; "
               f"uncalibrated: RMS {u.rms:.2f}, p95 {u.p95:.2f})")
+    if sim.nights:
+        nt = Table(title="daytime error after each night (open loop, mrad)")
+        for col in ("night", "measured", "true RMS", "true p95", "predicted RMS", "predicted p95"):
+            nt.add_column(col)
+        for r in sim.nights:
+            nt.add_row(str(r.night), f"{r.measured}/{r.planned}", _f(r.daytime.rms, 2), _f(r.daytime.p95, 2),
+                       _f(r.predicted.rms, 2), _f(r.predicted.p95, 2))
+        con.print(nt)
     t = Table(title=f"campaign {result.name}" + (" (resumed)" if result.resumed else ""))
     failures = any(r.fault_cause for r in result.runs)
     for col in ("id", "status", "matched case (✓ = truth)", "it", "mrad before", "after", "target s") + (

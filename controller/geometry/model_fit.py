@@ -44,17 +44,16 @@ import numpy as np
 
 from controller.errors import InputError
 from controller.geometry.aiming import aim_normal, angle_mrad
+from controller.geometry.design import beam_jacobians, jacobian, tangents
 from controller.geometry.kinematics import HeliostatKinematics
 from controller.geometry.tracking_model import (
     NAMES,
     PRIOR_SIGMA_SI,
     TERMS,
     TrackingModel,
-    model_aim,
     model_mirror_center,
     model_normal,
 )
-from controller.geometry.vectors import unit
 
 HUBER_C = 3.0
 IDENTIFIED_RATIO = 0.5
@@ -112,22 +111,6 @@ def measured_normal(kin: HeliostatKinematics, model: TrackingModel, s: Sample) -
     return aim_normal(s.source_dir, model_mirror_center(kin, model, s.az_steps, s.el_steps), s.spot_enu)
 
 
-def _tangents(n: np.ndarray) -> np.ndarray:
-    helper = np.array([0.0, 0.0, 1.0]) if abs(n[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
-    t1 = unit(np.cross(helper, n))
-    return np.stack([t1, np.cross(n, t1)])
-
-
-def _jacobian(fun, x: np.ndarray, step: np.ndarray) -> np.ndarray:
-    """Central-difference Jacobian of ``fun`` at ``x`` with per-coordinate ``step``."""
-    cols = []
-    for i in range(len(x)):
-        d = np.zeros_like(x)
-        d[i] = step[i]
-        cols.append((fun(x + d) - fun(x - d)) / (2.0 * step[i]))
-    return np.stack(cols, axis=-1)
-
-
 def fit_model(kin: HeliostatKinematics, samples: Sequence[Sample], *, noise_mrad: float = 0.3,
               prior: TrackingModel | None = None, prior_sigma: np.ndarray | None = None,
               robust: bool = True) -> ModelFit:
@@ -153,7 +136,7 @@ def fit_model(kin: HeliostatKinematics, samples: Sequence[Sample], *, noise_mrad
     # The measured normals depend on the mirror centre only through |c|/distance (< 1e-2 of
     # the error): take them at the prior and keep them fixed, so (1) is a plain least squares.
     targets = [measured_normal(kin, TrackingModel(p0), s) for s in samples]
-    bases = [_tangents(m) for m in targets]
+    bases = [tangents(m) for m in targets]
     age_w = np.array([s.weight for s in samples])
 
     def data_res(x: np.ndarray) -> np.ndarray:
@@ -175,7 +158,7 @@ def fit_model(kin: HeliostatKinematics, samples: Sequence[Sample], *, noise_mrad
             break
         weights = new
     w = np.repeat(np.sqrt(weights * age_w), 2)
-    jd = w[:, None] * _jacobian(data_res, x, np.full(len(x), 1e-4))
+    jd = w[:, None] * jacobian(data_res, x, np.full(len(x), 1e-4))
     post_x = np.linalg.inv(jd.T @ jd + np.eye(len(x)))  # covariance of x (prior-whitened)
     ratio2 = np.clip(np.diag(post_x), 0.0, 1.0)
     p_eff = float(np.sum(1.0 - ratio2))
@@ -223,25 +206,9 @@ def predicted_error(kin: HeliostatKinematics, model: TrackingModel, covariance: 
     """Reflected-beam error (mrad) that the model's uncertainty ``covariance`` (SI²) leaves when
     the heliostat aims at ``aim_point`` (m ENU) from each of ``source_dirs`` (n, 3): the
     linearised propagation of the module docstring. Unreachable aims are skipped."""
-    from controller.errors import LimitError
-
-    aim_point = np.asarray(aim_point, float)
-    step = np.maximum(1e-6, 1e-2 * np.sqrt(np.clip(np.diag(covariance), 0.0, None)))
-    jacobians = []
-    for s in np.asarray(source_dirs, float).reshape(-1, 3):
-        try:
-            az, el = model_aim(kin, model, s, aim_point)
-        except (LimitError, ValueError):
-            continue
-
-        def beam(v: np.ndarray, s=s, az=az, el=el) -> np.ndarray:
-            n = model_normal(kin, TrackingModel(v), az, el)
-            return 2.0 * float(s @ n) * n - s
-
-        jacobians.append(_jacobian(beam, model.values, step))
-    if not jacobians:
+    j = beam_jacobians(kin, model, source_dirs, aim_point)  # (k, 3, p)
+    if not len(j):
         raise InputError("predicted error: the heliostat reaches none of the aims")
-    j = np.stack(jacobians)  # (k, 3, p)
     var = np.einsum("kip,pq,kiq->k", j, covariance, j)
     rng = np.random.default_rng(seed)
     dp = rng.multivariate_normal(np.zeros(len(model.values)), covariance, size=draws, method="eigh")

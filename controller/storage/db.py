@@ -315,6 +315,11 @@ class CampaignStore:
                            row["residual_mrad"], row["n_measurements"],
                            json.loads(row["detail_json"] or "{}"))
 
+    def query(self, sql: str, args: tuple = ()) -> list[sqlite3.Row]:
+        """Rows of one read-only SELECT (for the storage modules beside this one)."""
+        with self._lock:
+            return self._db.execute(sql, args).fetchall()
+
     def count(self, table: str) -> int:
         if table not in ("campaigns", "heliostat_runs", "measurements", "corrections", "model_params",
                          "images"):

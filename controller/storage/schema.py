@@ -118,6 +118,26 @@ MIGRATIONS: tuple[str, ...] = (
     """
     ALTER TABLE model_params ADD COLUMN detail_json TEXT;
     """,
+    # v5: the nightly planner's choices and why (controller.calibration.planner).
+    """
+    CREATE TABLE plan (
+        id INTEGER PRIMARY KEY,
+        night TEXT NOT NULL,
+        heliostat_id TEXT NOT NULL,
+        rank INTEGER NOT NULL,
+        strategy TEXT NOT NULL,
+        lamp TEXT NOT NULL,
+        aim_e REAL NOT NULL, aim_n REAL NOT NULL, aim_u REAL NOT NULL,
+        cell_row INTEGER NOT NULL, cell_col INTEGER NOT NULL,
+        az_steps INTEGER NOT NULL, el_steps INTEGER NOT NULL,
+        expected_gain REAL NOT NULL,
+        predicted_before_mrad REAL NOT NULL,
+        predicted_after_mrad REAL NOT NULL,
+        created_utc TEXT NOT NULL,
+        UNIQUE (night, heliostat_id, rank)
+    );
+    CREATE INDEX plan_night ON plan(night);
+    """,
 )
 
 SCHEMA_VERSION = len(MIGRATIONS)

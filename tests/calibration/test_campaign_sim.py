@@ -95,7 +95,7 @@ def test_campaign_end_to_end(small_config, tmp_path):
 def test_kill_9_mid_campaign_then_resume(small_config, tmp_path):
     out = tmp_path / "demo"
     args = ["demo", "--config", str(small_config), "--heliostats", "4", "--seed", "5", "--out", str(out),
-            "--json"]
+            "--nights", "0", "--json"]
     p = _heliocal(*args)
     db = out / "campaign.db"
     before = _wait_for_rows(p, db, "SELECT id, heliostat_id FROM heliostat_runs ORDER BY id", scaled_s(90))
@@ -223,3 +223,32 @@ def test_ctrl_c_mid_campaign_parks_records_and_says_how_to_resume(small_config, 
     out, err = q.communicate(timeout=scaled_s(180))
     assert q.returncode in (0, 3), err
     assert json.loads(out)["resumed"] is True and json.loads(out)["heliostats"] == 3
+
+
+def test_planned_night_measures_other_geometries_and_explains_them(small_config, tmp_path):
+    """``demo --nights 1``: after the calibration, the planner's geometries run as one campaign
+    per lamp pass, each heliostat measured once per pass (status ``measured``), every choice
+    stored in ``plan`` with its expected gain, and the night's daytime error reported."""
+    out = tmp_path / "demo"
+    p = _heliocal("demo", "--config", str(small_config), "--heliostats", "2", "--seed", "1",
+                  "--out", str(out), "--nights", "1", "--json")
+    stdout, stderr = p.communicate(timeout=scaled_s(300))
+    assert p.returncode in (0, 3), stderr
+    summary = json.loads(stdout)
+    (night,) = summary["nights"]
+    assert night["night"] == 1 and night["planned"] >= 2 and 1 <= night["measured"] <= night["planned"]
+    assert set(night["daytime_error_mrad"]) == {"rms", "p95", "max"}
+    assert summary["daytime_error_mrad"] == night["daytime_error_mrad"]
+    with sqlite3.connect(out / "campaign.db") as c:
+        plan = c.execute("SELECT night, heliostat_id, lamp, expected_gain, predicted_before_mrad, "
+                         "predicted_after_mrad FROM plan").fetchall()
+        passes = c.execute("SELECT c.name, r.heliostat_id, r.status, r.iterations FROM heliostat_runs r "
+                           "JOIN campaigns c ON c.id = r.campaign_id "
+                           "WHERE c.name LIKE '%/night-1/%'").fetchall()
+        measured = c.execute("SELECT DISTINCT m.source_e, m.source_n FROM measurements m").fetchall()
+    assert len(plan) == night["planned"]
+    assert all(gain > 0 and after < before for _, _, _, gain, before, after in plan)
+    assert len(passes) == len(plan)
+    assert all(status in ("measured", "failed") and it <= 1 for _, _, status, it in passes)
+    assert sum(status == "measured" for _, _, status, _ in passes) == night["measured"]
+    assert len(measured) > 2  # light from more than one lamp reached the fit
