@@ -1,0 +1,186 @@
+"""``heliocal console --config C --db DB [--simulate]``: the field console, a local web page.
+
+Pages for the field map, each heliostat (drive status, model, history, beam image; jog, move,
+park, stow), guided commissioning, the campaign (start, pause, abort, live queue) and the
+reports, updated live by server-sent events. Listens on 127.0.0.1:8080 by default; another
+address needs ``--token`` or ``--token-file``, and then every state-changing request must carry
+the header ``X-Heliocal-Token``. Every move takes the CLI's validated path; while a campaign
+runs only its state machine drives. See docs/console.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ipaddress
+import socket
+import sys
+import tempfile
+from pathlib import Path
+
+from controller.commands._common import add_config_option
+from controller.errors import InputError
+from controller.io.yaml_files import read_text
+
+MIN_TOKEN_CHARS = 12
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("console", help="field console: a local web page over the plant",
+                              description=__doc__.splitlines()[0])
+    add_config_option(p)
+    p.add_argument("--db", required=True, metavar="DB", help="campaign database (SQLite, created if missing)")
+    p.add_argument("--simulate", action="store_true", help="run the console on the embedded simulated plant")
+    p.add_argument("--seed", type=int, default=0, help="simulation seed (with --simulate; default 0)")
+    p.add_argument("--clock-speedup", type=float, default=20.0, metavar="X",
+                   help="plant seconds per wall second of the simulated plant (with --simulate; default 20)")
+    p.add_argument("--heliostats", default=None, metavar="IDS",
+                   help="comma-separated heliostat ids the console shows and drives (default: all)")
+    p.add_argument("--camera-manifest", default=None, metavar="FILE",
+                   help="replay recorded frame pairs as the camera (FileCamera; without --simulate)")
+    p.add_argument("--library", default=None, metavar="LIB",
+                   help="error library YAML (matching; commissioning stores reference cases in it)")
+    p.add_argument("--reports", default=None, metavar="DIR",
+                   help="folder with confusion reports (heliocal report confusion) to show")
+    p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1)")
+    p.add_argument("--port", type=int, default=8080, help="TCP port (default 8080; 0 picks a free one)")
+    tok = p.add_mutually_exclusive_group()
+    tok.add_argument("--token", default=None, metavar="T",
+                     help="token every state-changing request must send as X-Heliocal-Token")
+    tok.add_argument("--token-file", default=None, metavar="F", help="read the token from file F")
+    p.add_argument("--run-dir", default=None, metavar="DIR",
+                   help="simulation run directory (ptys; with --simulate; default a temporary folder)")
+    p.set_defaults(func=run)
+
+
+def is_loopback(host: str) -> bool:
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def read_token(args: argparse.Namespace) -> str | None:
+    """The token of ``--token`` / ``--token-file`` (stripped), or None; InputError when it is
+    unreadable, too short, or missing while ``--host`` is not a loopback address."""
+    token = args.token
+    if args.token_file:
+        try:  # the bounded reader: size, UTF-8
+            token = read_text(args.token_file, "token file", max_bytes=4096).strip()
+        except InputError as exc:
+            raise InputError(f"--token-file {exc}") from None
+    if token is not None and not (token.isascii() and token.isprintable()):  # it travels in a header
+        raise InputError(f"{'--token-file ' + args.token_file if args.token_file else '--token'}: the token "
+                         "must be printable ASCII text")
+    if token is not None and len(token.strip()) < MIN_TOKEN_CHARS:
+        raise InputError(f"{'--token-file ' + args.token_file if args.token_file else '--token'}: the token "
+                         f"must have at least {MIN_TOKEN_CHARS} characters")
+    if token is None and not is_loopback(args.host):
+        raise InputError(f"--host {args.host}: listening beyond this machine needs --token T or "
+                         "--token-file F (every state-changing request must then carry it)")
+    return token.strip() if token is not None else None
+
+
+def _listen(host: str, port: int) -> socket.socket:
+    if not 0 <= port <= 65535:
+        raise InputError(f"--port must be 0 … 65535, got {port}")
+    try:
+        family = socket.AF_INET6 if ":" in host else socket.AF_INET
+        sock = socket.socket(family, socket.SOCK_STREAM)
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        sock.bind((host, port))
+    except OSError as exc:
+        raise InputError(f"--host/--port: cannot listen on {host}:{port} ({exc.strerror or exc})") from None
+    sock.listen(64)
+    return sock
+
+
+def run(args: argparse.Namespace) -> int:
+    from controller.config import load_config
+
+    token = read_token(args)
+    cfg = load_config(args.config)
+    ids = [h.id for h in cfg.heliostats]
+    if args.heliostats is not None:
+        ids = list(dict.fromkeys(i.strip() for i in args.heliostats.split(",") if i.strip()))
+        if not ids:
+            raise InputError(f"--heliostats: no heliostat id in {args.heliostats!r}")
+        for hid in ids:
+            cfg.heliostat(hid)
+    if args.simulate and args.camera_manifest:
+        raise InputError("--simulate uses the simulated plant's camera; --camera-manifest cannot be given "
+                         "with it")
+    if not args.simulate and not args.camera_manifest:
+        raise InputError("console: no camera; pass --camera-manifest FILE or --simulate")
+    if args.reports and not Path(args.reports).is_dir():
+        raise InputError(f"--reports {args.reports}: not a folder")
+    library = None
+    if args.library and Path(args.library).is_file():
+        from controller.recognition.library_io import load_library
+
+        library = load_library(args.library)
+    sock = _listen(args.host, args.port)
+    try:
+        if args.simulate:
+            return _simulated(args, ids, library, token, sock)
+        from controller.devices.factory import LinkPool
+        from controller.devices.file_camera import FileCamera
+
+        with LinkPool() as pool:
+            return serve(cfg, args, ids, pool, FileCamera(args.camera_manifest), library, token, sock)
+    finally:
+        sock.close()
+
+
+def _simulated(args, ids, library, token, sock) -> int:
+    from controller.console.backend import PlantHooks
+    from controller.devices.factory import LinkPool
+    from simplant.plant import SimulatedPlant, load_config_data
+    from simplant.settings import SimulationSettings
+
+    settings = SimulationSettings(seed=args.seed, clock_speedup=args.clock_speedup)
+    run_dir = Path(args.run_dir) if args.run_dir else Path(tempfile.mkdtemp(prefix="heliocal-console-"))
+    with SimulatedPlant(load_config_data(args.config), run_dir, heliostat_ids=ids, settings=settings,
+                        source=args.config) as plant:
+        pcfg = plant.start()
+        hooks = PlantHooks(clock=plant.clock, sleep=plant.clock.sleep, compute=plant.clock.realtime,
+                           meta={"plant": "simulated", "seed": settings.seed,
+                                 "clock_speedup": settings.clock_speedup},
+                           safety=plant.safety.report, label=f"simulated plant (seed {settings.seed})")
+        with LinkPool(timeout_s=0.5, retries=2) as pool:
+            return serve(pcfg, args, ids, pool, plant.camera, library, token, sock, hooks)
+
+
+def serve(cfg, args, ids, pool, camera, library, token, sock, hooks=None) -> int:
+    """Run the console until Ctrl-C / SIGTERM; then stop a running campaign (beams parked),
+    park what the console moved and release the database."""
+    import uvicorn
+
+    from controller.console.app import create_app
+    from controller.console.backend import Console
+    from controller.storage.db import CampaignStore
+
+    with CampaignStore(args.db) as store, tempfile.TemporaryDirectory(prefix="heliocal-console-") as work:
+        console = Console(cfg, args.config, store, pool, camera, heliostat_ids=ids, library=library,
+                          library_path=args.library, hooks=hooks, work_dir=work, reports_dir=args.reports)
+        app = create_app(console, token=token)
+        console.start()
+
+        class Server(uvicorn.Server):
+            def handle_exit(self, sig, frame) -> None:
+                console.bus.close()  # end the live streams so the server can stop at once
+                super().handle_exit(sig, frame)
+
+        server = Server(uvicorn.Config(app, log_level="warning", timeout_graceful_shutdown=2, lifespan="off"))
+        host, port = sock.getsockname()[:2]
+        where = f"[{host}]" if ":" in host else host
+        print(f"heliocal console: http://{where}:{port}/ ({console.hooks.label}, {len(ids)} heliostats; "
+              f"{'token required' if token else 'no token'}; Ctrl-C to stop)", file=sys.stderr, flush=True)
+        try:
+            server.run(sockets=[sock])
+        finally:
+            done = console.close()
+            for hid, what in done.items():
+                print(f"heliocal console: {hid} {what['action']}", file=sys.stderr)
+    return 0

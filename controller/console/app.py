@@ -1,0 +1,196 @@
+"""The console's ASGI app (Starlette): pages, JSON API, server-sent events.
+
+Security model (docs/console.md): nothing changes state on GET; every state-changing request
+is a POST with a JSON body (``Content-Type: application/json``, so a form on another web site
+cannot send one without a CORS preflight, which this app never grants) and, when it carries an
+``Origin``, from this console's own origin. With a token (always when the console listens on an
+address other than loopback) every POST must carry ``X-Heliocal-Token``, compared with
+:func:`hmac.compare_digest`; otherwise 401 and nothing is done.
+"""
+
+from __future__ import annotations
+
+import hmac
+from pathlib import Path
+from urllib.parse import urlsplit
+
+from starlette.applications import Starlette
+from starlette.concurrency import run_in_threadpool
+from starlette.requests import Request
+from starlette.responses import FileResponse, JSONResponse, RedirectResponse, Response, StreamingResponse
+from starlette.routing import Mount, Route
+from starlette.staticfiles import StaticFiles
+
+from controller.calibration.pointing import UnsafePath
+from controller.console import views
+from controller.console.backend import Conflict, Console
+from controller.console.campaigns import CampaignControl
+from controller.console.events import plain
+from controller.console.steps import STEPS, run_step
+from controller.devices.drive import DriveError, LinkError, NakError
+from controller.errors import HeliocalError, InputError, LimitError
+from controller.storage.lock import DatabaseBusy
+
+STATIC = Path(__file__).resolve().parent / "static"
+TOKEN_HEADER = "X-Heliocal-Token"
+PAGES = ("field", "heliostat", "commission", "campaign", "reports")
+
+
+def _json(data, status: int = 200) -> JSONResponse:
+    return JSONResponse(plain(data), status_code=status)
+
+
+def error_response(exc: HeliocalError) -> JSONResponse:
+    """A controller error as JSON ``{"ok": false, "error", "kind", "outcome"}`` with its HTTP
+    status: 400 bad input or soft limits (nothing sent), 409 conflicts (campaign running,
+    target held, database in use, unsafe path) and firmware refusals (NAK), 502 device failures."""
+    if isinstance(exc, (Conflict, DatabaseBusy, UnsafePath)):
+        status, kind = 409, "conflict"
+    elif isinstance(exc, NakError):  # before LimitError: a Modbus out-of-range refusal is both
+        status, kind = 409, "firmware_refused"
+    elif isinstance(exc, LimitError):
+        status, kind = 400, "soft_limits"  # the controller's own check: nothing was sent
+    elif isinstance(exc, LinkError):
+        status, kind = 502, "link"
+    elif isinstance(exc, InputError):
+        status, kind = 400, "input"
+    elif isinstance(exc, DriveError):
+        status, kind = 502, "drive"
+    else:
+        status, kind = 502, "device"
+    return _json({"ok": False, "error": str(exc), "kind": kind, "outcome": exc.outcome}, status)
+
+
+def create_app(console: Console, *, token: str | None = None) -> Starlette:
+    """The app over ``console``. ``token``: required on every POST when given."""
+    if console.campaign is None:
+        console.campaign = CampaignControl(console)
+    c = console
+
+    async def guard(request: Request) -> dict:
+        """The checks of every state-changing request; returns its JSON body."""
+        if token is not None:
+            sent = request.headers.get(TOKEN_HEADER, "")
+            if not hmac.compare_digest(sent.encode(), token.encode()):
+                raise _Refused(401, f"missing or wrong {TOKEN_HEADER} header")
+        origin = request.headers.get("origin")
+        if origin and urlsplit(origin).netloc != request.headers.get("host", ""):
+            raise _Refused(403, f"cross-origin request from {origin} refused")
+        if request.headers.get("content-type", "").split(";")[0].strip() != "application/json":
+            raise _Refused(415, "send the request body as application/json")
+        try:
+            body = await request.json()
+        except ValueError:
+            raise _Refused(400, "the request body is not valid JSON") from None
+        if not isinstance(body, dict):
+            raise _Refused(400, "the request body must be a JSON object")
+        return body
+
+    def post(handler):
+        async def endpoint(request: Request) -> Response:
+            try:
+                body = await guard(request)
+            except _Refused as r:
+                return _json({"ok": False, "error": r.message, "kind": "refused"}, r.status)
+            try:
+                return _json(await run_in_threadpool(handler, request, body))
+            except HeliocalError as exc:
+                return error_response(exc)
+        return endpoint
+
+    def get(handler):
+        async def endpoint(request: Request) -> Response:
+            try:
+                out = await run_in_threadpool(handler, request)
+            except HeliocalError as exc:
+                return error_response(exc)
+            return out if isinstance(out, Response) else _json(out)
+        return endpoint
+
+    # -- pages ---------------------------------------------------------------------------------------
+    def page(name: str):
+        async def endpoint(request: Request) -> Response:
+            return FileResponse(STATIC / f"{name}.html", headers={"Cache-Control": "no-store"})
+        return endpoint
+
+    # -- API -----------------------------------------------------------------------------------------
+    def api_plant(request):
+        return {**views.plant_json(c), "token_required": token is not None, "steps": list(STEPS)}
+
+    def api_heliostats(request):
+        return {"heliostats": [views.heliostat_summary(c, h) for h in c.ids]}
+
+    def api_heliostat(request):
+        return views.heliostat_detail(c, c.known(request.path_params["hid"]))
+
+    def api_image(request):
+        png = views.overlay_png(c, c.known(request.path_params["hid"]))
+        return Response(png, media_type="image/png", headers={"Cache-Control": "no-store"})
+
+    def api_step(request, body):
+        hid, step = request.path_params["hid"], request.path_params["step"]
+        return {"ok": True, "heliostat": hid, "step": step, "result": run_step(c, c.known(hid), step, body)}
+
+    def api_campaign(request):
+        return c.campaign.snapshot()
+
+    def api_campaign_action(request, body):
+        action = request.path_params["action"]
+        if action == "start":
+            from controller.commands.campaign import default_name
+
+            ids = body.get("heliostats")
+            if ids is not None and not (isinstance(ids, list) and all(isinstance(i, str) for i in ids)):
+                raise InputError("heliostats must be a list of heliostat ids")
+            return c.campaign.start(body.get("name") or default_name(c.config_path), ids)
+        if action in ("pause", "resume", "abort"):
+            return getattr(c.campaign, action)()
+        raise InputError(f"unknown campaign action {action!r}; one of start, pause, resume, abort")
+
+    def api_reports(request):
+        return {"campaigns": views.campaigns_json(c), "confusion": views.confusion_reports(c)}
+
+    def campaign_report(request):
+        out = views.morning_report(c, int(request.path_params["cid"]))
+        return FileResponse(views.report_file(out, request.path_params.get("file") or "report.html"))
+
+    def report_files(request):
+        if not c.reports_dir:
+            raise InputError("the console was started without --reports DIR")
+        return FileResponse(views.report_file(Path(c.reports_dir), request.path_params["file"]))
+
+    async def events(request: Request) -> Response:
+        return StreamingResponse(c.bus.stream(), media_type="text/event-stream",
+                                 headers={"Cache-Control": "no-store", "X-Accel-Buffering": "no"})
+
+    async def refuse_get(request: Request) -> Response:
+        return _json({"ok": False, "error": "state changes need POST"}, 405)
+
+    routes = [
+        Route("/", lambda request: RedirectResponse("/field")),
+        *[Route(f"/{p}", page(p)) for p in ("field", "campaign", "reports")],
+        Route("/heliostat/{hid}", page("heliostat")),
+        Route("/commission/{hid}", page("commission")),
+        Route("/api/plant", get(api_plant)),
+        Route("/api/heliostats", get(api_heliostats)),
+        Route("/api/heliostats/{hid}", get(api_heliostat)),
+        Route("/api/heliostats/{hid}/image.png", get(api_image)),
+        Route("/api/heliostats/{hid}/{step}", post(api_step), methods=["POST"]),
+        Route("/api/heliostats/{hid}/{step}", refuse_get, methods=["GET"]),
+        Route("/api/campaign", get(api_campaign)),
+        Route("/api/campaign/{action}", post(api_campaign_action), methods=["POST"]),
+        Route("/api/campaign/{action}", refuse_get, methods=["GET"]),
+        Route("/api/reports", get(api_reports)),
+        Route("/reports/campaign/{cid:int}/", get(campaign_report)),
+        Route("/reports/campaign/{cid:int}/{file:path}", get(campaign_report)),
+        Route("/reports/files/{file:path}", get(report_files)),
+        Route("/api/events", events),
+        Mount("/static", StaticFiles(directory=STATIC), name="static"),
+    ]
+    return Starlette(routes=routes)
+
+
+class _Refused(Exception):
+    def __init__(self, status: int, message: str) -> None:
+        super().__init__(message)
+        self.status, self.message = status, message

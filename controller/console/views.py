@@ -1,0 +1,197 @@
+"""What the pages read: the plant and heliostats as JSON, the beam image with its overlay, and
+the reports (morning report of a campaign, confusion reports found under ``--reports``).
+
+Conventions: ENU metres (x east, y north), motor steps, errors and σ in mrad.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from controller.console.backend import Console
+from controller.errors import InputError
+
+MIN_IMAGE_WIDTH = 640  # small camera images are scaled up (nearest) so the marks stay readable
+
+
+def plant_json(c: Console) -> dict:
+    cfg = c.cfg
+    t = cfg.target()
+    return {"site": cfg.site.name, "plant": c.hooks.label,
+            "target": {"id": t.id, "center_enu_m": list(t.center_enu_m), "width_m": t.width_m,
+                       "height_m": t.height_m},
+            "light_source": cfg.light_source().id,
+            "heliostats": [{"id": hid, "position_enu_m": list(cfg.heliostat(hid).position_enu_m),
+                            "link": cfg.heliostat(hid).link.kind} for hid in c.ids],
+            "library": c.library_path, "tolerance_mrad": cfg.calibration.tolerance_mrad}
+
+
+def model_json(model) -> dict | None:
+    """The latest fitted model: parameters, σ (mrad/mm per key), the largest σ, the residual."""
+    if model is None:
+        return None
+    sig = [v for v in model.sigma.values() if v is not None]
+    return {"params": model.params, "sigma": model.sigma, "sigma_max": max(sig) if sig else None,
+            "residual_mrad": model.residual_mrad, "n_measurements": model.n_measurements}
+
+
+def heliostat_summary(c: Console, hid: str) -> dict:
+    camp = c.campaign.snapshot() if c.campaign is not None else None
+    state = next((q["state"] for q in camp["queue"] if q["heliostat"] == hid), None) if camp else None
+    ms = c.store.measurements(heliostat_id=hid)
+    last = next((m.error_mrad for m in reversed(ms) if m.error_mrad is not None), None)
+    return {"id": hid, "status": c.status[hid], "link": c.health[hid].to_json(),
+            "model": model_json(c.store.latest_model(hid)), "last_error_mrad": last,
+            "campaign_state": state, "holds_target": c.holder() == hid}
+
+
+def heliostat_detail(c: Console, hid: str) -> dict:
+    out = heliostat_summary(c, hid)
+    h = c.cfg.heliostat(hid)
+    sl = h.axes
+    out["limits"] = {"az": [sl.azimuth.soft_limits.min_steps, sl.azimuth.soft_limits.max_steps],
+                     "el": [sl.elevation.soft_limits.min_steps, sl.elevation.soft_limits.max_steps]}
+    out["position_enu_m"] = list(h.position_enu_m)
+    out["link_kind"] = h.link.kind
+    out["measurements"] = [
+        {"id": m.id, "campaign_id": m.campaign_id, "iteration": m.iteration, "az_steps": m.az_steps,
+         "el_steps": m.el_steps, "error_mrad": m.error_mrad, "matched": m.matched_label,
+         "utc": m.measured_utc} for m in c.store.measurements(heliostat_id=hid)][-50:]
+    out["log"] = c.logs[hid][-30:]
+    s = c.sessions.get(hid)
+    cap = s.last if s is not None else None
+    out["capture"] = None if cap is None else cap.to_json(s.pointing.aim_point, s.pointing.heliostat_pos)
+    return out
+
+
+# -- the beam image -------------------------------------------------------------------------------
+def latest_image(c: Console, hid: str):
+    """(HDR image, centroid px or None, where it came from) of the last capture of the console's
+    session, else of the heliostat's last recorded measurement with a stored pair; None if none."""
+    s = c.sessions.get(hid)
+    if s is not None and s.last is not None:
+        o = s.last.observation
+        return s.last.hdr, (None if o is None else o.centroid_px), "console capture"
+    for m in reversed(c.store.measurements(heliostat_id=hid)):
+        imgs = {im.kind: im for im in c.store.images(m.id)}
+        if "low" in imgs and "high" in imgs and all(Path(im.path).is_file() for im in imgs.values()):
+            from controller.calibration.beam_chain import BeamChain
+            from controller.devices.camera import FramePair
+            from controller.io.images import read_image
+
+            frame = FramePair(read_image(imgs["low"].path), read_image(imgs["high"].path),
+                              imgs["low"].exposures, 0.0)
+            where = f"measurement {m.id} (campaign {m.campaign_id})"
+            return BeamChain(c.cfg).merge(frame), m.centroid_px, where
+    return None
+
+
+def overlay_png(c: Console, hid: str) -> bytes:
+    """The last beam image (grey, scaled to its 99.9th percentile) with the target outline
+    (green), the aim point (cyan ring and cross: the target centre) and the beam centroid (red
+    cross), as PNG bytes. Raises InputError when the heliostat has no image yet."""
+    import cv2
+
+    from controller.calibration.beam_chain import BeamChain
+
+    got = latest_image(c, hid)
+    if got is None:
+        raise InputError(f"{hid}: no beam image yet (capture one, or run a campaign)")
+    hdr, centroid, source = got
+    data = np.nan_to_num(np.asarray(hdr, float))
+    top = float(np.percentile(data, 99.9)) or 1.0
+    grey = np.clip(data / top * 255.0, 0, 255).astype(np.uint8)
+    rows, cols = grey.shape
+    k = max(1, int(np.ceil(MIN_IMAGE_WIDTH / cols)))
+    img = cv2.cvtColor(cv2.resize(grey, (cols * k, rows * k), interpolation=cv2.INTER_NEAREST),
+                       cv2.COLOR_GRAY2BGR)
+    frame = BeamChain(c.cfg).frame
+    t = c.cfg.target()
+    pitch = frame.width_m / cols  # m per camera pixel
+
+    def px(u_m: float, v_m: float) -> tuple[int, int]:
+        """Image point (scaled) of the in-plane offset (u, v) m from the target centre."""
+        return (int(round(((u_m + frame.width_m / 2) / pitch) * k)),
+                int(round(((v_m + frame.height_m / 2) / pitch) * k)))
+
+    size = img.shape[1] / 1024  # marks scale with the drawn image
+    thick = max(2, round(2 * size))
+    cv2.rectangle(img, px(-t.width_m / 2, -t.height_m / 2), px(t.width_m / 2, t.height_m / 2), (0, 200, 0),
+                  thick)
+    label = f"{hid}: {source}"
+    if centroid is not None:
+        cx, cy = (int(round((centroid[0] + 0.5) * k)), int(round((centroid[1] + 0.5) * k)))
+        cv2.drawMarker(img, (cx, cy), (0, 0, 255), cv2.MARKER_TILTED_CROSS, round(40 * size), thick + 1)
+        label += f"; centroid x {centroid[0]:.1f} y {centroid[1]:.1f} px"
+    else:
+        label += "; no beam found"
+    # The aim point on top: a ring that stays visible on a bright spot (dark edge, cyan ring).
+    ax, ay = px(0.0, 0.0)
+    r = round(26 * size)
+    cv2.circle(img, (ax, ay), r, (0, 0, 0), thick + 2)
+    cv2.circle(img, (ax, ay), r, (255, 255, 0), thick)
+    cv2.drawMarker(img, (ax, ay), (255, 255, 0), cv2.MARKER_CROSS, round(16 * size), thick)
+    font, scale, weight = cv2.FONT_HERSHEY_SIMPLEX, 0.95 * size, max(1, round(2 * size))
+    (tw, th), _ = cv2.getTextSize(label, font, scale, weight)
+    cv2.rectangle(img, (0, 0), (tw + 16, th + 16), (0, 0, 0), -1)
+    cv2.putText(img, label, (8, th + 8), font, scale, (255, 255, 255), weight, cv2.LINE_AA)
+    ok, buf = cv2.imencode(".png", img)
+    if not ok:
+        raise InputError(f"{hid}: could not encode the image")
+    return buf.tobytes()
+
+
+# -- reports --------------------------------------------------------------------------------------
+def campaigns_json(c: Console) -> list[dict]:
+    out = []
+    for camp in c.store.campaigns():
+        runs = c.store.runs(camp.id)
+        out.append({"id": camp.id, "name": camp.name, "status": camp.status, "cause": camp.cause,
+                    "started_utc": camp.started_utc, "heliostats": len(camp.queue), "recorded": len(runs),
+                    "calibrated": sum(r.status == "calibrated" for r in runs)})
+    return out
+
+
+def morning_report(c: Console, campaign_id: int) -> Path:
+    """The morning report of a campaign (``heliocal report campaign``), written into the
+    console's work folder once per state of the campaign (status, number of recorded runs)."""
+    from controller.reports.campaign import write_report
+
+    camp = c.store.campaign(campaign_id)
+    out = c.work_dir / "reports" / f"c{camp.id}-{camp.status}-{len(c.store.runs(camp.id))}"
+    if not (out / "report.html").is_file():
+        write_report(c.store, out, camp.id)
+    return out
+
+
+def confusion_reports(c: Console) -> list[dict]:
+    """Confusion reports (``heliocal report confusion``) under the ``--reports`` folder."""
+    if not c.reports_dir:
+        return []
+    base = Path(c.reports_dir)
+    out = []
+    for rep in sorted(base.glob("**/report.json")):
+        try:
+            data = json.loads(rep.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            continue
+        if "matrix" not in data or "labels" not in data:
+            continue
+        rel = rep.parent.relative_to(base).as_posix()
+        out.append({"name": rel or ".", "labels": data["labels"], "matrix": data["matrix"],
+                    "unknown": data.get("unknown"), "recognition_rate": data.get("recognition_rate"),
+                    "features": data.get("features"),
+                    "png": f"/reports/files/{rel}/confusion.png" if (rep.parent / "confusion.png").is_file()
+                    else None})
+    return out
+
+
+def report_file(base: Path, rel: str) -> Path:
+    """``rel`` inside ``base``, refusing anything that leaves it."""
+    p = (base / rel).resolve()
+    if not p.is_relative_to(base.resolve()) or not p.is_file():
+        raise InputError(f"no such report file: {rel}")
+    return p
