@@ -54,7 +54,8 @@ def measure(truth, cfg, item, night: int, rng) -> MeasurementRecord:
     stamp = f"2026-03-{1 + night:02d}T21:00:00+00:00"
     return MeasurementRecord(iteration=1, az_steps=g.steps[0], el_steps=g.steps[1], source_dir=tuple(src),
                              source_az_deg=0.0, source_el_deg=0.0, aim_enu=g.aim_enu, plant_time_s=0.0,
-                             measured_utc=stamp, centroid_enu=tuple(float(v) for v in spot))
+                             measured_utc=stamp, centroid_enu=tuple(float(v) for v in spot),
+                             source_pos_enu=tuple(float(v) for v in lamp))
 
 
 def true_daytime(cfg, truths, models, path, night: int) -> tuple[float, float]:

@@ -44,7 +44,7 @@ from simplant.clock import PlantClock
 from simplant.errorset import CASES, ErrorCase
 from simplant.firmware.physics import SimController, axis_params_from_config
 from simplant.grids import camera_grid, coarse_grid
-from simplant.optics import MirrorSurface, TargetGrid, render_spot
+from simplant.optics import MirrorSurface, TargetGrid, mirror_frame, render_spot
 from simplant.plant_camera import RENDER_RAYS, PlantCamera
 from simplant.safety import BeamSafetyMonitor
 from simplant.settings import SimulationSettings
@@ -74,12 +74,32 @@ class HiddenHeliostat:
     def position(self) -> np.ndarray:
         return self.truth.position
 
+    def beam_normal(self, n: np.ndarray) -> np.ndarray:
+        """The normal whose specular reflection carries the beam's energy centroid: the central
+        normal ``n`` tilted by the mirror's area-mean extra slope (non-zero for a canted facet;
+        zero for symmetric shapes: sag, twist, split, focus)."""
+        mx, my = mean_slope(self.mirror)
+        if mx == 0.0 and my == 0.0:
+            return n
+        e_w, e_h = mirror_frame(n)
+        return unit(n - mx * e_w - my * e_h)
+
     def settle(self, steps: tuple[float, float]) -> tuple[float, float]:
         """The repeatability error of the present pose: a new draw whenever the rods moved."""
         if steps != self.moved_to:
             self.moved_to = steps
             self.jitter = tuple(self.rng.normal(0.0, REPEATABILITY_RAD, 2))
         return self.jitter
+
+
+def mean_slope(mirror: MirrorSurface, samples: int = 64) -> tuple[float, float]:
+    """Area mean of the mirror's extra slope field (rad along its width and height axes)."""
+    if mirror.deformation is None:
+        return 0.0, 0.0
+    x, y = np.meshgrid((np.arange(samples) + 0.5) / samples * mirror.width_m - mirror.width_m / 2,
+                       (np.arange(samples) + 0.5) / samples * mirror.height_m - mirror.height_m / 2)
+    dx, dy = mirror.deformation(x, y)
+    return float(np.mean(dx)), float(np.mean(dy))
 
 
 def field_selection(cfg: PlantConfig, n: int) -> list[str]:
@@ -240,9 +260,11 @@ class SimulatedPlant:
 
     def true_normal_at(self, heliostat_id: str, az_steps: float, el_steps: float) -> np.ndarray:
         """Unit ENU mirror normal of the hidden heliostat at the given motor steps (tonight's
-        drift, no repeatability error): the plant's truth, for scoring any aim (e.g.
+        drift, no repeatability error), as its beam sees it (:meth:`HiddenHeliostat.beam_normal`:
+        a canted facet moves the energy centroid): the plant's truth, for scoring any aim (e.g.
         ``heliocal aim`` at a sun position) independently."""
-        return self.hidden[heliostat_id].truth.normal(az_steps, el_steps, night=self.night)
+        hh = self.hidden[heliostat_id]
+        return hh.beam_normal(hh.truth.normal(az_steps, el_steps, night=self.night))
 
     def true_mirror_center(self, heliostat_id: str, az_steps: float, el_steps: float) -> np.ndarray:
         """Centre of the hidden heliostat's mirror at the given steps, m ENU."""

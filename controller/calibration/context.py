@@ -25,6 +25,7 @@ class Pointing(Protocol):
     heliostat_pos: np.ndarray
     aim_point: np.ndarray
     source_dir: np.ndarray
+    source_pos: tuple[float, float, float] | None  # a lamp's position (None: the sun)
 
     def aim_steps(self, model: ModelRecord | None) -> tuple[int, int]: ...
     def standby_steps(self, model: ModelRecord | None) -> tuple[int, int]: ...

@@ -299,7 +299,7 @@ class CalibrationCycle:
             iteration=self.iteration, az_steps=self.az, el_steps=self.el,
             source_dir=tuple(float(c) for c in p.source_dir), source_az_deg=float(saz),
             source_el_deg=float(sel), aim_enu=tuple(float(c) for c in p.aim_point),
-            plant_time_s=self.ctx.clock(), measured_utc=self.ctx.utc(),
+            plant_time_s=self.ctx.clock(), measured_utc=self.ctx.utc(), source_pos_enu=p.source_pos,
             centroid_enu=tuple(float(c) for c in obs.centroid_enu),
             centroid_px=(float(obs.centroid_px[0]), float(obs.centroid_px[1])), error_mrad=err,
             matched_label=None if m is None or m.unknown else m.label,

@@ -141,7 +141,8 @@ def plan_heliostat(cfg: PlantConfig, heliostat_id: str, record: ModelRecord | No
     n = cal.planner.check_geometries if predicted <= cal.tolerance_mrad else cal.planner.geometries_per_night
     if n == 0:
         return []
-    hs = [normal_jacobian(kin, model, *g.steps) for g in geos]
+    hs = [normal_jacobian(kin, model, *g.steps, None, np.asarray(g.aim_enu),
+                          np.asarray(cfg.light_source(g.lamp).position_enu_m, float)) for g in geos]
     noise = cal.model.noise_mrad * 1e-3
     if strategy == "round-robin":
         order = round_robin(len(geos), n, offset)

@@ -43,6 +43,8 @@ class GeometryPointing:
         # The target centre, or a point of the aim grid on a planned night.
         self.aim_point = np.asarray(target.center_enu_m if aim_point is None else aim_point, float)
         self.source_dir = np.asarray(source_direction(source, self.heliostat_pos), float)
+        self.source_pos = (tuple(float(v) for v in source.position_enu_m) if isinstance(source, LampSource)
+                           else None)
         self.heliostat = heliostat
         self.frame = frame
         self.standby_point = self.aim_point + standby_offset_m * frame.side(self.heliostat_pos)
@@ -103,7 +105,7 @@ class GeometryPointing:
                          "off the target")
 
     def _steps(self, point: np.ndarray, model: ModelRecord | None) -> tuple[int, int]:
-        return steps_to_aim(self.kin, model, self.source_dir, point)
+        return steps_to_aim(self.kin, model, self.source_dir, point, self.source_pos)
 
     def aim_steps(self, model: ModelRecord | None) -> tuple[int, int]:
         return self._steps(self.aim_point, model)
@@ -141,7 +143,8 @@ def fit_measurements(kin: HeliostatKinematics, measurements: list[MeasurementRec
         return None
     weights = age_weights([m.measured_utc for m in used], settings.age_halflife_days)
     samples = [Sample(np.asarray(m.source_dir, float), m.az_steps, m.el_steps,
-                      np.asarray(m.centroid_enu, float), float(w))
+                      np.asarray(m.centroid_enu, float), float(w),
+                      None if m.source_pos_enu is None else np.asarray(m.source_pos_enu, float))
                for m, w in zip(used, weights, strict=True)]
     try:
         fit = fit_model(kin, samples, noise_mrad=settings.noise_mrad,
@@ -175,14 +178,16 @@ def age_weights(stamps: list[str], halflife_days: float) -> np.ndarray:
 
 
 def steps_to_aim(kin: HeliostatKinematics, model: ModelRecord | None, source_dir: np.ndarray,
-                 point: np.ndarray) -> tuple[int, int]:
+                 point: np.ndarray, lamp_position=None) -> tuple[int, int]:
     """Motor steps that reflect light from ``source_dir`` (unit ENU, towards the source) onto
     ``point`` (m ENU): with the fitted tracking-error ``model`` (the bisector normal made the
     *actual* normal, :func:`controller.geometry.tracking_model.model_aim`), or the nominal
-    kinematics without one. LimitError when the pose is out of reach."""
+    kinematics without one. For a lamp at ``lamp_position`` (m ENU) the model takes its direction
+    from the model's mirror centre. LimitError when the pose is out of reach."""
     if model is None:
         return kin.aim(source_dir, point)
-    return model_aim(kin, TrackingModel.from_dict(model.params), source_dir, point)
+    return model_aim(kin, TrackingModel.from_dict(model.params), source_dir, point,
+                     lamp_position=lamp_position)
 
 
 @dataclass(frozen=True)

@@ -27,8 +27,9 @@ class ImageRecord:
 
 @dataclass
 class MeasurementRecord:
-    """One beam measurement. ``id``, ``run_id``, ``campaign_id`` and ``heliostat_id`` are set
-    when read back from the store."""
+    """One beam measurement. ``source_pos_enu``: the lamp's position (m ENU; None for the
+    sun). ``id``, ``run_id``, ``campaign_id`` and ``heliostat_id`` are set when read back from
+    the store."""
 
     iteration: int
     az_steps: int
@@ -46,6 +47,7 @@ class MeasurementRecord:
     runner_up_label: str | None = None
     runner_up_distance: float | None = None
     measured_utc: str = field(default_factory=utc_now)
+    source_pos_enu: tuple[float, float, float] | None = None
     images: list[ImageRecord] = field(default_factory=list)
     id: int | None = None
     run_id: int | None = None

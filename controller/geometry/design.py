@@ -36,7 +36,13 @@ import numpy as np
 
 from controller.errors import LimitError
 from controller.geometry.kinematics import HeliostatKinematics
-from controller.geometry.tracking_model import TrackingModel, model_aim, model_normal
+from controller.geometry.tracking_model import (
+    TrackingModel,
+    implied_normal,
+    model_aim,
+    model_mirror_center,
+    model_normal,
+)
 from controller.geometry.vectors import unit
 
 
@@ -60,19 +66,28 @@ def tangents(n: np.ndarray) -> np.ndarray:
 _STEP = 1e-6  # rad or m: well inside the linear range of every term, far above rounding
 
 
-def normal_jacobian(kin: HeliostatKinematics, model: TrackingModel, az_steps: float,
-                    el_steps: float) -> np.ndarray:
-    """H of Eq. (1): ∂(t₁·n, t₂·n)/∂p at the given steps, (2, p), per SI unit of each term."""
+def normal_jacobian(kin: HeliostatKinematics, model: TrackingModel, az_steps: float, el_steps: float,
+                    source_dir, spot, source_pos=None) -> np.ndarray:
+    """H of Eq. (1) for a spot expected at ``spot`` (m ENU) under a source at ``source_dir``
+    (the sun) or ``source_pos`` (a lamp, m ENU): ∂(t₁·(n − m), t₂·(n − m))/∂p at the given
+    steps, with m the normal the spot implies (it moves with the position terms), (2, p), per
+    SI unit of each term."""
     base = tangents(model_normal(kin, model, az_steps, el_steps))
-    return jacobian(lambda v: base @ model_normal(kin, TrackingModel(v), az_steps, el_steps), model.values,
-                    np.full(len(model.values), _STEP))
+
+    def observed(v: np.ndarray) -> np.ndarray:
+        m = TrackingModel(v)
+        return base @ (model_normal(kin, m, az_steps, el_steps)
+                       - implied_normal(kin, m, az_steps, el_steps, source_dir, spot, source_pos))
+
+    return jacobian(observed, model.values, np.full(len(model.values), _STEP))
 
 
 def beam_jacobians(kin: HeliostatKinematics, model: TrackingModel, source_dirs: np.ndarray,
                    aim_point) -> np.ndarray:
-    """A_k of Eq. (2), (k, 3, p): the reflected beam's sensitivity to the terms at the steps the
-    model aims with for each reachable source direction (unit ENU, towards the source) onto
-    ``aim_point`` (m ENU). Unreachable directions are left out (k may be 0)."""
+    """A_k of Eq. (2), (k, 3, p): the sensitivity to the terms of the reflected beam's error —
+    the beam r = 2(s·n)n − s less the direction from the mirror centre to ``aim_point`` (m ENU),
+    which the position terms move — at the steps the model aims with for each reachable source
+    direction (unit ENU, towards the source). Unreachable directions are left out (k may be 0)."""
     aim_point = np.asarray(aim_point, float)
     out = []
     for s in np.asarray(source_dirs, float).reshape(-1, 3):
@@ -82,8 +97,9 @@ def beam_jacobians(kin: HeliostatKinematics, model: TrackingModel, source_dirs: 
             continue
 
         def beam(v: np.ndarray, s=s, az=az, el=el) -> np.ndarray:
-            n = model_normal(kin, TrackingModel(v), az, el)
-            return 2.0 * float(s @ n) * n - s
+            m = TrackingModel(v)
+            n = model_normal(kin, m, az, el)
+            return 2.0 * float(s @ n) * n - s - unit(aim_point - model_mirror_center(kin, m, az, el))
 
         out.append(jacobian(beam, model.values, np.full(len(model.values), _STEP)))
     return np.stack(out) if out else np.empty((0, 3, len(model.values)))

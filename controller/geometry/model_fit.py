@@ -1,11 +1,12 @@
 """Fit of the tracking model (:mod:`controller.geometry.tracking_model`) by identifiability.
 
 Maximum a posteriori least squares. Each measurement k (source direction s_k, commanded
-steps, measured spot) gives the measured normal m_k, the bisector of s_k and the direction
-from the mirror centre to the spot; the model gives n_k(p). With t₁, t₂ a tangent basis at
-m_k, σ_n the noise of a measured normal (rad) and w_k a weight (robust or age), minimise
+steps, measured spot) gives the measured normal m_k(p), the bisector of s_k and the direction
+from the model's mirror centre to the spot (for a lamp, s_k too is taken from that centre);
+the model gives n_k(p). With t₁, t₂ a tangent basis at m_k, σ_n the noise of a measured
+normal (rad) and w_k a weight (robust or age), minimise
 
-    Σ_k w_k [(t₁·n_k(p))² + (t₂·n_k(p))²] / σ_n²  +  Σ_i ((p_i − p₀,i) / σ₀,i)²        (1)
+    Σ_k w_k [(t₁·(n_k − m_k))² + (t₂·(n_k − m_k))²] / σ_n²  +  Σ_i ((p_i − p₀,i) / σ₀,i)²   (1)
 
 — a Gaussian prior N(p₀, σ₀²) on every term, so the fit is defined for any data and the
 data move only the combinations they observe. At the optimum, with J the Jacobian of the
@@ -13,9 +14,9 @@ whitened residuals of (1),
 
     Σ = s² (JᵀJ)⁻¹,   s² = χ²_data / (2m − p_eff),   p_eff = Σ_i (1 − Σ_ii/σ₀,i²)      (2)
 
-(the posterior covariance, scaled by the residuals' own noise estimate when they have at least
-10 degrees of freedom; with fewer, s² = max(1, χ²/dof): the residuals can only show that the
-noise was larger than stated). A term is
+(the posterior covariance; s² = max(1, χ²/dof) once the residuals have at least 10 degrees of
+freedom, else 1: the stated noise is a floor, and residuals larger than it — noise or effects
+the model lacks — widen the uncertainty). A term is
 *identified* when the data shrink its σ below half its prior σ; the others stay at the
 prior and are reported as such. The fit refuses when no term is identified.
 
@@ -43,7 +44,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from controller.errors import InputError
-from controller.geometry.aiming import aim_normal, angle_mrad
+from controller.geometry.aiming import angle_mrad
 from controller.geometry.design import beam_jacobians, jacobian, tangents
 from controller.geometry.kinematics import HeliostatKinematics
 from controller.geometry.tracking_model import (
@@ -51,7 +52,7 @@ from controller.geometry.tracking_model import (
     PRIOR_SIGMA_SI,
     TERMS,
     TrackingModel,
-    model_mirror_center,
+    implied_normal,
     model_normal,
 )
 
@@ -75,6 +76,7 @@ class Sample:
     el_steps: float
     spot_enu: np.ndarray
     weight: float = 1.0
+    source_pos: np.ndarray | None = None  # a lamp's position, m ENU (None: the sun, at infinity)
 
 
 @dataclass(frozen=True, eq=False)  # numpy fields
@@ -107,8 +109,15 @@ class ModelFit:
 
 def measured_normal(kin: HeliostatKinematics, model: TrackingModel, s: Sample) -> np.ndarray:
     """The normal a sample implies: bisector of the source direction and the direction from the
-    mirror centre (with ``model``, at the commanded steps) to the measured spot."""
-    return aim_normal(s.source_dir, model_mirror_center(kin, model, s.az_steps, s.el_steps), s.spot_enu)
+    mirror centre (with ``model``, at the commanded steps) to the measured spot; for a lamp the
+    source direction is taken from that mirror centre too."""
+    return implied_normal(kin, model, s.az_steps, s.el_steps, s.source_dir, s.spot_enu, s.source_pos)
+
+
+def normal_residual_mrad(kin: HeliostatKinematics, model: TrackingModel, s: Sample) -> float:
+    """Angle between the model's normal at the sample's steps and the normal the sample
+    implies with that model (:func:`measured_normal`), mrad."""
+    return float(angle_mrad(model_normal(kin, model, s.az_steps, s.el_steps), measured_normal(kin, model, s)))
 
 
 def fit_model(kin: HeliostatKinematics, samples: Sequence[Sample], *, noise_mrad: float = 0.3,
@@ -133,15 +142,14 @@ def fit_model(kin: HeliostatKinematics, samples: Sequence[Sample], *, noise_mrad
     p0 = (prior or TrackingModel.zero()).values
     s0 = PRIOR_SIGMA_SI if prior_sigma is None else np.asarray(prior_sigma, float)
     sig_n = noise_mrad * 1e-3
-    # The measured normals depend on the mirror centre only through |c|/distance (< 1e-2 of
-    # the error): take them at the prior and keep them fixed, so (1) is a plain least squares.
-    targets = [measured_normal(kin, TrackingModel(p0), s) for s in samples]
-    bases = [tangents(m) for m in targets]
+    # The measured normals move with the mirror centre (position terms, Eq. 4 of the model):
+    # they are re-evaluated with the model; the tangent bases stay those at the prior.
+    bases = [tangents(measured_normal(kin, TrackingModel(p0), s)) for s in samples]
     age_w = np.array([s.weight for s in samples])
 
     def data_res(x: np.ndarray) -> np.ndarray:
         m = TrackingModel(p0 + x * s0)
-        return np.concatenate([b @ model_normal(kin, m, s.az_steps, s.el_steps)
+        return np.concatenate([b @ (model_normal(kin, m, s.az_steps, s.el_steps) - measured_normal(kin, m, s))
                                for s, b in zip(samples, bases, strict=True)]) / sig_n
 
     weights = np.ones(len(samples))
@@ -164,12 +172,9 @@ def fit_model(kin: HeliostatKinematics, samples: Sequence[Sample], *, noise_mrad
     p_eff = float(np.sum(1.0 - ratio2))
     chi2 = float(np.sum((w * data_res(x)) ** 2))
     dof = 2 * len(samples) - p_eff
-    # With enough redundancy the residuals estimate the noise themselves (either way); with
-    # little, they can only show that it was larger than stated.
-    if dof >= MIN_DOF_FOR_NOISE:
-        s2 = chi2 / dof
-    else:
-        s2 = max(1.0, chi2 / dof) if dof > 0.5 else 1.0
+    # The stated noise is a floor: residuals larger than it (noise or effects the model lacks)
+    # widen the uncertainty once there are enough of them to tell; smaller ones never narrow it.
+    s2 = max(1.0, chi2 / dof) if dof >= MIN_DOF_FOR_NOISE else 1.0
     cov = s2 * post_x * np.outer(s0, s0)
     sigma = np.sqrt(np.diag(cov))
     identified = np.sqrt(ratio2) * np.sqrt(s2) < IDENTIFIED_RATIO
@@ -178,10 +183,8 @@ def fit_model(kin: HeliostatKinematics, samples: Sequence[Sample], *, noise_mrad
                          f"(every σ stays above {IDENTIFIED_RATIO:g}× its prior); measure more geometries")
     sv = np.linalg.svd(jd[:, identified], compute_uv=False)
     model = TrackingModel(p0 + x * s0)
-    res = np.array([angle_mrad(model_normal(kin, model, s.az_steps, s.el_steps), m)
-                    for s, m in zip(samples, targets, strict=True)])
-    res0 = np.array([angle_mrad(model_normal(kin, TrackingModel(p0), s.az_steps, s.el_steps), m)
-                     for s, m in zip(samples, targets, strict=True)])
+    res = np.array([normal_residual_mrad(kin, model, s) for s in samples])
+    res0 = np.array([normal_residual_mrad(kin, TrackingModel(p0), s) for s in samples])
     return ModelFit(model, sigma, cov, identified, res, float(np.sqrt(np.mean(res**2))),
                     float(np.sqrt(np.mean(res0**2))), weights, float(np.sqrt(s2)), float(sv[0] / sv[-1]))
 

@@ -26,11 +26,16 @@ name                   unit    prior σ    meaning
 ``el_stroke0``         mm      2          elevation actuator initial stroke length ΔL₀
 ``az_pivot_radius``    mm      1          azimuth actuator pivot radius Δr
 ``el_pivot_radius``    mm      1          elevation actuator pivot radius Δr
+``position_e``         mm      30         pivot east of its surveyed position
+``position_n``         mm      30         pivot north of its surveyed position
+``position_u``         mm      30         pivot above its surveyed position
 =====================  ======  =========  ==================================================
 
-Held at their surveyed values, not fitted: the heliostat position and the joint and
-concentrator translations (the mirror centre); a few centimetres there move the beam by less
-than 1 mrad at the distances of a field, below what the pointing data resolve.
+The position terms Δx move the mirror centre, c* = x₀ + Δx + R* c (Eq. 4): a few
+centimetres of survey error turn the direction to a target 50 m away by about 1 mrad, and
+since a translation moves a beam spot by itself while a rotation moves it by 2 × distance,
+spots seen from several light directions separate the two. Held at their surveyed values,
+not fitted: the joint and concentrator translations (their errors are millimetres).
 
 Conventions: those of :mod:`controller.geometry.kinematics` (elevation joint about East from
 the zenith, azimuth joint about the carried Up axis, mirror facing south at α = 0; PAINT/ARTIST
@@ -86,11 +91,15 @@ TERMS: tuple[Term, ...] = (
     Term("el_stroke0", "mm", 2.0, "elevation actuator initial stroke length"),
     Term("az_pivot_radius", "mm", 1.0, "azimuth actuator pivot radius"),
     Term("el_pivot_radius", "mm", 1.0, "elevation actuator pivot radius"),
+    Term("position_e", "mm", 30.0, "pivot east of its surveyed position"),
+    Term("position_n", "mm", 30.0, "pivot north of its surveyed position"),
+    Term("position_u", "mm", 30.0, "pivot above its surveyed position"),
 )
 NAMES = tuple(t.name for t in TERMS)
 PRIOR_SIGMA_SI = np.array([t.prior_sigma * 1e-3 for t in TERMS])
 _KEYS = {t.key: i for i, t in enumerate(TERMS)}
 _RIGID = np.array([NAMES.index(n) for n in RIGID_NAMES])
+_POSITION = np.array([NAMES.index(n) for n in ("position_e", "position_n", "position_u")])
 
 
 @dataclass(frozen=True, eq=False)  # numpy field
@@ -105,6 +114,10 @@ class TrackingModel:
 
     def rigid(self) -> TrackingErrorParams:
         return TrackingErrorParams.from_array(self.values[_RIGID])
+
+    def position_offset(self) -> np.ndarray:
+        """Δx of Eq. (4), m ENU."""
+        return self.values[_POSITION]
 
     def to_dict(self) -> dict[str, float]:
         """``{"<name>_<unit>": value}`` in mrad / mm (the stored and printed form)."""
@@ -154,9 +167,21 @@ def model_normal(kin: HeliostatKinematics, model: TrackingModel, az_steps: float
 
 def model_mirror_center(kin: HeliostatKinematics, model: TrackingModel, az_steps: float,
                         el_steps: float) -> np.ndarray:
-    """Centre of the reflecting surface, m ENU: pivot + R* c (c: concentrator translation)."""
+    """Centre of the reflecting surface, m ENU: surveyed pivot + Δx + R* c (Eq. 4; c the
+    concentrator translation)."""
     alpha, eps = actuated(kin, model).angles(az_steps, el_steps)
-    return kin.position + error_rotation(model.rigid(), alpha, eps) @ kin.concentrator_translation
+    return (kin.position + model.position_offset()
+            + error_rotation(model.rigid(), alpha, eps) @ kin.concentrator_translation)
+
+
+def implied_normal(kin: HeliostatKinematics, model: TrackingModel, az_steps: float, el_steps: float,
+                   source_dir, spot, source_pos=None) -> np.ndarray:
+    """The normal a beam spot implies: bisector of the source direction and the direction from
+    the model's mirror centre to ``spot`` (m ENU). For a lamp at ``source_pos`` (m ENU) the
+    source direction is taken from that centre; otherwise ``source_dir`` (unit ENU, the sun)."""
+    center = model_mirror_center(kin, model, az_steps, el_steps)
+    src = source_dir if source_pos is None else unit(np.asarray(source_pos, float) - center)
+    return aim_normal(src, center, spot)
 
 
 def steps_for_normal(kin: HeliostatKinematics, model: TrackingModel, desired_normal) -> tuple[int, int]:
@@ -174,7 +199,8 @@ def model_aim(kin: HeliostatKinematics, model: TrackingModel, source_dir, point,
     |c|/distance). For a lamp pass ``lamp_position`` (m ENU) and the source direction is taken
     from the mirror centre. LimitError when out of reach."""
     point = np.asarray(point, float)
-    center = kin.position + error_rotation(model.rigid(), 0.0, 0.0) @ kin.concentrator_translation
+    center = (kin.position + model.position_offset()
+              + error_rotation(model.rigid(), 0.0, 0.0) @ kin.concentrator_translation)
     steps = (0, 0)
     for _ in range(iterations):
         if lamp_position is not None:

@@ -11,10 +11,9 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from controller.geometry.aiming import angle_mrad
 from controller.geometry.kinematics import HeliostatKinematics
-from controller.geometry.model_fit import ModelFit, Sample, fit_model, measured_normal
-from controller.geometry.tracking_model import TrackingModel, model_normal
+from controller.geometry.model_fit import ModelFit, Sample, fit_model, normal_residual_mrad
+from controller.geometry.tracking_model import TrackingModel
 
 
 @dataclass(frozen=True)
@@ -28,12 +27,6 @@ class HeldOut:
     fit: ModelFit
 
 
-def normal_error_mrad(kin: HeliostatKinematics, model: TrackingModel, sample: Sample) -> float:
-    """Angle between the model's normal at the sample's steps and the measured normal, mrad."""
-    return float(angle_mrad(model_normal(kin, model, sample.az_steps, sample.el_steps),
-                            measured_normal(kin, model, sample)))
-
-
 def leave_one_out(kin: HeliostatKinematics, samples: Sequence[Sample], *, noise_mrad: float) -> list[HeldOut]:
     """Every fold of the module docstring (needs at least two samples)."""
     from controller.errors import InputError
@@ -43,6 +36,6 @@ def leave_one_out(kin: HeliostatKinematics, samples: Sequence[Sample], *, noise_
     out = []
     for k, s in enumerate(samples):
         fit = fit_model(kin, [t for i, t in enumerate(samples) if i != k], noise_mrad=noise_mrad)
-        out.append(HeldOut(k, normal_error_mrad(kin, fit.model, s),
-                           normal_error_mrad(kin, TrackingModel.zero(), s), fit))
+        out.append(HeldOut(k, normal_residual_mrad(kin, fit.model, s),
+                           normal_residual_mrad(kin, TrackingModel.zero(), s), fit))
     return out

@@ -242,12 +242,13 @@ class CampaignStore:
                     "INSERT INTO measurements (run_id, iteration, az_steps, el_steps, source_e, source_n, "
                     "source_u, source_az_deg, source_el_deg, centroid_e, centroid_n, centroid_u, "
                     "centroid_x_px, centroid_y_px, aim_e, aim_n, aim_u, error_mrad, matched_label, "
-                    "match_distance, runner_up_label, runner_up_distance, plant_time_s, measured_utc) "
-                    "VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?)",
+                    "match_distance, runner_up_label, runner_up_distance, plant_time_s, measured_utc, "
+                    "source_pos_e, source_pos_n, source_pos_u) "
+                    "VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?)",
                     (run_id, m.iteration, int(m.az_steps), int(m.el_steps), *map(float, m.source_dir),
                      m.source_az_deg, m.source_el_deg, *c, *px, *map(float, m.aim_enu), m.error_mrad,
                      m.matched_label, m.match_distance, m.runner_up_label, m.runner_up_distance,
-                     m.plant_time_s, m.measured_utc))
+                     m.plant_time_s, m.measured_utc, *(m.source_pos_enu or (None, None, None))))
                 for im in m.images:
                     db.execute("INSERT INTO images (measurement_id, kind, path, sha256, exposure_low_s, "
                                "exposure_high_s) VALUES (?,?,?,?,?,?)",
@@ -357,8 +358,8 @@ def _measurement(row: sqlite3.Row) -> MeasurementRecord:
         error_mrad=row["error_mrad"], matched_label=row["matched_label"],
         match_distance=row["match_distance"],
         runner_up_label=row["runner_up_label"], runner_up_distance=row["runner_up_distance"],
-        measured_utc=row["measured_utc"], id=int(row["id"]), run_id=int(row["run_id"]),
-        campaign_id=int(row["campaign_id"]),         heliostat_id=row["heliostat_id"])
+        measured_utc=row["measured_utc"], source_pos_enu=xyz("source_pos"), id=int(row["id"]),
+        run_id=int(row["run_id"]), campaign_id=int(row["campaign_id"]), heliostat_id=row["heliostat_id"])
 
 
 def open_existing(path: str | Path) -> CampaignStore:

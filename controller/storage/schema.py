@@ -138,6 +138,12 @@ MIGRATIONS: tuple[str, ...] = (
     );
     CREATE INDEX plan_night ON plan(night);
     """,
+    # v6: where a lamp stood (its direction from the mirror depends on the mirror's position).
+    """
+    ALTER TABLE measurements ADD COLUMN source_pos_e REAL;
+    ALTER TABLE measurements ADD COLUMN source_pos_n REAL;
+    ALTER TABLE measurements ADD COLUMN source_pos_u REAL;
+    """,
 )
 
 SCHEMA_VERSION = len(MIGRATIONS)

@@ -165,6 +165,7 @@ class LinearPointing:
         self.heliostat_pos = HELIOSTAT
         self.aim_point = AIM
         self.source_dir = np.array([0.0, -0.6, 0.8])
+        self.source_pos = None  # the sun
         self.fits = 0
 
     def aim_steps(self, model):

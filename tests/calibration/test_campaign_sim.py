@@ -252,3 +252,10 @@ def test_planned_night_measures_other_geometries_and_explains_them(small_config,
     assert all(status in ("measured", "failed") and it <= 1 for _, _, status, it in passes)
     assert sum(status == "measured" for _, _, status, _ in passes) == night["measured"]
     assert len(measured) > 2  # light from more than one lamp reached the fit
+    rep = out / "report"
+    md = (rep / "report.md").read_text()
+    assert "## Tracking model and daytime pointing" in md and "after night 1" in md
+    assert (rep / "geometries.png").is_file() and (rep / "daytime.png").is_file()
+    terms = (rep / "model_terms.csv").read_text().splitlines()
+    assert terms[0].startswith("heliostat,az_offset_mrad,az_offset_mrad_sigma") and len(terms) == 3
+    assert "<h2>Tracking model and daytime pointing</h2>" in (rep / "report.html").read_text()

@@ -13,7 +13,7 @@ from controller.calibration.records import ModelRecord
 from controller.config import parse_config
 from controller.errors import ConfigError
 from controller.geometry.design import daytime_variance, posterior
-from controller.geometry.tracking_model import TrackingModel
+from controller.geometry.tracking_model import TERMS, TrackingModel
 from tests.calibration.conftest import REPO
 
 
@@ -62,13 +62,14 @@ def test_greedy_gain_matches_the_covariance_update(cfg):
     model, cov = model_covariance(None, cfg.calibration.model.prior_sigma)
     kin = HeliostatKinematics.from_config(cfg.heliostat("H05"))
     a = beam_jacobians(kin, model, sun, np.asarray(cfg.target().center_enu_m, float))
-    h = normal_jacobian(kin, model, *item.geometry.steps)
+    lamp = np.asarray(cfg.light_source(item.geometry.lamp).position_enu_m, float)
+    h = normal_jacobian(kin, model, *item.geometry.steps, None, np.asarray(item.geometry.aim_enu), lamp)
     after = posterior(cov, h, cfg.calibration.model.noise_mrad * 1e-3)
     assert 1e3 * np.sqrt(daytime_variance(a, after)) == pytest.approx(item.predicted_after_mrad, rel=1e-6)
 
 
 def test_a_well_known_heliostat_gets_only_a_check(cfg):
-    tiny = np.diag(np.full(11, 1e-5)) ** 2  # σ 10 µrad / 10 µm on every term
+    tiny = np.diag(np.full(len(TERMS), 1e-5)) ** 2  # σ 10 µrad / 10 µm on every term
     rec = ModelRecord(TrackingModel.zero().to_dict(), {}, 0.1, 20, {"covariance_si": tiny.tolist()})
     items = plan_night(cfg, {"H04": rec, "H05": None}, "n")
     per = {h: sum(1 for i in items if i.heliostat_id == h) for h in ("H04", "H05")}
