@@ -9,6 +9,11 @@ Contract (docs/flux.md)::
 Double-CCD pairs replace RECEIVER (and AMBIENT) with ``--receiver-pair LOW HIGH
 --exposures T_LOW T_HIGH [--ambient-pair LOW HIGH]``; the pair is merged to counts per second,
 so the sun exposure must be given (``--sun-exposure T``) instead of ``--exposure-ratio``.
+
+``--crf CRF.yaml`` linearises every image through the camera response (single frames through
+its first sensor's, pairs through both in the merge). A receiver with saturated pixels (at the
+top code; for pairs, saturated in both) is refused unless ``--allow-saturated``: the flux there
+is only a lower bound. ``saturated_px`` in the JSON counts them.
 """
 
 from __future__ import annotations
@@ -24,7 +29,9 @@ from controller.commands._common import add_json_option, existing_file, output_f
 from controller.errors import InputError
 from controller.flux import phlux
 from controller.flux.sun_disc import SunDiscError, find_sun_disc
-from controller.imaging.hdr import merge_above_offset
+from controller.imaging.crf import Crf
+from controller.imaging.crf_io import load_crf
+from controller.imaging.hdr import HdrMerger, merge_above_offset
 from controller.io.images import read_image, save_figure, write_float_image
 
 HDR_DARK_OFFSET = 8.0
@@ -71,6 +78,10 @@ def register(subparsers) -> None:
     p.add_argument("--exposures", type=float, nargs=2, metavar=("T_LOW", "T_HIGH"),
                    help="pair exposure times, seconds")
     p.add_argument("--sun-exposure", type=float, metavar="S", help="sun exposure time, seconds (with pairs)")
+    p.add_argument("--crf", metavar="CRF.yaml",
+                   help="camera response: linearise the images (default: linear, I(z) = z)")
+    p.add_argument("--allow-saturated", action="store_true",
+                   help="accept a receiver with saturated pixels (the flux there is a lower bound)")
     p.add_argument("--hotspots", type=int, default=5, metavar="N",
                    help="number of hot spots listed (default 5)")
     p.add_argument("--out", required=True, metavar="FLUX.npy",
@@ -113,6 +124,8 @@ def _check_args(args: argparse.Namespace) -> None:
         raise InputError("--tube-axes-px and --known-power-w need --distance")
     if args.tube_axes_px and args.view_angle_deg:
         raise InputError("a tube panel must be viewed along its normal (--view-angle-deg 0)")
+    if args.crf and args.dark_offset:
+        raise InputError("--dark-offset goes without --crf (the camera response maps the dark level to 0)")
     if args.hotspots < 0:
         raise InputError(f"--hotspots must be >= 0, got {args.hotspots}")
     if args.receiver_pair:
@@ -145,38 +158,76 @@ def _same_shape(images: dict[str, np.ndarray]) -> None:
         raise InputError(f"image sizes differ (same camera expected): {listed}")
 
 
-def _merge_pair(paths: list[str], exposures: tuple[float, float]) -> np.ndarray:
-    """Merged pair in counts per second above the dark offset, shape (rows, cols)."""
+def _merge_pair(paths: list[str], exposures: tuple[float, float], crf: Crf | None) -> tuple[np.ndarray, int]:
+    """Merged pair in counts per second above the dark offset (shape (rows, cols)) and the
+    number of its pixels saturated in both images."""
     low, high = (read_image(existing_file(p, "image")) for p in paths)
     _same_shape({paths[0]: low, paths[1]: high})
-    return merge_above_offset(low, high, tuple(exposures), HDR_DARK_OFFSET)
+    try:
+        merged = HdrMerger(tuple(exposures), crf, "raised-cosine", HDR_DARK_OFFSET).merge_with_mask(low, high)
+        if crf is None:  # I(z) = z keeps the offset, which the fitted response maps to 0
+            return merge_above_offset(low, high, tuple(exposures), HDR_DARK_OFFSET), merged.saturated_both
+    except InputError as exc:
+        raise InputError(f"{paths[0]}, {paths[1]}: {exc}") from None
+    return merged.hdr.astype(np.float64), merged.saturated_both
 
 
-def _target_values(args: argparse.Namespace) -> tuple[np.ndarray, dict[str, np.ndarray], int]:
+def _linear(img: np.ndarray, crf: Crf | None, name: str) -> np.ndarray:
+    """Counts in float64, through the first sensor's inverse response when a CRF is given."""
+    if crf is None:
+        return img.astype(np.float64)
+    top = (1 << crf.bit_depth) - 1
+    if not np.issubdtype(img.dtype, np.integer) or img.min() < 0 or img.max() > top:
+        raise InputError(f"{name}: --crf needs integer pixels in 0..{top} ({crf.bit_depth}-bit), "
+                         f"got {img.dtype} up to {img.max()}")
+    return crf.inverse(0)[img]
+
+
+def _saturated(img: np.ndarray, crf: Crf | None) -> int | None:
+    """Pixels at the top code (the CRF's bit depth, else the dtype's); None for float images."""
+    if not np.issubdtype(img.dtype, np.integer):
+        return None
+    top = (1 << crf.bit_depth) - 1 if crf is not None else np.iinfo(img.dtype).max
+    return int(np.count_nonzero(img >= top))
+
+
+def _target_values(args: argparse.Namespace, crf: Crf | None
+                   ) -> tuple[np.ndarray, dict[str, np.ndarray], int | None]:
     """Ambient-subtracted target counts, the images to size-check, and the saturated-pixel count."""
     if args.receiver_pair:
-        merged = _merge_pair(args.receiver_pair, args.exposures)
+        merged, n_sat = _merge_pair(args.receiver_pair, args.exposures, crf)
         shapes = {args.receiver_pair[0]: merged}
         if args.ambient_pair:
-            ambient = _merge_pair(args.ambient_pair, args.exposures)
+            ambient, _ = _merge_pair(args.ambient_pair, args.exposures, crf)
             shapes[args.ambient_pair[0]] = ambient
             _same_shape(shapes)
             merged = merged - ambient
-        return merged, shapes, 0
+        return merged, shapes, n_sat
     receiver = read_image(existing_file(args.receiver, "receiver image"))
     shapes = {args.receiver: receiver}
-    n_sat = 0
-    if np.issubdtype(receiver.dtype, np.integer):
-        n_sat = int(np.count_nonzero(receiver >= np.iinfo(receiver.dtype).max))
-    values = receiver.astype(np.float64)
+    values = _linear(receiver, crf, args.receiver)
     if args.ambient:
         ambient = read_image(existing_file(args.ambient, "ambient image"))
         shapes[args.ambient] = ambient
         _same_shape(shapes)
-        values -= ambient
+        values -= _linear(ambient, crf, args.ambient)
     else:
         values -= args.dark_offset
-    return values, shapes, n_sat
+    return values, shapes, _saturated(receiver, crf)
+
+
+def _sun_disc(args: argparse.Namespace, sun_path: Path, sun: np.ndarray, crf: Crf | None):
+    level = args.saturation_level
+    if crf is not None:  # the disc is measured in linear units; so is the clipping level
+        top = (1 << crf.bit_depth) - 1
+        level = float(crf.inverse(0)[top if level is None else min(max(int(level), 0), top)])
+        sun = _linear(sun, crf, str(sun_path))
+    try:
+        return find_sun_disc(sun, saturation_level=level,
+                             center_px=tuple(args.sun_center) if args.sun_center else None,
+                             radius_px=args.sun_radius)
+    except SunDiscError as exc:
+        raise SunDiscError(f"{sun_path}: {exc}") from None
 
 
 def _write_png(path: str, flux: np.ndarray) -> None:
@@ -198,14 +249,14 @@ def run(args: argparse.Namespace) -> int:
     _check_args(args)
     sun_path = existing_file(args.sun, "sun image")
     sun = read_image(sun_path)
-    values, shapes, n_sat = _target_values(args)
+    crf = load_crf(existing_file(args.crf, "CRF file")) if args.crf else None
+    values, shapes, n_sat = _target_values(args, crf)
     _same_shape({**shapes, str(sun_path): sun})
-    try:
-        disc = find_sun_disc(sun, saturation_level=args.saturation_level,
-                             center_px=tuple(args.sun_center) if args.sun_center else None,
-                             radius_px=args.sun_radius)
-    except SunDiscError as exc:
-        raise SunDiscError(f"{sun_path}: {exc}") from None
+    disc = _sun_disc(args, sun_path, sun, crf)
+    receiver = args.receiver or f"{args.receiver_pair[0]}, {args.receiver_pair[1]}"
+    if n_sat and not args.allow_saturated:
+        raise InputError(f"{receiver}: {n_sat} receiver pixels saturated; the flux there would be only a "
+                         "lower bound (shorter exposure, a double-CCD pair, or --allow-saturated)")
     gamma = args.sun_angle_mrad * 1e-3
     if args.receiver_pair:
         exposure_ratio = 1.0 / args.sun_exposure
@@ -220,6 +271,7 @@ def run(args: argparse.Namespace) -> int:
         "mean_w_m2": float(flux.mean()),
         "sun_radius_px": disc.radius_px,
         "sun_center_px": [disc.center_px[0], disc.center_px[1]],
+        "saturated_px": n_sat,
     }
     if args.distance is not None:
         if args.tube_axes_px:
@@ -238,8 +290,8 @@ def run(args: argparse.Namespace) -> int:
     if args.png:
         _write_png(args.png, flux)
     if n_sat:
-        print(f"heliocal flux: warning: {n_sat} receiver pixels saturated; flux there is a lower bound",
-              file=sys.stderr)
+        print(f"heliocal flux: warning: {receiver}: {n_sat} receiver pixels saturated (allowed); the flux "
+              "there is a lower bound", file=sys.stderr)
     if args.json:
         print_json(result)
     else:

@@ -18,23 +18,16 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import yaml
-
 from controller.devices.camera import CameraError, DoubleCcdCamera, FramePair
 from controller.errors import HeliocalError, InputError
 from controller.io.images import read_image
+from controller.io.yaml_files import load_yaml
 
 
 class FileCamera(DoubleCcdCamera):
     def __init__(self, manifest: str | Path, *, loop: bool = False) -> None:
         self.manifest = Path(manifest)
-        try:
-            doc = yaml.safe_load(self.manifest.read_text(encoding="utf-8"))
-        except OSError as exc:
-            raise InputError(f"{self.manifest}: cannot read manifest: {exc.strerror or exc}") from None
-        except yaml.YAMLError as exc:
-            problem = getattr(exc, "problem", None) or exc
-            raise InputError(f"{self.manifest}: invalid YAML/JSON: {problem}") from None
+        doc = load_yaml(self.manifest, "manifest")  # bounded: size, UTF-8, nesting (JSON is YAML)
         pairs = doc.get("pairs") if isinstance(doc, dict) else None
         if not isinstance(pairs, list) or not pairs:
             raise InputError(f"{self.manifest}: pairs: required key is missing (a non-empty list)")

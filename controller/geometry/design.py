@@ -35,13 +35,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from controller.errors import LimitError
-from controller.geometry.kinematics import HeliostatKinematics
+from controller.geometry.kinematics import BODY_NORMAL, HeliostatKinematics
 from controller.geometry.tracking_model import (
     TrackingModel,
-    implied_normal,
+    bisector_normal,
     model_aim,
-    model_mirror_center,
     model_normal,
+    poses,
 )
 from controller.geometry.vectors import unit
 
@@ -76,8 +76,9 @@ def normal_jacobian(kin: HeliostatKinematics, model: TrackingModel, az_steps: fl
 
     def observed(v: np.ndarray) -> np.ndarray:
         m = TrackingModel(v)
-        return base @ (model_normal(kin, m, az_steps, el_steps)
-                       - implied_normal(kin, m, az_steps, el_steps, source_dir, spot, source_pos))
+        rot = poses(kin, m, [(az_steps, el_steps)])[0]
+        center = kin.position + m.position_offset() + rot @ kin.concentrator_translation
+        return base @ (rot @ BODY_NORMAL - bisector_normal(center, source_dir, spot, source_pos))
 
     return jacobian(observed, model.values, np.full(len(model.values), _STEP))
 
@@ -98,8 +99,10 @@ def beam_jacobians(kin: HeliostatKinematics, model: TrackingModel, source_dirs: 
 
         def beam(v: np.ndarray, s=s, az=az, el=el) -> np.ndarray:
             m = TrackingModel(v)
-            n = model_normal(kin, m, az, el)
-            return 2.0 * float(s @ n) * n - s - unit(aim_point - model_mirror_center(kin, m, az, el))
+            rot = poses(kin, m, [(az, el)])[0]
+            n = rot @ BODY_NORMAL
+            center = kin.position + m.position_offset() + rot @ kin.concentrator_translation
+            return 2.0 * float(s @ n) * n - s - unit(aim_point - center)
 
         out.append(jacobian(beam, model.values, np.full(len(model.values), _STEP)))
     return np.stack(out) if out else np.empty((0, 3, len(model.values)))

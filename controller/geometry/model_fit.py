@@ -45,18 +45,21 @@ import numpy as np
 
 from controller.errors import InputError
 from controller.geometry.aiming import angle_mrad
-from controller.geometry.design import beam_jacobians, jacobian, tangents
-from controller.geometry.kinematics import HeliostatKinematics
+from controller.geometry.design import beam_jacobians, tangents
+from controller.geometry.kinematics import BODY_NORMAL, HeliostatKinematics
 from controller.geometry.tracking_model import (
     NAMES,
     PRIOR_SIGMA_SI,
     TERMS,
     TrackingModel,
+    bisector_normal,
     implied_normal,
     model_normal,
+    poses,
 )
 
 HUBER_C = 3.0
+MAX_STEPS = 12
 IDENTIFIED_RATIO = 0.5
 MIN_DOF_FOR_NOISE = 10.0
 
@@ -120,6 +123,17 @@ def normal_residual_mrad(kin: HeliostatKinematics, model: TrackingModel, s: Samp
     return float(angle_mrad(model_normal(kin, model, s.az_steps, s.el_steps), measured_normal(kin, model, s)))
 
 
+def forward_jacobian(fun, x: np.ndarray, fx: np.ndarray, step: np.ndarray) -> np.ndarray:
+    """Forward-difference Jacobian of ``fun`` at ``x`` (``fx`` = fun(x)): half the calls of a
+    central one, enough for residuals that are nearly linear over ``step``."""
+    cols = []
+    for i in range(len(x)):
+        d = np.zeros_like(x)
+        d[i] = step[i]
+        cols.append((fun(x + d) - fx) / step[i])
+    return np.stack(cols, axis=-1)
+
+
 def fit_model(kin: HeliostatKinematics, samples: Sequence[Sample], *, noise_mrad: float = 0.3,
               prior: TrackingModel | None = None, prior_sigma: np.ndarray | None = None,
               robust: bool = True) -> ModelFit:
@@ -128,8 +142,6 @@ def fit_model(kin: HeliostatKinematics, samples: Sequence[Sample], *, noise_mrad
 
     Raises InputError when there are no samples, a sample is not finite, or the samples
     identify no term (they cannot support a fit)."""
-    from scipy.optimize import least_squares
-
     if not samples:
         raise InputError("model fit: no measurements")
     if not (np.isfinite(noise_mrad) and noise_mrad > 0):
@@ -147,26 +159,36 @@ def fit_model(kin: HeliostatKinematics, samples: Sequence[Sample], *, noise_mrad
     bases = [tangents(measured_normal(kin, TrackingModel(p0), s)) for s in samples]
     age_w = np.array([s.weight for s in samples])
 
+    steps = [(s.az_steps, s.el_steps) for s in samples]
+
     def data_res(x: np.ndarray) -> np.ndarray:
         m = TrackingModel(p0 + x * s0)
-        return np.concatenate([b @ (model_normal(kin, m, s.az_steps, s.el_steps) - measured_normal(kin, m, s))
-                               for s, b in zip(samples, bases, strict=True)]) / sig_n
+        base = kin.position + m.position_offset()
+        out = []
+        for s, b, rot in zip(samples, bases, poses(kin, m, steps), strict=True):
+            center = base + rot @ kin.concentrator_translation
+            implied = bisector_normal(center, s.source_dir, s.spot_enu, s.source_pos)
+            out.append(b @ (rot @ BODY_NORMAL - implied))
+        return np.concatenate(out) / sig_n
 
+    # Gauss-Newton on the prior-whitened terms x (p = p₀ + x σ₀) with iteratively reweighted
+    # (Huber) samples: the problem is nearly linear, so a few steps converge.
     weights = np.ones(len(samples))
     x = np.zeros(len(TERMS))
-    for _ in range(4 if robust else 1):
+    step = np.full(len(x), 1e-4)
+    for _ in range(MAX_STEPS):
         w = np.repeat(np.sqrt(weights * age_w), 2)
-        sol = least_squares(lambda z, w=w: np.concatenate([w * data_res(z), z]), x, method="lm",
-                            xtol=1e-12, ftol=1e-12, gtol=1e-12)
-        x = sol.x
-        r = data_res(x).reshape(-1, 2)
-        norms = np.sqrt(age_w) * np.linalg.norm(r, axis=1)
+        r = data_res(x)
+        jd = w[:, None] * forward_jacobian(data_res, x, r, step)
+        dx = -np.linalg.solve(jd.T @ jd + np.eye(len(x)), jd.T @ (w * r) + x)
+        x = x + dx
+        norms = np.sqrt(age_w) * np.linalg.norm(data_res(x).reshape(-1, 2), axis=1)
         new = np.minimum(1.0, HUBER_C / np.maximum(norms, 1e-12)) if robust else weights
-        if np.allclose(new, weights, atol=1e-3):
+        if np.max(np.abs(dx)) < 1e-6 and np.allclose(new, weights, atol=1e-3):
             break
         weights = new
     w = np.repeat(np.sqrt(weights * age_w), 2)
-    jd = w[:, None] * jacobian(data_res, x, np.full(len(x), 1e-4))
+    jd = w[:, None] * forward_jacobian(data_res, x, data_res(x), step)
     post_x = np.linalg.inv(jd.T @ jd + np.eye(len(x)))  # covariance of x (prior-whitened)
     ratio2 = np.clip(np.diag(post_x), 0.0, 1.0)
     p_eff = float(np.sum(1.0 - ratio2))

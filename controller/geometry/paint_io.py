@@ -30,6 +30,7 @@ from controller.geometry.frames import paint_azimuth_to_north, wgs84_to_enu
 from controller.geometry.kinematics import HeliostatKinematics
 from controller.geometry.model_fit import Sample
 from controller.geometry.vectors import azel_to_vector
+from controller.io.json_files import parse_json
 from controller.io.yaml_files import read_text
 
 FOCAL_SPOT_METHODS = ("UTIS", "HeliOS")
@@ -37,13 +38,7 @@ FOCAL_SPOT_METHODS = ("UTIS", "HeliOS")
 
 def _load_json(path: str | Path, what: str):
     """A JSON object from ``path`` through the bounded text reader; InputError naming the file."""
-    import json
-
-    text = read_text(path, what)
-    try:
-        data = json.loads(text)
-    except (ValueError, RecursionError) as exc:
-        raise InputError(f"{path}: not valid {what} JSON ({str(exc)[:80] or 'nested too deeply'})") from None
+    data = parse_json(read_text(path, what), str(path))  # depth bounded before parsing
     if not isinstance(data, dict):
         raise InputError(f"{path}: expected a JSON object in the {what}")
     return data

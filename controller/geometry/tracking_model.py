@@ -158,20 +158,25 @@ def actuated(kin: HeliostatKinematics, model: TrackingModel) -> HeliostatKinemat
     return replace(kin, azimuth=az, elevation=el)
 
 
+def poses(kin: HeliostatKinematics, model: TrackingModel, steps) -> list[np.ndarray]:
+    """The actual body-to-ENU rotation R* (Eq. 1) at each (az_steps, el_steps) of ``steps``:
+    the model's actuators and rigid terms evaluated once for all of them."""
+    ak, rigid = actuated(kin, model), model.rigid()
+    return [error_rotation(rigid, *ak.angles(az, el)) for az, el in steps]
+
+
 def model_normal(kin: HeliostatKinematics, model: TrackingModel, az_steps: float,
                  el_steps: float) -> np.ndarray:
     """Actual unit ENU mirror normal at the given motor steps (module equations)."""
-    alpha, eps = actuated(kin, model).angles(az_steps, el_steps)
-    return error_rotation(model.rigid(), alpha, eps) @ BODY_NORMAL
+    return poses(kin, model, [(az_steps, el_steps)])[0] @ BODY_NORMAL
 
 
 def model_mirror_center(kin: HeliostatKinematics, model: TrackingModel, az_steps: float,
                         el_steps: float) -> np.ndarray:
     """Centre of the reflecting surface, m ENU: surveyed pivot + Δx + R* c (Eq. 4; c the
     concentrator translation)."""
-    alpha, eps = actuated(kin, model).angles(az_steps, el_steps)
-    return (kin.position + model.position_offset()
-            + error_rotation(model.rigid(), alpha, eps) @ kin.concentrator_translation)
+    rot = poses(kin, model, [(az_steps, el_steps)])[0]
+    return kin.position + model.position_offset() + rot @ kin.concentrator_translation
 
 
 def implied_normal(kin: HeliostatKinematics, model: TrackingModel, az_steps: float, el_steps: float,
@@ -179,7 +184,12 @@ def implied_normal(kin: HeliostatKinematics, model: TrackingModel, az_steps: flo
     """The normal a beam spot implies: bisector of the source direction and the direction from
     the model's mirror centre to ``spot`` (m ENU). For a lamp at ``source_pos`` (m ENU) the
     source direction is taken from that centre; otherwise ``source_dir`` (unit ENU, the sun)."""
-    center = model_mirror_center(kin, model, az_steps, el_steps)
+    return bisector_normal(model_mirror_center(kin, model, az_steps, el_steps), source_dir, spot, source_pos)
+
+
+def bisector_normal(center: np.ndarray, source_dir, spot, source_pos=None) -> np.ndarray:
+    """Bisector of the source direction (``source_dir``, or from ``center`` towards the lamp at
+    ``source_pos``) and the direction from ``center`` to ``spot`` (all m ENU)."""
     src = source_dir if source_pos is None else unit(np.asarray(source_pos, float) - center)
     return aim_normal(src, center, spot)
 

@@ -58,6 +58,8 @@ def read_sphere_csv(path: str | Path) -> dict[str, tuple[np.ndarray, np.ndarray]
         raise InputError(f"{p}: cannot read CSV: {exc.strerror or exc}") from None
     except UnicodeDecodeError:
         raise InputError(f"{p}: not a UTF-8 text CSV file") from None
+    except csv.Error as exc:  # a NUL byte, a field over the csv module's limit
+        raise InputError(f"{p}: malformed CSV ({exc})") from None
     if len(data) != 2:
         raise InputError(f"{p}: column sensor must name exactly 2 sensors, got {len(data)}")
     return {k: (np.array(v[0]), np.array(v[1])) for k, v in data.items()}

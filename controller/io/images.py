@@ -1,12 +1,15 @@
 """Reading and writing images at the edges of the pipeline.
 
 Supported inputs: 8- or 16-bit grey PNG/TIFF (colour converted to grey), 32-bit float TIFF,
-and ``.npy`` arrays (2-D, any real dtype). Arrays are (rows, cols): x = column, y = row.
+and ``.npy`` arrays (2-D, integer or float; never pickles), recognised by their first bytes and
+bounded by :mod:`controller.io.image_headers` before decoding. Arrays are (rows, cols):
+x = column, y = row.
 Every failure raises :class:`controller.errors.InputError` naming the file.
 """
 
 from __future__ import annotations
 
+import io
 import os
 import tempfile
 from pathlib import Path
@@ -15,16 +18,21 @@ import cv2
 import numpy as np
 
 from controller.errors import InputError
+from controller.io.image_headers import MAX_FILE_BYTES, check_header, image_header
 
 
 def read_image(path: str | Path) -> np.ndarray:
-    """Read a 2-D grey image. Integer files keep their dtype; float data come back float32/64."""
+    """Read a 2-D grey image. Integer files keep their dtype; float data come back float32/64.
+
+    The file's size and header (:mod:`controller.io.image_headers`) are checked before anything
+    is decoded, so a hostile file costs at most its size plus the stated decoded limit."""
     p = Path(path)
-    if not p.is_file():
-        raise InputError(f"{p}: image file not found")
-    if p.suffix.lower() == ".npy":
+    data = _read_bytes(p)
+    header = image_header(data, str(p))
+    check_header(header, str(p))
+    if header.format == "npy":
         try:
-            img = np.load(p, allow_pickle=False)
+            img = np.load(io.BytesIO(data), allow_pickle=False)
         except (ValueError, OSError, EOFError) as exc:
             raise InputError(f"{p}: not a readable .npy array ({exc})") from None
     else:
@@ -32,7 +40,9 @@ def read_image(path: str | Path) -> np.ndarray:
         level = cv2.utils.logging.getLogLevel()
         cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
         try:
-            img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+            img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+        except cv2.error:
+            img = None
         finally:
             cv2.utils.logging.setLogLevel(level)
         if img is None:
@@ -53,6 +63,19 @@ def read_image(path: str | Path) -> np.ndarray:
     if np.issubdtype(img.dtype, np.floating) and not np.all(np.isfinite(img)):
         raise InputError(f"{p}: image contains NaN or infinite values")
     return img
+
+
+def _read_bytes(p: Path) -> bytes:
+    """The file's bytes, refusing a missing file or one over :data:`MAX_FILE_BYTES`."""
+    try:
+        if not p.is_file():
+            raise InputError(f"{p}: image file not found")
+        size = p.stat().st_size
+        if size > MAX_FILE_BYTES:
+            raise InputError(f"{p}: {size} bytes is too large for an image file (limit {MAX_FILE_BYTES})")
+        return p.read_bytes()
+    except OSError as exc:
+        raise InputError(f"{p}: cannot read image: {exc.strerror or exc}") from None
 
 
 def write_atomic(path: str | Path, writer) -> None:

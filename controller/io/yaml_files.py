@@ -52,7 +52,8 @@ def parse_yaml(text: str, source: str, max_depth: int = MAX_DEPTH) -> Any:
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark else ""
-        problem = getattr(exc, "problem", None) or str(exc)
+        problem = (getattr(exc, "problem", None) or str(exc)).splitlines()[0]  # one line, even for a
+        # ReaderError (a control character), whose text goes on to a second line
         raise InputError(f"{source}: {where}invalid YAML: {problem}") from None
 
 

@@ -30,8 +30,10 @@ from pathlib import Path
 import numpy as np
 
 from controller.calibration.records import CampaignRecord, RunRecord
-from controller.io.images import save_figure, write_atomic
+from controller.errors import InputError
+from controller.io.images import read_image, save_figure, write_atomic
 from controller.reports.confusion_plot import plot_confusion
+from controller.reports.model_section import model_section
 from controller.reports.summary import ReferenceTruth, summarize
 from controller.storage.db import CampaignStore
 
@@ -236,6 +238,10 @@ def write_report(store: CampaignStore, out_dir: str | Path, campaign_id: int | N
             lines.append(f"| {lab} | " + " | ".join(str(v) for v in row) + f" | {c['unknown'][lab]} |")
         lines += ["", f"Recognition rate {c['recognition_rate']:.1f} % of {c['n']} heliostats "
                       "(first measurement; unknown counts as a miss).", "", f"![confusion]({png})"]
+    model_lines, model_figs = model_section(store, camp, out) if runs else ([], [])
+    lines += model_lines
+    for title, png in model_figs:
+        lines += ["", f"### {title}", "", f"![{title}]({png})"]
     thumbs = _thumbnails(store, camp, runs, out)
     if thumbs:
         lines += ["", "## Beam before / after (first and last measurement, HIGH sensor)", ""]
@@ -243,7 +249,7 @@ def write_report(store: CampaignStore, out_dir: str | Path, campaign_id: int | N
                   for hid, pics in thumbs.items()]
     md = "\n".join(lines) + "\n"
     write_atomic(out / "report.md", lambda t: t.write_text(md, encoding="utf-8"))
-    page = _html(camp, lines, cols, rows, figs, conf, thumbs)
+    page = _html(camp, lines, cols, rows, figs + model_figs, conf, thumbs, _table_html(model_lines))
     write_atomic(out / "report.html", lambda t: t.write_text(page, encoding="utf-8"))
     write_atomic(out / "heliostats.csv", lambda t: _write_csv(t, cols, rows))
     return out / "report.md"
@@ -277,7 +283,10 @@ def _thumbnails(store: CampaignStore, camp: CampaignRecord, runs: list[RunRecord
         ms = by_run.get(r.id, [])
         for label, m in (("first", ms[0]), ("last", ms[-1])) if ms else ():
             high = next((im for im in store.images(m.id) if im.kind == "high"), None)
-            img = cv2.imread(high.path, cv2.IMREAD_UNCHANGED) if high is not None else None
+            try:  # the bounded reader: a stored path may since hold anything
+                img = read_image(high.path) if high is not None else None
+            except InputError:
+                img = None
             if img is None:
                 continue
             scale = min(1.0, THUMB_PX / img.shape[1])
@@ -302,7 +311,20 @@ def _inline(text: str) -> str:
     return re.sub(r"`(.+?)`", r"<code>\1</code>", t)
 
 
-def _html(camp, lines, cols, rows, figs, conf, thumbs) -> str:
+def _table_html(lines: list[str]) -> str:
+    """The Markdown table among ``lines`` (header, rule, rows) as an HTML table."""
+    cells = [[c.strip() for c in line.strip().strip("|").split("|")]
+             for line in lines if line.startswith("|")]
+    if len(cells) < 2:
+        return ""
+    head, body = cells[0], cells[2:]
+    return ("<h2>Tracking model and daytime pointing</h2><table><tr>"
+            + "".join(f"<th>{_inline(c)}</th>" for c in head) + "</tr>"
+            + "".join("<tr>" + "".join(f"<td>{_inline(c)}</td>" for c in row) + "</tr>" for row in body)
+            + "</table>")
+
+
+def _html(camp, lines, cols, rows, figs, conf, thumbs, model_table: str = "") -> str:
     e = html.escape
     bullets = "".join(f"<li>{_inline(line[2:])}</li>" for line in lines
                       if line.startswith("- ") and "![" not in line)
@@ -331,4 +353,4 @@ def _html(camp, lines, cols, rows, figs, conf, thumbs) -> str:
     return (f"<!doctype html><html><head><meta charset='utf-8'>"
             f"<title>Morning report {e(camp.name)}</title>"
             f"<style>{style}</style></head><body><h1>Morning report: campaign {e(camp.name)}</h1>"
-            f"<ul>{bullets}</ul><h2>Heliostats</h2>{table}{imgs}{conf_html}</body></html>\n")
+            f"<ul>{bullets}</ul><h2>Heliostats</h2>{table}{model_table}{imgs}{conf_html}</body></html>\n")

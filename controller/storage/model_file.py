@@ -21,6 +21,7 @@ from controller.geometry.model_fit import ModelFit
 from controller.geometry.paint_io import check_heliostat_properties, kinematics_from_properties
 from controller.geometry.tracking_model import TERMS, TrackingModel
 from controller.io.images import write_atomic
+from controller.io.json_files import parse_json
 from controller.io.yaml_files import read_text
 
 FORMAT = "heliocal-tracking-model/1"
@@ -74,10 +75,7 @@ def write_model(path: str | Path, document: dict) -> None:
 def read_model(path: str | Path) -> ModelFile:
     """Load and check a MODEL.json; InputError naming the file and key on any problem."""
     src = str(path)
-    try:
-        data = json.loads(read_text(path, "model file"))
-    except (ValueError, RecursionError) as exc:
-        raise InputError(f"{src}: not a valid model file ({str(exc)[:80] or 'nested too deeply'})") from None
+    data = parse_json(read_text(path, "model file"), src)  # depth bounded before parsing
     if not isinstance(data, dict) or data.get("format") != FORMAT:
         raise InputError(f"{src}: not a heliocal model file (expected \"format\": \"{FORMAT}\")")
     try:

@@ -10,7 +10,7 @@ import pytest
 from controller.cli import main
 
 DNI, RHO, T_SUN, T_EXP = 900.0, 0.85, 0.01, 1e-3
-CONTRACT = {"peak_w_m2", "mean_w_m2", "sun_radius_px", "sun_center_px", "hotspots"}
+CONTRACT = {"peak_w_m2", "mean_w_m2", "sun_radius_px", "sun_center_px", "hotspots", "saturated_px"}
 
 
 def _run(capsys, argv):
