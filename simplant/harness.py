@@ -238,6 +238,10 @@ def _planned_night(cfg: PlantConfig, store: CampaignStore, plant: SimulatedPlant
         plan = plan_night(cfg, {hid: store.latest_model(hid) for hid in ids}, night, strategy=strategy,
                           night_index=k)
         record_plan(store, plan)
+    if progress is not None:
+        before = max((i.predicted_before_mrad for i in plan if i.rank == 1), default=float("nan"))
+        progress(f"{night}: {len(plan)} geometries planned for {len({i.heliostat_id for i in plan})} heliostats "
+                 f"(worst predicted daytime RMS {before:.2f} mrad)")
 
     def run_pass(p: Pass) -> CampaignResult:
         if progress is not None:
@@ -249,5 +253,9 @@ def _planned_night(cfg: PlantConfig, store: CampaignStore, plant: SimulatedPlant
     results = run_night(plan, night, run_pass)
     models = {hid: store.latest_model(hid) for hid in ids}
     measured = sum(1 for r in results for run in r.runs if run.status == "measured")
-    return NightReport(k + 1, night, len(plan), measured, daytime_error(plant, cfg, models, path),
-                       predicted_daytime(cfg, models, path))
+    report = NightReport(k + 1, night, len(plan), measured, daytime_error(plant, cfg, models, path),
+                         predicted_daytime(cfg, models, path))
+    if progress is not None:
+        progress(f"{night}: {measured}/{len(plan)} geometries measured; field daytime error now "
+                 f"{report.predicted.rms:.2f} mrad RMS predicted, {report.daytime.rms:.2f} true (plant truth)")
+    return report

@@ -6,13 +6,13 @@ Conventions: ENU metres (x east, y north), motor steps, errors and σ in mrad.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 
 from controller.console.backend import Console
 from controller.errors import InputError
+from controller.io.json_files import load_json
 
 MIN_IMAGE_WIDTH = 640  # small camera images are scaled up (nearest) so the marks stay readable
 
@@ -175,10 +175,10 @@ def confusion_reports(c: Console) -> list[dict]:
     out = []
     for rep in sorted(base.glob("**/report.json")):
         try:
-            data = json.loads(rep.read_text(encoding="utf-8"))
-        except (OSError, ValueError):
-            continue
-        if "matrix" not in data or "labels" not in data:
+            data = load_json(rep, "confusion report")
+        except InputError:
+            continue  # not a readable report: the page lists the others
+        if not isinstance(data, dict) or "matrix" not in data or "labels" not in data:
             continue
         rel = rep.parent.relative_to(base).as_posix()
         out.append({"name": rel or ".", "labels": data["labels"], "matrix": data["matrix"],
