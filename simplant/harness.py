@@ -240,7 +240,8 @@ def _planned_night(cfg: PlantConfig, store: CampaignStore, plant: SimulatedPlant
         record_plan(store, plan)
     if progress is not None:
         before = max((i.predicted_before_mrad for i in plan if i.rank == 1), default=float("nan"))
-        progress(f"{night}: {len(plan)} geometries planned for {len({i.heliostat_id for i in plan})} heliostats "
+        helios = len({i.heliostat_id for i in plan})
+        progress(f"{night}: {len(plan)} geometries planned for {helios} heliostats "
                  f"(worst predicted daytime RMS {before:.2f} mrad)")
 
     def run_pass(p: Pass) -> CampaignResult:
@@ -257,5 +258,6 @@ def _planned_night(cfg: PlantConfig, store: CampaignStore, plant: SimulatedPlant
                          predicted_daytime(cfg, models, path))
     if progress is not None:
         progress(f"{night}: {measured}/{len(plan)} geometries measured; field daytime error now "
-                 f"{report.predicted.rms:.2f} mrad RMS predicted, {report.daytime.rms:.2f} true (plant truth)")
+                 f"{report.predicted.rms:.2f} mrad RMS predicted, {report.daytime.rms:.2f} true "
+                 "(plant truth)")
     return report
