@@ -1,5 +1,6 @@
-# Every target creates .venv on first use and installs the project (editable, with its test
-# extra). The stamp file makes re-runs quiet and fast; it is rebuilt when pyproject.toml changes.
+# Every target installs the Debian packages it uses (.ci/system-packages, as root), creates
+# .venv on first use and installs the project (editable, with its test and gige extras). The
+# stamp file makes re-runs quiet and fast; it is rebuilt when pyproject.toml changes.
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
@@ -7,10 +8,15 @@ STAMP := $(VENV)/.installed
 
 .PHONY: demo test bench lint clean
 
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml .ci/system-packages
+	@bash .ci/system-packages
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	@$(BIN)/python -m pip install -q --disable-pip-version-check --upgrade pip
 	@$(BIN)/python -m pip install -q --disable-pip-version-check -e '.[test]'
+	@# PyGObject (GigE Vision) is built from source: without the Debian build packages it
+	@# fails, and only the GigE tests skip (they say why).
+	@$(BIN)/python -m pip install -q --disable-pip-version-check -e '.[gige]' \
+		|| echo "make: PyGObject could not be built; the GigE Vision tests will skip and say why"
 	@touch $(STAMP)
 
 demo: $(STAMP)

@@ -23,6 +23,7 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from controller.camera_config import Camera, Gige, Sensor  # noqa: F401 - the camera section
 from controller.errors import ConfigError, InputError
 from controller.io.yaml_files import parse_yaml, read_text
 
@@ -188,32 +189,6 @@ class Heliostat(_Model):
     mirror: Mirror
     axes: Axes
     link: Link
-
-
-class Sensor(_Model):
-    name: str
-    exposure_s: float = Field(gt=0, le=10)
-    gain: float = Field(default=1.0, gt=0, le=10, description="relative gain (mismatch)")
-
-
-class Camera(_Model):
-    """The double-CCD prism camera. ``sensors[0]`` is the shorter exposure (LOW)."""
-
-    sensors: tuple[Sensor, Sensor]
-    width_px: int = Field(default=1024, gt=0, le=16384)
-    height_px: int = Field(default=768, gt=0, le=16384)
-    bit_depth: int = Field(default=8, ge=8, le=16)
-    crf_file: str | None = None
-    dark_offset_counts: float = Field(default=8.0, ge=0, le=255)
-    read_noise_counts: float = Field(default=0.8, ge=0, le=50)
-    full_well_electrons: float = Field(default=20000.0, gt=0)
-    position_enu_m: Vec3 | None = Field(default=None, description="camera position, m ENU")
-
-    @model_validator(mode="after")
-    def _low_first(self) -> Camera:
-        if self.sensors[0].exposure_s > self.sensors[1].exposure_s:
-            raise ValueError("sensors[0] must have the shorter exposure (LOW), sensors[1] the longer")
-        return self
 
 
 class ModelSettings(_Model):

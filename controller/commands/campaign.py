@@ -6,7 +6,8 @@ the database: heliostats already recorded are skipped, the others are calibrated
 campaign name defaults to ``<config stem>-<night>`` (the UTC date 12 h ago), so one night's
 reruns resume and the next night starts a new campaign; ``--name`` overrides it.
 
-The camera: ``--camera-manifest M`` replays recorded frame pairs (FileCamera); ``--simulate``
+The camera: ``--camera-manifest M`` replays recorded frame pairs (FileCamera), else the
+configuration's ``camera.driver`` (gige: GigE Vision imagers, docs/camera.md); ``--simulate``
 runs the campaign against the embedded simulated plant (firmware on ptys / Modbus TCP and the
 simulated camera, as ``heliocal demo`` does), with the database where ``--db`` says.
 """
@@ -169,30 +170,31 @@ def _run(args, cfg, ids, name, quiet, db):
         summary, sim = simulated_campaign(cfg, args.config, db.parent / f"{db.stem}-sim", db, ids,
                                           SimulationSettings(seed=args.seed), name, quiet=quiet)
         return summary, sim.result
-    if not args.camera_manifest:
+    if not args.camera_manifest and cfg.camera.driver is None:
         raise InputError(
-            "campaign run: no camera; pass --camera-manifest FILE (recorded pairs) "
-            "or --simulate (embedded simulated plant)"
+            "campaign run: no camera; pass --camera-manifest FILE (recorded pairs), set camera.driver "
+            "in the configuration (docs/camera.md) or pass --simulate (embedded simulated plant)"
         )
     return _run_field(cfg, args, ids, name, quiet)
 
 
 def _run_field(cfg, args, ids, name, quiet):
+    from contextlib import closing
+
     from controller.calibration.runner import Campaign, CampaignOptions
     from controller.commands._progress import TerminalProgress
     from controller.config import config_sha256
-    from controller.devices.factory import LinkPool
-    from controller.devices.file_camera import FileCamera
+    from controller.devices.factory import LinkPool, open_camera
     from controller.recognition.library_io import load_library
     from controller.reports.summary import summarize
     from controller.storage.db import CampaignStore
     from controller.storage.images import ImageArchive
 
-    camera = FileCamera(args.camera_manifest)
+    camera = open_camera(cfg.camera, args.camera_manifest)
     lib = load_library(cfg.calibration.library) if cfg.calibration.library else None
     cal = cfg.calibration
     opts = CampaignOptions(name=name, pipeline_depth=cal.pipeline_depth, settle_s=cal.settle_s)
-    with CampaignStore(args.db) as store, LinkPool() as pool:
+    with CampaignStore(args.db) as store, LinkPool() as pool, closing(camera):
         store.campaign_lock.acquire()
         result = Campaign(
             cfg, args.config, store, pool, camera, config_sha256=config_sha256(args.config),

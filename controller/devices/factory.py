@@ -3,12 +3,31 @@
 Several heliostat controllers share one RS-485 bus (serial) or one Modbus TCP gateway, so
 a :class:`LinkPool` opens each bus or connection once and hands out one :class:`Drive` per
 bus address / unit id. The caller never needs to know which link a heliostat has.
+:func:`open_camera` opens the field camera the same way: from the configuration.
 """
 
 from __future__ import annotations
 
-from controller.config import Link, ModbusRtuLink, ModbusTcpLink, SerialLink
+from controller.config import Camera, Link, ModbusRtuLink, ModbusTcpLink, SerialLink
+from controller.devices.camera import DoubleCcdCamera
 from controller.devices.drive import Drive, DriveLimits
+
+
+def open_camera(cfg: Camera, manifest: str | None = None) -> DoubleCcdCamera:
+    """The field camera: recorded pairs from ``manifest`` when given, else the driver the
+    configuration names (``camera.driver: gige``, docs/camera.md). InputError when neither."""
+    if manifest is not None:
+        from controller.devices.file_camera import FileCamera
+
+        return FileCamera(manifest)
+    if cfg.driver == "gige":
+        from controller.devices.gige import GigeCamera
+
+        return GigeCamera(cfg)
+    from controller.errors import InputError
+
+    raise InputError("no camera: the configuration sets no camera.driver (e.g. gige, docs/camera.md) "
+                     "and no recorded pairs were given")
 
 
 class LinkPool:
