@@ -49,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--noise-mrad must be a positive number of mrad, got {args.noise_mrad}")
     towers = read_towers(args.towers)
     props = read_heliostat_properties(args.heliostat_properties)
-    hid = Path(args.heliostat_properties).name.split("-")[0]
+    hid = Path(args.heliostat_properties).stem.split("-")[0]  # PAINT: "<id>-heliostat-properties.json"
     kin = kinematics_from_properties(props, towers.origin_wgs84, hid)
     records = [read_record(r, towers) for r in args.records]
     fit = fit_model(kin, [r.sample for r in records], noise_mrad=args.noise_mrad)
