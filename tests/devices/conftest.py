@@ -115,3 +115,10 @@ def make_camera_config(low: str, high: str = "Fake_1", *, bit_depth: int = 16, w
         "width_px": width, "height_px": height, "bit_depth": bit_depth, "driver": "gige",
         "gige": {"low": low, "high": high, "timeout_ms": int(scaled_s(2.0) * 1000), **gige},
     })
+
+
+# The fake devices serve a software trigger at the next tick of a 25 Hz grid, the GigE one a
+# tick later now and then (its first frame after start too): two triggered fakes can be a
+# 40 ms slot apart, and a loaded machine adds its scheduling delays (the test time factor
+# scales this bound). Real imagers sharing a trigger are within the default 1 ms.
+FAKE_SKEW_MS = 1000.0 * scaled_s(0.25)

@@ -12,11 +12,7 @@ from controller.devices.camera import CameraError
 from controller.devices.gige import GigeCamera
 from controller.devices.gige_device import GigeImager, ImagerSettings, discovered_devices
 from tests.conftest import scaled_s
-
-# The fake devices serve a software trigger at the next tick of a 25 Hz grid, the GigE one a
-# tick later now and then (its first frame after start too): two triggered fakes can be a
-# 40 ms slot apart. Real imagers sharing a trigger are within the default 1 ms.
-FAKE_SKEW_MS = 100
+from tests.devices.conftest import FAKE_SKEW_MS
 
 
 def _settings(**kw) -> ImagerSettings:

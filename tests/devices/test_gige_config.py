@@ -16,6 +16,7 @@ from controller.config import load_config
 from controller.devices.factory import open_camera
 from controller.devices.gige import GigeCamera
 from controller.errors import ConfigError, InputError
+from tests.devices.conftest import FAKE_SKEW_MS
 
 
 def _plant(tmp_path: Path, camera: dict) -> Path:
@@ -69,7 +70,7 @@ def test_factory_without_a_camera_says_what_to_set(tmp_path):
 
 
 def test_factory_and_capture_command_use_the_gige_camera(fake_gv, tmp_path, capsys):
-    path = _plant(tmp_path, {**_gige(fake_gv.device_id, max_skew_ms=100), "bit_depth": 16,
+    path = _plant(tmp_path, {**_gige(fake_gv.device_id, max_skew_ms=FAKE_SKEW_MS), "bit_depth": 16,
                              "width_px": 64, "height_px": 48})
     camera = open_camera(load_config(path).camera)
     try:
