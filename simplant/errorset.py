@@ -32,12 +32,18 @@ into a float HDR image. Library views use the nominal framing; test views are pe
 deterministically from the seed by translation (grid centre ±0.3 m), scaling (pixel pitch
 x 0.8-1.25), rotation (grid axes turned about the target normal by 0-360°), exposure change
 (x 0.6-1.5) and fresh sensor and ray-sampling noise.
+
+Those nuisances are what Hu moments ignore by construction. To measure generalisation the set
+can span what they do not ignore: several heliostats and light sources (:func:`scene_from_config`
+per heliostat/source) and error sizes (:meth:`ErrorCase.scaled`: the same mechanism at m times
+its size), for the library and, held out, for the test views (:func:`write_errorset`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, fields, replace
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -70,6 +76,27 @@ class ErrorCase:
     deformation: Deformation | None = None
     rock_az_rad: float = 0.0
     focus_factor: float = 1.0
+    magnitude: float = 1.0
+
+    def scaled(self, m: float) -> ErrorCase:
+        """The same mechanism at ``m`` times this size: every tracking-error parameter, the
+        slope field, the dead band and the curvature excess (``focus_factor - 1``) times ``m``."""
+        if not m > 0:
+            raise ValueError(f"magnitude must be positive, got {m}")
+        params = TrackingErrorParams(**{f.name: m * getattr(self.params, f.name)
+                                        for f in fields(self.params)})
+        deformation = None if self.deformation is None else partial(_scaled_slopes, self.deformation, m)
+        return replace(self, params=params, deformation=deformation, rock_az_rad=m * self.rock_az_rad,
+                       focus_factor=1.0 + m * (self.focus_factor - 1.0), magnitude=m * self.magnitude)
+
+    def error_params(self) -> dict[str, float]:
+        """What a library entry records about this state: magnitude and pointing parameters (mrad)."""
+        return {"magnitude": self.magnitude} | {k: v for k, v in self.params.to_dict().items() if v != 0.0}
+
+
+def _scaled_slopes(deformation: Deformation, m: float, x: np.ndarray, y: np.ndarray):
+    sx, sy = deformation(x, y)
+    return m * sx, m * sy
 
 
 def _twist(x, y):
@@ -115,13 +142,21 @@ class Scene:
     sensor: SensorModel
     exposures: tuple[float, float]
     camera: Camera  # the configured camera the sensor model and the HDR merge follow
+    heliostat: str = ""
+    source: str = ""  # light source id of the config
+
+    @property
+    def slant_m(self) -> float:
+        """Distance heliostat -> aim point (m)."""
+        return float(np.linalg.norm(self.aim_point - self.kin.position))
 
 
-def scene_from_config(cfg: PlantConfig, heliostat_id: str = "H09") -> Scene:
-    """Heliostat ``heliostat_id`` aimed at the calibration target's centre under the lamp."""
+def scene_from_config(cfg: PlantConfig, heliostat_id: str = "H09", source_id: str | None = None) -> Scene:
+    """Heliostat ``heliostat_id`` aimed at the calibration target's centre under the light
+    source ``source_id`` (default: the calibration's, the lamp in the demo)."""
     h = cfg.heliostat(heliostat_id)
     target = cfg.target(cfg.calibration.target)
-    src = cfg.light_source(cfg.calibration.light_source)
+    src = cfg.light_source(source_id or cfg.calibration.light_source)
     pos = np.asarray(h.position_enu_m, dtype=float)
     if getattr(src, "kind", "") == "lamp":
         source_pos = np.asarray(src.position_enu_m, dtype=float)
@@ -135,7 +170,8 @@ def scene_from_config(cfg: PlantConfig, heliostat_id: str = "H09") -> Scene:
                          read_noise=cam.read_noise_counts, full_well=cam.full_well_electrons)
     return Scene(HeliostatKinematics.from_config(h), MirrorSurface.from_config(h.mirror), source_pos,
                  diameter, np.asarray(target.center_enu_m, dtype=float), grid.normal, grid.u_axis,
-                 grid.v_axis, sensor, (cam.sensors[0].exposure_s, cam.sensors[1].exposure_s), cam)
+                 grid.v_axis, sensor, (cam.sensors[0].exposure_s, cam.sensors[1].exposure_s), cam,
+                 heliostat=h.id, source=src.id)
 
 
 @dataclass(frozen=True)
@@ -149,9 +185,10 @@ class View:
     seed: int = 0
 
 
-def perturbed_views(seed: int, label_index: int, n: int) -> list[View]:
-    """Deterministic test views for one case: translation, scaling, rotation, exposure, noise."""
-    rng = np.random.default_rng([seed, 1000 + label_index])
+def perturbed_views(seed: int, label_index: int, n: int, stream: int = 0) -> list[View]:
+    """Deterministic test views for one case: translation, scaling, rotation, exposure, noise.
+    ``stream`` > 0 draws an independent sequence (another heliostat of the same error set)."""
+    rng = np.random.default_rng([seed, 1000 + label_index] + ([stream] if stream else []))
     return [View(shift_m=(float(rng.uniform(-0.3, 0.3)), float(rng.uniform(-0.3, 0.3))),
                  scale=float(np.exp(rng.uniform(np.log(0.8), np.log(1.25)))),
                  rotation_rad=float(rng.uniform(0.0, 2 * np.pi)),
@@ -224,6 +261,9 @@ def expose_and_merge(scene: Scene, irradiance: np.ndarray, view: View, reference
     return merger.merge(low, high)
 
 
+MANIFEST_EXTRA = ("heliostat", "source", "slant_m", "magnitude")
+
+
 @dataclass(frozen=True)
 class ErrorSet:
     library_manifest: Path
@@ -232,36 +272,72 @@ class ErrorSet:
     images: int
 
 
-def write_errorset(out: str | Path, scene: Scene, seed: int = 0, cases: int = 6, views: int = 14,
-                   progress: Callable[[int, int], None] | None = None) -> ErrorSet:
-    """Render the library (one nominal view per case) and test views; write both manifests.
+def write_errorset(out: str | Path, scene: Scene | Sequence[Scene], seed: int = 0, cases: int = 6,
+                   views: int = 14, progress: Callable[[int, int], None] | None = None, *,
+                   magnitudes: Sequence[float] = (1.0,), test_scenes: Sequence[Scene] | None = None,
+                   test_magnitude_range: tuple[float, float] | None = None) -> ErrorSet:
+    """Render the library and the test views; write both manifests.
 
-    Files: ``OUT/library.csv``, ``OUT/test.csv`` (``image,label,az_deg,el_deg``, az/el = the
-    case's beam pointing error in degrees) and ``OUT/images/*.npy`` (float32 HDR), each with a PNG
-    preview beside it.
+    Library: one nominal view per (case, scene, magnitude) for the scenes ``scene`` (one or
+    several heliostat/source geometries) and ``magnitudes`` (multiples of the case's size).
+    Test: ``views`` perturbed views per (case, test scene) for ``test_scenes`` (default: the
+    library's); each view's magnitude is drawn uniformly from ``test_magnitude_range`` or, without
+    it, taken in turn from ``magnitudes``.
+
+    Files: ``OUT/library.csv``, ``OUT/test.csv`` (``image,label,az_deg,el_deg`` with az/el = the
+    state's beam pointing error in degrees, then ``heliostat,source,slant_m,magnitude``) and
+    ``OUT/images/*.npy`` (float32 HDR), each with a PNG preview beside it.
     """
     if not 1 <= cases <= len(CASES):
         raise ValueError(f"cases must be in 1..{len(CASES)}")
+    if not magnitudes or min(magnitudes) <= 0:
+        raise ValueError("magnitudes must be positive")
     out = Path(out)
+    lib_scenes = [scene] if isinstance(scene, Scene) else list(scene)
+    test_scenes = lib_scenes if test_scenes is None else list(test_scenes)
     chosen = CASES[:cases]
-    merger = HdrMerger.from_camera_config(scene.camera, exposures=scene.exposures)
+    multi = len(lib_scenes) > 1 or len(test_scenes) > 1 or len(magnitudes) > 1
+    mergers: dict[tuple[float, float], HdrMerger] = {}
     lib_rows, test_rows = [], []
-    total = len(chosen) * (1 + views)
+    total = len(chosen) * (len(lib_scenes) * len(magnitudes) + len(test_scenes) * views)
     done = 0
-    for i, case in enumerate(chosen):
-        az, el = beam_error_deg(scene, case)
-        reference_peak = float(render_irradiance(scene, case, View(seed=seed)).max())
-        plan = [("library", View(seed=seed * 7919 + i), lib_rows)]
-        plan += [("test", v, test_rows) for v in perturbed_views(seed, i, views)]
-        for k, (kind, view, rows) in enumerate(plan):
-            hdr = expose_and_merge(scene, render_irradiance(scene, case, view), view, reference_peak, merger)
-            name = f"images/{kind}-{case.label}-{k:02d}.npy"
-            write_float_image(out / name, hdr)
-            write_preview((out / name).with_suffix(".png"), hdr)  # for a person to look at
-            rows.append((name, case.label, f"{az:.6f}", f"{el:.6f}"))
-            done += 1
-            if progress:
-                progress(done, total)
+    peaks: dict[tuple, float] = {}
+
+    def emit(kind: str, case_i: int, sc: Scene, m: float, view: View, k: int, rows: list) -> None:
+        nonlocal done
+        case = chosen[case_i].scaled(m) if m != 1.0 else chosen[case_i]
+        key = (case_i, sc.heliostat, sc.source, m)
+        if key not in peaks:  # the camera is set up on the state's nominal view
+            peaks[key] = float(render_irradiance(sc, case, View(seed=seed)).max())
+        if sc.exposures not in mergers:
+            mergers[sc.exposures] = HdrMerger.from_camera_config(sc.camera, exposures=sc.exposures)
+        merger = mergers[sc.exposures]
+        hdr = expose_and_merge(sc, render_irradiance(sc, case, view), view, peaks[key], merger)
+        tag = f"-{sc.heliostat}-{sc.source}-m{m:.3f}" if multi else ""
+        name = f"images/{kind}-{case.label}{tag}-{k:02d}.npy"
+        write_float_image(out / name, hdr)
+        write_preview((out / name).with_suffix(".png"), hdr)  # for a person to look at
+        az, el = beam_error_deg(sc, case)
+        rows.append((name, case.label, f"{az:.6f}", f"{el:.6f}", sc.heliostat, sc.source, f"{sc.slant_m:.2f}",
+                     f"{m:.4f}"))
+        done += 1
+        if progress:
+            progress(done, total)
+
+    for i in range(len(chosen)):
+        for j, sc in enumerate(lib_scenes):
+            for mi, m in enumerate(magnitudes):
+                n = j * len(magnitudes) + mi
+                emit("library", i, sc, float(m), View(seed=seed * 7919 + i + 104729 * n), n, lib_rows)
+        for j, sc in enumerate(test_scenes):
+            rng = np.random.default_rng([seed, 2000 + i, j])
+            for k, v in enumerate(perturbed_views(seed, i, views, stream=j)):
+                if test_magnitude_range is not None:
+                    m = round(float(rng.uniform(*test_magnitude_range)), 4)
+                else:
+                    m = float(magnitudes[k % len(magnitudes)])
+                emit("test", i, sc, m, v, (k + 1) if not multi else j * views + k, test_rows)
+    header = ("image", "label", "az_deg", "el_deg", *MANIFEST_EXTRA)
     for fname, rows in (("library.csv", lib_rows), ("test.csv", test_rows)):
-        write_manifest(out / fname, rows)
+        write_manifest(out / fname, rows, header=header)
     return ErrorSet(out / "library.csv", out / "test.csv", [c.label for c in chosen], done)

@@ -67,7 +67,11 @@ class BeamChain:
         if not c.total > 0:
             raise BeamNotFound("no beam energy above the threshold")
         enu = tuple(self.frame.pixel_to_enu(c.x, c.y))
-        return Observation((c.x, c.y), enu, np.asarray(r.hu), float(r.peak))
+        # The shape features the library matches on: Hu moments at its own threshold(s) (a
+        # multi-threshold library needs the whole stack), else the analysis' Hu moments.
+        hu = (np.asarray(self.library.describe(hdr, self.threshold), float).reshape(-1)
+              if self.library is not None else np.asarray(r.hu))
+        return Observation((c.x, c.y), enu, hu, float(r.peak))
 
     def match(self, hu: np.ndarray) -> Match | None:
         if self.library is None:

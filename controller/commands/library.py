@@ -1,7 +1,9 @@
 """``heliocal library build MANIFEST --out LIB.yaml``: build the Hu-moment error library.
 
-MANIFEST is a CSV ``image,label,az_deg,el_deg`` (paths relative to it). The library YAML holds
-the feature kind (``hu`` raw as in the paper, or ``log-hu``), the normalisation, the unknown
+MANIFEST is a CSV ``image,label,az_deg,el_deg`` (paths relative to it; further columns such as
+``heliostat,source,slant_m,magnitude`` become each entry's ``params``). The library YAML holds
+the feature kind (``multi-hu`` by default: Hu moments at three thresholds, whitened by the
+library's own spread; ``hu`` raw as in the paper; or ``log-hu``), the normalisation, the unknown
 threshold calibrated from the library's own spread, and one entry per image. See
 docs/recognition.md. ``--json`` prints ``{"library", "entries", "labels", "features",
 "unknown_distance"}``.
@@ -46,8 +48,12 @@ def register(subparsers) -> None:
     b = sub.add_parser("build", help="analyse the manifest's images and write LIB.yaml")
     b.add_argument("manifest", metavar="MANIFEST", help="CSV image,label,az_deg,el_deg")
     b.add_argument("--out", required=True, metavar="LIB.yaml", help="library file to write")
-    b.add_argument("--features", choices=FEATURE_KINDS, default="hu",
-                   help="hu = raw Hu moments (paper), log-hu = -sign(h) log10|h| (default hu)")
+    b.add_argument("--features", choices=FEATURE_KINDS, default="multi-hu",
+                   help="multi-hu = raw Hu moments at thresholds 0.1, 0.3, 0.5 (default), hu = raw Hu "
+                        "moments at --threshold (the paper's), log-hu = -sign(h) log10|h|")
+    b.add_argument("--whiten", choices=("auto", "yes", "no"), default="auto",
+                   help="compare features after whitening by the library's own spread "
+                        "(auto: for multi-hu only; 'no' with --features hu is the paper's raw distance)")
     add_threshold_option(b)
     add_json_option(b)
     b.set_defaults(func=run_build)
@@ -58,7 +64,8 @@ def run_build(args: argparse.Namespace) -> int:
     output_file(args.out)
     manifest = existing_file(args.manifest, "manifest")
     with progress("building library", not args.json) as update:
-        lib = build_library_from_manifest(manifest, args.features, args.threshold, progress=update)
+        lib = build_library_from_manifest(manifest, args.features, args.threshold, progress=update,
+                                          whiten={"auto": None, "yes": True, "no": False}[args.whiten])
     save_library(lib, Path(args.out))
     labels = sorted(set(lib.labels))
     if args.json:

@@ -1,9 +1,13 @@
 """``heliocal match IMAGE --library LIB.yaml``: recognise a beam image's error case.
 
 JSON (``--json``): ``{"label", "distance", "runner_up": {"label", "distance"}, "az_deg",
-"el_deg", "unknown": false}``, plus ``"correction"`` when the entry has one. When the image is
-farther than the library's unknown threshold from every entry, ``label`` is ``"unknown"``,
-``unknown`` is true, az/el/correction are null and ``nearest`` names the closest case.
+"el_deg", "unknown": false, "nearest", "error_deg", "coarse_correction_deg", "magnitude",
+"confidence"}``, plus ``"correction"`` when the entry has one. ``az_deg``/``el_deg`` are the
+nearest entry's; ``error_deg`` is the beam pointing error (Δaz, Δel, degrees) interpolated over
+the nearest entries of the case, ``coarse_correction_deg`` its negative, ``magnitude`` the
+interpolated error size, ``confidence`` in [0, 1]. When the image is farther than the library's
+unknown threshold from every entry, ``label`` is ``"unknown"``, ``unknown`` is true,
+az/el/correction/estimates are null, confidence 0, and ``nearest`` names the closest case.
 """
 
 from __future__ import annotations
@@ -39,6 +43,10 @@ def match_image(lib: Library, image) -> dict:
         "el_deg": None if m.unknown else entry.el_deg,
         "unknown": m.unknown,
         "nearest": m.label,
+        "error_deg": list(m.error_deg) if m.error_deg else None,
+        "coarse_correction_deg": list(m.coarse_correction_deg) if m.coarse_correction_deg else None,
+        "magnitude": m.magnitude,
+        "confidence": m.confidence,
     }
     if entry.correction is not None:
         out["correction"] = None if m.unknown else entry.correction

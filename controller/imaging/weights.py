@@ -57,13 +57,19 @@ def reinhard(z, bit_depth: int = 8) -> np.ndarray:
 
 
 def deneve(z, bit_depth: int = 8, a: float = 1.0, b: float = 1.0) -> np.ndarray:
-    """Exponential weight ``w = exp(-(z - c) / (b c^a))`` with constants ``a``, ``b``.
+    """Exponential-power weight ``w = exp(-|z - c|^a / (b c^a))`` for ``z < z_max``, 0 at ``z_max``.
 
-    As specified it never reaches zero, not even at saturation, so saturated pixels keep a
-    small weight (``exp(-1)`` of the value at ``c`` for the defaults ``a = b = 1``).
+    The paper describes it as an exponential power function that emphasises the middle of the
+    range and ignores saturated pixels; its table entry lost the exponent of ``|z - c|`` (read
+    literally, ``exp(-(z - c) / (b c^a))`` is monotone, exceeds 1 below ``c`` and is non-zero at
+    saturation, contradicting that description). So: 1 at ``c``, symmetric about it, decreasing
+    with ``|z - c|`` to ``exp(-1/b)`` at the ends of the range, and 0 for saturated pixels.
+    ``a`` (> 0) sets how flat the top is, ``b`` (> 0) how low the ends fall; a = b = 1 by default.
     """
-    z, _, c = _levels(z, bit_depth)
-    return np.exp(-(z - c) / (b * c**a))
+    if not a > 0 or not b > 0:
+        raise ValueError("deneve constants a and b must be positive")
+    z, z_max, c = _levels(z, bit_depth)
+    return np.where(z < z_max, np.exp(-np.abs(z - c) ** a / (b * c**a)), 0.0)
 
 
 def raised_cosine(z, dark_offset: float = 8.0, bit_depth: int = 8, roll_off_high: float = 1.0,

@@ -47,6 +47,11 @@ class Confusion:
         """Percent of test views recognised as their true case."""
         return 100.0 * self.recall
 
+    @property
+    def unknown_rate(self) -> float:
+        """Fraction of test views rejected as unknown."""
+        return float(self.unknown.sum()) / self.n if self.n else float("nan")
+
     def per_class(self) -> dict[str, dict]:
         out = {}
         for i, lab in enumerate(self.labels):
@@ -60,7 +65,8 @@ class Confusion:
         """The ``heliocal report confusion`` JSON contract (plus tp/fn/n totals)."""
         return {"labels": self.labels, "matrix": self.matrix.tolist(), "recall": self.recall, "fnr": self.fnr,
                 "recognition_rate": self.recognition_rate, "per_class": self.per_class(),
-                "tp": self.tp, "fn": self.fn, "n": self.n}
+                "tp": self.tp, "fn": self.fn, "n": self.n, "unknown": int(self.unknown.sum()),
+                "unknown_rate": self.unknown_rate}
 
 
 def confusion(true: list[str], predicted: list[str], labels: list[str] | None = None) -> Confusion:

@@ -6,13 +6,14 @@ YAML files are handled by :mod:`controller.recognition.library_io`.
 Library document (YAML)::
 
     version: 1
-    features: hu | log-hu          # raw Hu (paper) or -sign(h) log10|h|
-    threshold: 0.5                 # beam segmentation threshold used for every entry
-    normalisation: {intensity: unit-mean, scale: [7 numbers]}
+    features: hu | log-hu | multi-hu   # raw Hu (paper), -sign(h) log10|h|, or raw Hu at 3 thresholds
+    threshold: 0.5                 # beam segmentation threshold (hu, log-hu)
+    thresholds: [0.1, 0.3, 0.5]    # multi-hu only: one Hu vector per threshold, k = 7 x 3 features
+    normalisation: {intensity: unit-mean, scale: [k numbers], whiten: [[k x k]] (optional)}
     unknown_distance: <float>      # largest per-entry threshold (informative)
     entries:
-      - {label, features: [7], az_deg, el_deg, correction: {az_deg, el_deg} (optional), sha256, image,
-         unknown_distance}         # per-entry threshold calibrated from the entry's own spread
+      - {label, features: [k], az_deg, el_deg, correction: {az_deg, el_deg} (optional), sha256, image,
+         unknown_distance, params: {magnitude, heliostat, source, slant_m, ...} (optional)}
 
 Feature kinds:
 
@@ -21,6 +22,11 @@ Feature kinds:
 * ``log-hu``: l_i = -sign(phi_i) log10|phi_i| (|phi_i| floored at 1e-30 so an exact zero
   stays finite), scaled per feature by the standard deviation of the entries' values, so that
   the noisy phi_5..phi_7 of near-symmetric spots do not swamp the distance.
+* ``multi-hu``: raw phi_1..phi_7 of the spot segmented at 0.1, 0.3 and 0.5 of its peak (21
+  numbers): the halo, shoulders and core of one spot, so an error that only changes the beam's
+  wings (a small twist, a short backlash smear) still moves the features. By default the library
+  is *whitened* (``normalisation.whiten``, W = C^-1/2 of its own spread, see
+  :func:`whitening`), and the distance stays Euclidean in the whitened space.
 """
 
 from __future__ import annotations
@@ -33,17 +39,25 @@ import numpy as np
 
 from controller.errors import InputError
 from controller.imaging.beam import analyze
+from controller.recognition.estimate import estimate
 from controller.recognition.matching import Matcher
 
 LIBRARY_VERSION = 1
-FEATURE_KINDS = ("hu", "log-hu")
+FEATURE_KINDS = ("multi-hu", "hu", "log-hu")
+MULTI_THRESHOLDS = (0.1, 0.3, 0.5)
 _LOG_FLOOR = 1e-30
 
 
 @dataclass(frozen=True)
 class LibraryMatch:
     """The library's answer for one beam: nearest case and distance, the nearest other case,
-    whether it is too far to trust (``unknown``), and the entry's az/el correction (deg)."""
+    whether it is too far to trust (``unknown``), and the entry's az/el correction (deg).
+
+    Magnitude (:mod:`controller.recognition.estimate`): ``error_deg`` is the beam's pointing
+    error (Δaz, Δel) in degrees interpolated over the nearest entries of the matched case that
+    carry ``az_deg``/``el_deg`` (None when unknown or none do); ``coarse_correction_deg`` =
+    −``error_deg``, the move that undoes it; ``magnitude`` likewise from the entries'
+    ``params.magnitude``; ``confidence`` in [0, 1] (0 when unknown)."""
 
     label: str
     distance: float
@@ -52,6 +66,10 @@ class LibraryMatch:
     runner_up_distance: float | None
     unknown: bool
     correction_deg: tuple[float, float] | None
+    error_deg: tuple[float, float] | None = None
+    coarse_correction_deg: tuple[float, float] | None = None
+    magnitude: float | None = None
+    confidence: float = 0.0
 
 
 @dataclass
@@ -64,6 +82,7 @@ class Entry:
     image: str = ""
     correction: dict | None = None
     unknown_distance: float = float("inf")
+    params: dict | None = None  # the error state it shows: magnitude, heliostat, source, slant_m, ...
 
 
 @dataclass
@@ -74,33 +93,63 @@ class Library:
     scale: np.ndarray = field(default_factory=lambda: np.ones(7))
     unknown_distance: float = float("inf")
     version: int = LIBRARY_VERSION
+    whiten: np.ndarray | None = None  # (k, k): features are compared as W f (then scale is 1)
     _cache: tuple[int, Matcher] | None = field(default=None, init=False, repr=False, compare=False)
 
     @property
     def labels(self) -> list[str]:
         return [e.label for e in self.entries]
 
+    @property
+    def thresholds(self) -> tuple[float, ...]:
+        """Segmentation thresholds of the features (one Hu vector each)."""
+        return MULTI_THRESHOLDS if self.features == "multi-hu" else (self.threshold,)
+
     def matrix(self) -> np.ndarray:
-        return np.array([e.features for e in self.entries], dtype=np.float64).reshape(-1, 7)
+        """(n, k) entry features as stored (before whitening/scaling)."""
+        k = len(self.entries[0].features) if self.entries else 7
+        return np.array([e.features for e in self.entries], dtype=np.float64).reshape(-1, k)
+
+    def transform(self, features: np.ndarray) -> np.ndarray:
+        """Stored features (..., k) -> the space the Euclidean distance is taken in."""
+        f = np.asarray(features, dtype=np.float64)
+        return f @ self.whiten.T if self.whiten is not None else f / self.scale
 
     def matcher(self) -> Matcher:
-        return Matcher(self.matrix(), self.labels, self.scale,
+        return Matcher(self.transform(self.matrix()), self.labels, None,
                        np.array([e.unknown_distance for e in self.entries], dtype=np.float64))
 
+    def describe(self, hdr: np.ndarray, threshold: float | None = None) -> np.ndarray:
+        """Hu moments of a beam image at the library's thresholds, shape (len(thresholds), 7)
+        (background auto; ``threshold`` overrides a single-threshold library's)."""
+        ts = self.thresholds if threshold is None or self.features == "multi-hu" else (threshold,)
+        return hu_stack(hdr, ts)
+
     def match_hu(self, hu: np.ndarray) -> LibraryMatch:
-        """The nearest entry to a beam's Hu moments (7,) and the nearest of another case
-        (Euclidean distance of the library's features, Eq. 14), with that entry's correction."""
-        m = self._matcher().match(hu_features(hu, self.features))
+        """The nearest entry to a beam's Hu moments and the nearest of another case (Euclidean
+        distance of the library's features, Eq. 14), with that entry's correction and the
+        interpolated magnitude estimate. ``hu``: (7,) at the library's threshold, or the
+        (len(thresholds), 7) stack of :meth:`describe` (required by ``multi-hu``)."""
+        h = np.asarray(hu, dtype=np.float64)
+        if h.size != 7 * len(self.thresholds):
+            raise InputError(f"a {self.features} library needs Hu moments at thresholds "
+                             f"{list(self.thresholds)} ({7 * len(self.thresholds)} numbers, got {h.size}); "
+                             "use Library.describe(image)")
+        q = self.transform(hu_features(h.reshape(-1), self.features))
+        matcher = self._matcher()
+        m = matcher.match(q)
         corr = self.entries[m.index].correction
+        est = estimate(self, matcher, q, m)
         return LibraryMatch(m.label, m.distance, m.index, m.runner_up_label, m.runner_up_distance, m.unknown,
-                            (float(corr["az_deg"]), float(corr["el_deg"])) if corr else None)
+                            (float(corr["az_deg"]), float(corr["el_deg"])) if corr else None,
+                            est.error_deg, est.coarse_correction_deg, est.magnitude, est.confidence)
 
     def match_image(self, hdr: np.ndarray, *, threshold: float | None = None) -> LibraryMatch:
         """:meth:`match_hu` of a beam image (2-D HDR or grey, x = column, y = row), segmented at
-        the library's threshold (or ``threshold``, a fraction of the peak) with the background
-        estimated (:func:`controller.imaging.beam.analyze`). InputError when there is no beam."""
-        t = self.threshold if threshold is None else threshold
-        return self.match_hu(analyze(hdr, threshold=t, background="auto").hu)
+        the library's threshold(s) (``threshold``, a fraction of the peak, overrides a
+        single-threshold library's) with the background estimated
+        (:func:`controller.imaging.beam.analyze`). InputError when there is no beam."""
+        return self.match_hu(self.describe(hdr, threshold))
 
     def _matcher(self) -> Matcher:
         # Built once per library: the matcher precomputes its search arrays.
@@ -109,19 +158,26 @@ class Library:
         return self._cache[1]
 
 
+def hu_stack(image: np.ndarray, thresholds: Sequence[float]) -> np.ndarray:
+    """Hu moments (len(thresholds), 7) of the beam segmented at each threshold (background auto)."""
+    return np.array([analyze(image, threshold=t, background="auto").hu for t in thresholds], dtype=np.float64)
+
+
 def hu_features(hu: np.ndarray, kind: str) -> np.ndarray:
-    """Feature vector (7,) from Hu moments: raw (``hu``) or signed log (``log-hu``)."""
+    """Feature vector from Hu moments: raw (``hu``: 7, ``multi-hu``: the stack flattened) or
+    signed log (``log-hu``)."""
     h = np.asarray(hu, dtype=np.float64)
-    if kind == "hu":
-        return h.copy()
+    if kind in ("hu", "multi-hu"):
+        return h.reshape(-1).copy()
     if kind == "log-hu":
-        return -np.sign(h) * np.log10(np.maximum(np.abs(h), _LOG_FLOOR))
+        return -np.sign(h.reshape(-1)) * np.log10(np.maximum(np.abs(h.reshape(-1)), _LOG_FLOOR))
     raise InputError(f"feature kind must be one of {', '.join(FEATURE_KINDS)}, not {kind!r}")
 
 
 def image_features(image: np.ndarray, kind: str, threshold: float = 0.5) -> np.ndarray:
-    """Analyse a beam image (background auto) and return its feature vector (7,)."""
-    return hu_features(analyze(image, threshold=threshold, background="auto").hu, kind)
+    """Analyse a beam image (background auto) and return its feature vector (7 or 21,)."""
+    ts = MULTI_THRESHOLDS if kind == "multi-hu" else (threshold,)
+    return hu_features(hu_stack(image, ts), kind)
 
 
 AUGMENT_ANGLES_DEG = (20.0, 65.0, 110.0, 155.0)
@@ -176,6 +232,41 @@ def feature_scale(spread: Spread, kind: str) -> np.ndarray:
     return np.maximum(rms, 1e-5 * top)
 
 
+def whitening(x: np.ndarray, spread: Spread, floor: float = 1e-6) -> np.ndarray:
+    """ZCA whitening W = C^(-1/2) (k, k) learned from the library's own spread.
+
+    C = covariance of the entries (how the cases, magnitudes and geometries of the library
+    differ) + covariance of the augmented views about their entry (framing and noise), so a
+    direction in which nothing in the library varies is not blown up. Eigenvalues are floored
+    at ``floor`` x the largest. In the whitened space every direction the library spans has
+    unit spread, so the distance is not dominated by phi_1/phi_2 (raw Hu) nor by the noise of
+    phi_5..phi_7 (log Hu); it is still the Euclidean distance of Eq. 14, on W f.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    k = x.shape[1]
+    c = np.cov(x.T, bias=True).reshape(k, k) if x.shape[0] > 1 else np.zeros((k, k))
+    if spread.deviations.size:
+        c = c + spread.deviations.T @ spread.deviations / spread.deviations.shape[0]
+    w, v = np.linalg.eigh(c)
+    if not w.max() > 0:
+        return np.eye(k)
+    w = np.maximum(w, floor * w.max())
+    return (v / np.sqrt(w)) @ v.T
+
+
+def neighbour_thresholds(x: np.ndarray, labels: Sequence[str]) -> np.ndarray:
+    """Per entry, the distance (in the matching space) to the nearest other entry of the same case
+    (inf when it has none): a view of a magnitude between two library magnitudes lies about
+    that far from the nearer one, and must not be rejected as unknown."""
+    lab = np.asarray(labels)
+    out = np.full(len(lab), np.inf)
+    for i in range(len(lab)):
+        same = (lab == lab[i]) & (np.arange(len(lab)) != i)
+        if same.any():
+            out[i] = float(np.min(np.linalg.norm(x[same] - x[i], axis=1)))
+    return out
+
+
 def unknown_thresholds(spread: Spread, scale: np.ndarray, n_entries: int,
                        factor: float = UNKNOWN_FACTOR) -> np.ndarray:
     """Per-entry unknown threshold, shape (n_entries,).
@@ -199,15 +290,18 @@ def unknown_thresholds(spread: Spread, scale: np.ndarray, n_entries: int,
 def build_library(images: Sequence[np.ndarray], labels: Sequence[str], *, kind: str = "hu",
                   threshold: float = 0.5, az_deg: Sequence[float | None] | None = None,
                   el_deg: Sequence[float | None] | None = None, sha256: Sequence[str] | None = None,
-                  names: Sequence[str] | None = None,
+                  names: Sequence[str] | None = None, params: Sequence[dict | None] | None = None,
+                  whiten: bool | None = None,
                   progress: Callable[[int, int], None] | None = None) -> Library:
     """A :class:`Library` from beam images and their case labels (nothing is read or written).
 
     Each image gives one entry (its features); rotated and zoomed copies of it
     (:func:`augmented_views`) measure the within-case spread that sets the feature scale and
     every entry's unknown threshold. ``az_deg``/``el_deg``, ``sha256`` and ``names`` (image
-    file names) are carried into the entries. An image without a beam raises InputError
-    naming its position (or name).
+    file names) and ``params`` (the error state each image shows) are carried into the entries.
+    ``whiten`` (default: for ``multi-hu`` only) compares features after :func:`whitening`.
+    Unknown thresholds: :func:`unknown_thresholds`, raised to :func:`neighbour_thresholds`.
+    An image without a beam raises InputError naming its position (or name).
     """
     if kind not in FEATURE_KINDS:
         raise InputError(f"feature kind must be one of {', '.join(FEATURE_KINDS)}, not {kind!r}")
@@ -225,7 +319,8 @@ def build_library(images: Sequence[np.ndarray], labels: Sequence[str], *, kind: 
             raise InputError(f"{name}: {exc}") from None
         entries.append(Entry(label=str(label), features=feats, az_deg=az_deg[i] if az_deg else None,
                              el_deg=el_deg[i] if el_deg else None, sha256=sha256[i] if sha256 else "",
-                             image=names[i] if names is not None else ""))
+                             image=names[i] if names is not None else "",
+                             params=dict(params[i]) if params is not None and params[i] else None))
         for view in augmented_views(image):
             try:
                 deviations.append(image_features(view, kind, threshold) - feats)
@@ -234,91 +329,17 @@ def build_library(images: Sequence[np.ndarray], labels: Sequence[str], *, kind: 
                 continue  # a zoom that pushes the spot out of frame says nothing about the spread
         if progress:
             progress(i + 1, n)
-    spread = Spread(np.array(deviations).reshape(-1, 7), np.array(owner, dtype=np.int64))
-    lib = Library(features=kind, threshold=float(threshold), entries=entries)
-    lib.scale = feature_scale(spread, kind)
-    for entry, t in zip(entries, unknown_thresholds(spread, lib.scale, len(entries)), strict=True):
-        entry.unknown_distance = float(t)
+    k = len(entries[0].features)
+    spread = Spread(np.array(deviations).reshape(-1, k), np.array(owner, dtype=np.int64))
+    lib = Library(features=kind, threshold=float(threshold), entries=entries, scale=np.ones(k))
+    if kind == "multi-hu" if whiten is None else whiten:
+        lib.whiten = whitening(lib.matrix(), spread)
+    else:
+        lib.scale = feature_scale(spread, kind)
+    # The transform is linear: deviations map into the matching space as they are.
+    own = unknown_thresholds(Spread(lib.transform(spread.deviations), spread.owner), np.ones(k), len(entries))
+    near = neighbour_thresholds(lib.transform(lib.matrix()), lib.labels)
+    for entry, t, t_nb in zip(entries, own, near, strict=True):
+        entry.unknown_distance = float(max(t, t_nb) if np.isfinite(t_nb) else t)
     lib.unknown_distance = max(e.unknown_distance for e in entries)
     return lib
-
-
-def library_to_dict(lib: Library) -> dict:
-    def entry(e: Entry) -> dict:
-        d = {"label": e.label, "features": [float(v) for v in e.features], "az_deg": e.az_deg,
-             "el_deg": e.el_deg, "sha256": e.sha256, "image": e.image,
-             "unknown_distance": e.unknown_distance if np.isfinite(e.unknown_distance) else None}
-        if e.correction is not None:
-            d["correction"] = {"az_deg": float(e.correction["az_deg"]),
-                               "el_deg": float(e.correction["el_deg"])}
-        return d
-
-    return {
-        "version": lib.version,
-        "features": lib.features,
-        "threshold": lib.threshold,
-        "normalisation": {"intensity": "unit-mean", "scale": [float(v) for v in lib.scale]},
-        "unknown_distance": lib.unknown_distance if np.isfinite(lib.unknown_distance) else None,
-        "entries": [entry(e) for e in lib.entries],
-    }
-
-
-def _vec7(value, where: str) -> np.ndarray:
-    try:
-        v = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise InputError(f"{where} must be a list of 7 numbers") from None
-    if v.shape != (7,) or not np.all(np.isfinite(v)):
-        raise InputError(f"{where} must be a list of 7 finite numbers")
-    return v
-
-
-def _opt_positive(value, where: str) -> float:
-    """None -> inf (never unknown); else a positive number."""
-    if value is None:
-        return float("inf")
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise InputError(f"{where} must be a number") from None
-    if not v > 0:
-        raise InputError(f"{where} must be positive")
-    return v
-
-
-def library_from_dict(data: object, p: str) -> Library:
-    """Validate a parsed library document (see the module docstring); errors name ``p`` (the
-    file) and the key."""
-    if not isinstance(data, dict):
-        raise InputError(f"{p}: library must be a mapping")
-    if data.get("version") != LIBRARY_VERSION:
-        raise InputError(f"{p}: version: expected {LIBRARY_VERSION}, got {data.get('version')!r}")
-    kind = data.get("features")
-    if kind not in FEATURE_KINDS:
-        raise InputError(f"{p}: features: must be one of {', '.join(FEATURE_KINDS)}, got {kind!r}")
-    norm = data.get("normalisation") or {}
-    scale = _vec7(norm.get("scale", [1.0] * 7), f"{p}: normalisation.scale")
-    if np.any(scale <= 0):
-        raise InputError(f"{p}: normalisation.scale must be positive")
-    raw_entries = data.get("entries")
-    if not isinstance(raw_entries, list) or not raw_entries:
-        raise InputError(f"{p}: entries: must be a non-empty list")
-    entries = []
-    for i, e in enumerate(raw_entries):
-        where = f"{p}: entries[{i}]"
-        if not isinstance(e, dict) or not e.get("label"):
-            raise InputError(f"{where}.label: missing")
-        corr = e.get("correction")
-        if corr is not None and not (isinstance(corr, dict) and {"az_deg", "el_deg"} <= set(corr)):
-            raise InputError(f"{where}.correction: must have az_deg and el_deg")
-        unknown = _opt_positive(e.get("unknown_distance"), f"{where}.unknown_distance")
-        entries.append(Entry(label=str(e["label"]), features=_vec7(e.get("features"), f"{where}.features"),
-                             az_deg=e.get("az_deg"), el_deg=e.get("el_deg"), sha256=str(e.get("sha256", "")),
-                             image=str(e.get("image", "")), correction=corr, unknown_distance=unknown))
-    unknown = data.get("unknown_distance")
-    try:
-        threshold = float(data.get("threshold", 0.5))
-    except (TypeError, ValueError):
-        raise InputError(f"{p}: threshold: must be a number") from None
-    return Library(features=kind, threshold=threshold, entries=entries, scale=scale,
-                   unknown_distance=float("inf") if unknown is None else float(unknown))

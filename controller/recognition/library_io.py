@@ -3,6 +3,8 @@ YAML (format in :mod:`controller.recognition.library`).
 
 Manifest (CSV, header required): ``image,label,az_deg,el_deg``. ``az_deg``/``el_deg`` are
 optional (columns may be absent or cells empty); image paths are relative to the manifest.
+Further columns (e.g. ``heliostat,source,slant_m,magnitude`` of a rendered error set) are kept
+as the row's ``extra`` and become the library entry's ``params``.
 Images are merged HDR (``.npy`` / float ``.tiff``) or single grey PNG/TIFF.
 """
 
@@ -12,7 +14,7 @@ import csv
 import hashlib
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import yaml
@@ -20,7 +22,8 @@ import yaml
 from controller.errors import InputError
 from controller.io.images import read_image, write_atomic
 from controller.io.yaml_files import load_yaml
-from controller.recognition.library import Library, build_library, library_from_dict, library_to_dict
+from controller.recognition.library import Library, build_library
+from controller.recognition.library_doc import library_from_dict, library_to_dict
 
 MAX_MANIFEST_ROWS = 100_000
 
@@ -32,6 +35,7 @@ class ManifestRow:
     az_deg: float | None = None
     el_deg: float | None = None
     line: int = 0
+    extra: dict[str, str] = field(default_factory=dict)
 
 
 def sha256_file(path: Path) -> str:
@@ -54,13 +58,19 @@ def _opt_float(value: str | None, where: str, key: str) -> float | None:
     return v
 
 
-def write_manifest(path: str | Path, rows: list[tuple[str, str, str, str]] | list[list[str]]) -> None:
-    """Write a manifest CSV (``image,label,az_deg,el_deg``, paths relative to it) atomically."""
+MANIFEST_HEADER = ("image", "label", "az_deg", "el_deg")
+
+
+def write_manifest(path: str | Path, rows: list[tuple[str, ...]] | list[list[str]],
+                   header: tuple[str, ...] = MANIFEST_HEADER) -> None:
+    """Write a manifest CSV (``image,label,az_deg,el_deg[,...]``, paths relative to it) atomically."""
+    if tuple(header[:4]) != MANIFEST_HEADER:
+        raise ValueError(f"a manifest header starts with {','.join(MANIFEST_HEADER)}")
 
     def writer(tmp: Path) -> None:
         with open(tmp, "w", newline="", encoding="utf-8") as f:
             w = csv.writer(f)
-            w.writerow(["image", "label", "az_deg", "el_deg"])
+            w.writerow(list(header))
             w.writerows(rows)
 
     write_atomic(path, writer)
@@ -93,6 +103,7 @@ def read_manifest(path: str | Path) -> list[ManifestRow]:
                     image=(p.parent / rec["image"]), label=rec["label"],
                     az_deg=_opt_float(rec.get("az_deg"), where, "az_deg"),
                     el_deg=_opt_float(rec.get("el_deg"), where, "el_deg"), line=i,
+                    extra={k: v for k, v in rec.items() if k not in MANIFEST_HEADER and k and v},
                 ))
     except UnicodeDecodeError:
         raise InputError(f"{p}: manifest is not UTF-8 text") from None
@@ -103,10 +114,22 @@ def read_manifest(path: str | Path) -> list[ManifestRow]:
     return rows
 
 
+def _params(extra: dict[str, str]) -> dict | None:
+    """Extra manifest columns as entry params: numbers where they parse, else text."""
+    out: dict = {}
+    for k, v in extra.items():
+        try:
+            out[k] = float(v)
+        except ValueError:
+            out[k] = v
+    return out or None
+
+
 def build_library_from_manifest(manifest: str | Path, kind: str = "hu", threshold: float = 0.5,
-                                progress: Callable[[int, int], None] | None = None) -> Library:
+                                progress: Callable[[int, int], None] | None = None,
+                                whiten: bool | None = None) -> Library:
     """Read every manifest image and build the :class:`Library` (nothing is written); errors
-    name the manifest line."""
+    name the manifest line. Extra columns become the entries' ``params``."""
     rows = read_manifest(manifest)
     images = []
     for row in rows:
@@ -118,7 +141,8 @@ def build_library_from_manifest(manifest: str | Path, kind: str = "hu", threshol
     try:
         return build_library(images, [r.label for r in rows], kind=kind, threshold=threshold,
                              az_deg=[r.az_deg for r in rows], el_deg=[r.el_deg for r in rows],
-                             sha256=[sha256_file(r.image) for r in rows], names=names, progress=progress)
+                             sha256=[sha256_file(r.image) for r in rows], names=names,
+                             params=[_params(r.extra) for r in rows], whiten=whiten, progress=progress)
     except InputError as exc:
         line = next((r.line for r in rows if str(exc).startswith(f"{r.image}:")), None)
         raise InputError(f"{Path(manifest)}:{line}: {exc}" if line else str(exc)) from None
@@ -154,8 +178,9 @@ def add_reference(library_path: str | Path, label: str, hdr, hu, *, source: str,
     n = sum(1 for e in lib.entries if e.label == label)
     img = lib_path.parent / "references" / f"{source}-{label}-{n:02d}.npy"
     write_float_image(img, hdr)
-    entry = Entry(label=label, features=hu_features(hu, lib.features), sha256=sha256_file(img),
-                  image=str(img))
+    # A multi-threshold library describes the frame itself; the others take the given Hu moments.
+    feats = hu_features(lib.describe(hdr) if lib.features == "multi-hu" else hu, lib.features)
+    entry = Entry(label=label, features=feats, sha256=sha256_file(img), image=str(img))
     lib.entries.append(entry)
     save_library(lib, lib_path)
     manifest = lib_path.with_name(lib_path.stem + "-manifest.csv")

@@ -90,3 +90,26 @@ def test_queue_shortest_slew_first(cfg):
     current = {h: pts[h].standby_steps(None) for h in ids}
     current["H02"] = (500, 500)  # far away: goes last
     assert order_queue(cfg, ids, current, pts)[-1] == "H02"
+
+
+def test_beam_chain_matches_with_a_multi_threshold_library(small_config):
+    """The default ``library build`` features (``multi-hu``) need Hu moments at several
+    thresholds: the chain's observation carries what its library matches on."""
+    from controller.calibration.beam_chain import BeamChain
+    from controller.config import load_config
+    from controller.recognition.library import build_library
+
+    cfg = load_config(small_config)
+    rows, cols = cfg.camera.height_px, cfg.camera.width_px
+    yy, xx = np.mgrid[0:rows, 0:cols]
+
+    def spot(x0, y0, sx, sy):
+        return 1000.0 * np.exp(-((xx - x0) ** 2 / (2 * sx**2) + (yy - y0) ** 2 / (2 * sy**2)))
+
+    images = [spot(120, 90, 9, 9), spot(130, 95, 14, 6), spot(110, 100, 6, 14)]
+    lib = build_library(images, ["round", "wide", "tall"], kind="multi-hu")
+    chain = BeamChain(cfg, lib)
+    obs = chain.analyze(spot(125, 92, 13, 6) + 1.0)
+    assert obs.hu.size == 7 * len(lib.thresholds) > 7
+    m = chain.match(obs.hu)
+    assert m is not None and m.label == "wide"

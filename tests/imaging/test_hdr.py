@@ -19,7 +19,7 @@ def plain_eq1(z1, z2, t1, t2, inv1, inv2, wname, dark=8.0):
         "debevec": lambda z, inv: np.where(z <= 127.5, z / 127.5, (255 - z) / 127.5),
         "mitsunaga": lambda z, inv: np.where(z < 255, z / 255, 0.0),
         "reinhard": lambda z, inv: np.where(z < 255, z / 255 * (1 - (z / 127.5 - 1) ** 12), 0.0),
-        "deneve": lambda z, inv: np.exp(-(z - 127.5) / 127.5),
+        "deneve": lambda z, inv: np.where(z < 255, np.exp(-np.abs(z - 127.5) / 127.5), 0.0),
         "noise-optimal": lambda z, inv: W.noise_optimal(z, inv, dark),
     }[wname]
     a = z1.astype(float)

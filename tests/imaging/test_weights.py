@@ -46,8 +46,25 @@ def test_classic_weights_hand_values():
     assert W.reinhard(255) == 0.0
     assert W.reinhard(0) == 0.0
     assert W.deneve(C) == pytest.approx(1.0)
-    assert W.deneve(0) == pytest.approx(math.e)
-    assert W.deneve(0, a=0.5, b=2.0) == pytest.approx(math.exp(C / (2 * math.sqrt(C))))
+    assert W.deneve(0) == pytest.approx(math.exp(-1))
+    assert W.deneve(0, a=0.5, b=2.0) == pytest.approx(math.exp(-0.5))
+    assert W.deneve(C + 63.75, a=2.0) == pytest.approx(math.exp(-0.25))
+    assert W.deneve(255) == 0.0
+
+
+def test_deneve_emphasises_the_middle_and_ignores_saturation():
+    """The paper's description: an exponential power function peaking in the middle, in [0, 1],
+    symmetric about c, zero for saturated pixels (the garbled table entry was none of these)."""
+    z = np.arange(256.0)
+    for a, b in ((1.0, 1.0), (2.0, 0.5), (4.0, 0.1)):
+        w = W.deneve(z, a=a, b=b)
+        assert w.max() <= 1.0 and w.min() >= 0.0
+        assert w[255] == 0.0 and w[254] > 0.0
+        assert np.argmax(w) in (127, 128)
+        assert np.all(np.diff(w[:128]) > 0) and np.all(np.diff(w[128:255]) < 0)
+        assert np.allclose(w[1:128], w[254:127:-1])  # w(z) = w(255 - z) below saturation
+    with pytest.raises(ValueError):
+        W.deneve(z, a=0.0)
 
 
 def test_noise_optimal_is_inverse_variance_of_linear_sensor():
