@@ -22,12 +22,11 @@ Beam safety:
   cycle ends; if that fails the heliostat is stowed, and if even that fails the cycle ends
   *aborted* with ``beam_maybe_on_target`` set, so the campaign stops using the target.
 
-Correction (docs/campaigns.md): the Hu-moment match names the error case; when the library
-entry carries a correction it is applied once as the *coarse* correction. The centroid
-offset on the target gives the *fine* correction through the Jacobian of the aim function
-(``Pointing.correction``). The loop repeats until the measured pointing error is within
-``tolerance_mrad`` or ``max_iterations`` measurements were taken; the measurements then feed
-the tracking-error fit (``Pointing.fit``), stored per heliostat for the next aim.
+Correction (docs/campaigns.md): a library entry's correction is applied once as the *coarse*
+correction; the centroid offset gives the *fine* one (``Pointing.fine_correction``), until the
+error is within ``tolerance_mrad`` or ``max_iterations`` measurements were taken (one on a
+planned night's observation); then ``Pointing.fit`` refits the heliostat's model. Measuring
+moves end moving up on both axes (:mod:`controller.calibration.approach`, backlash).
 
 Units: motor steps (int), angles in degrees at this edge, errors in mrad (reflected-beam
 angle), ENU metres, plant-clock seconds.
@@ -43,12 +42,11 @@ from transitions import MachineError
 from transitions.extensions import LockedMachine
 from transitions.extensions.states import Timeout, add_state_features
 
+from controller.calibration.approach import approach_path
 from controller.calibration.context import CycleContext, CycleObserver
 from controller.calibration.observations import Match, Observation
-from controller.calibration.records import CorrectionRecord, MeasurementRecord, RunRecord
+from controller.calibration.records import CorrectionRecord, RunRecord, measurement_record
 from controller.devices.drive import DriveError, LinkError, MoveCancelled
-from controller.geometry.aiming import pointing_error_mrad
-from controller.geometry.vectors import vector_to_azel
 
 # -- the tables ---------------------------------------------------------------------------------
 # (state, timeout in wall seconds, what the state does). Timeouts are generous upper bounds
@@ -125,6 +123,7 @@ class CalibrationCycle:
         self._timed_out: str | None = None
         self.iteration = 0
         self.az = self.el = 0
+        self.at: tuple[int, int] | None = None  # where the last move ended (None: not known)
         self.aim = (0, 0)
         self.standby = (0, 0)
         self.beam_on_target = False
@@ -234,6 +233,7 @@ class CalibrationCycle:
         except MoveCancelled:
             raise Cancelled(state) from None
         self.az, self.el = st.az_steps, st.el_steps
+        self.at = (st.az_steps, st.el_steps)
 
     # -- the work of each state ----------------------------------------------------------------
     def do_preparing(self) -> str:
@@ -267,7 +267,9 @@ class CalibrationCycle:
         if not self.beam_on_target:
             self.run_rec.on_target_s = self.ctx.clock()
         self.beam_on_target = True  # from the first command on, the beam may cross the target
-        self._move("slewing", self.az, self.el)
+        lim = self.ctx.drive.limits
+        for waypoint in approach_path(self.at, (self.az, self.el), self.ctx.backlash_steps, lim):
+            self._move("slewing", *waypoint)
         return "arrived"
 
     def do_settling(self) -> str:
@@ -293,19 +295,9 @@ class CalibrationCycle:
     def do_verifying(self) -> str:
         p, obs, m = self.ctx.pointing, self.obs, self.match
         self.iteration += 1
-        err = pointing_error_mrad(p.heliostat_pos, p.aim_point, obs.centroid_enu)
-        saz, sel = vector_to_azel(p.source_dir)
-        rec = MeasurementRecord(
-            iteration=self.iteration, az_steps=self.az, el_steps=self.el,
-            source_dir=tuple(float(c) for c in p.source_dir), source_az_deg=float(saz),
-            source_el_deg=float(sel), aim_enu=tuple(float(c) for c in p.aim_point),
-            plant_time_s=self.ctx.clock(), measured_utc=self.ctx.utc(), source_pos_enu=p.source_pos,
-            centroid_enu=tuple(float(c) for c in obs.centroid_enu),
-            centroid_px=(float(obs.centroid_px[0]), float(obs.centroid_px[1])), error_mrad=err,
-            matched_label=None if m is None or m.unknown else m.label,
-            match_distance=None if m is None else m.distance,
-            runner_up_label=None if m is None else m.runner_up,
-            runner_up_distance=None if m is None else m.runner_up_distance)
+        rec = measurement_record(p, obs, m, self.iteration, (self.az, self.el), self.ctx.clock(),
+                                 self.ctx.utc())
+        err = rec.error_mrad
         if self.ctx.save_images is not None:
             rec.images = self.ctx.save_images(self.frame, self.hdr, self.iteration)
         self.observer.measured(self.ctx.heliostat_id, rec)

@@ -12,6 +12,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 
+from controller.geometry.aiming import pointing_error_mrad
+from controller.geometry.vectors import vector_to_azel
+
 
 def utc_now() -> str:
     return datetime.now(UTC).isoformat(timespec="milliseconds")
@@ -148,3 +151,24 @@ class CampaignRecord:
     status: str
     meta: dict
     cause: str | None = None
+
+
+def measurement_record(pointing, obs, match, iteration: int, steps: tuple[int, int], plant_time_s: float,
+                       utc: str) -> MeasurementRecord:
+    """The record of one measurement: the beam ``obs`` (:class:`Observation`) seen at motor
+    ``steps`` under ``pointing``'s light source and aim point, with the library's ``match``
+    (or None); its error is the reflected-beam angle from the aim point, mrad."""
+    p, m = pointing, match
+    saz, sel = vector_to_azel(p.source_dir)
+    return MeasurementRecord(
+        iteration=iteration, az_steps=steps[0], el_steps=steps[1],
+        source_dir=tuple(float(c) for c in p.source_dir), source_az_deg=float(saz),
+        source_el_deg=float(sel), aim_enu=tuple(float(c) for c in p.aim_point),
+        plant_time_s=plant_time_s, measured_utc=utc, source_pos_enu=p.source_pos,
+        centroid_enu=tuple(float(c) for c in obs.centroid_enu),
+        centroid_px=(float(obs.centroid_px[0]), float(obs.centroid_px[1])),
+        error_mrad=pointing_error_mrad(p.heliostat_pos, p.aim_point, obs.centroid_enu),
+        matched_label=None if m is None or m.unknown else m.label,
+        match_distance=None if m is None else m.distance,
+        runner_up_label=None if m is None else m.runner_up,
+        runner_up_distance=None if m is None else m.runner_up_distance)
