@@ -45,7 +45,7 @@ import numpy as np
 
 from controller.errors import InputError
 from controller.geometry.aiming import angle_mrad
-from controller.geometry.design import beam_jacobians, tangents
+from controller.geometry.design import beam_jacobians, jacobian, tangents
 from controller.geometry.kinematics import BODY_NORMAL, HeliostatKinematics
 from controller.geometry.tracking_model import (
     NAMES,
@@ -123,17 +123,6 @@ def normal_residual_mrad(kin: HeliostatKinematics, model: TrackingModel, s: Samp
     return float(angle_mrad(model_normal(kin, model, s.az_steps, s.el_steps), measured_normal(kin, model, s)))
 
 
-def forward_jacobian(fun, x: np.ndarray, fx: np.ndarray, step: np.ndarray) -> np.ndarray:
-    """Forward-difference Jacobian of ``fun`` at ``x`` (``fx`` = fun(x)): half the calls of a
-    central one, enough for residuals that are nearly linear over ``step``."""
-    cols = []
-    for i in range(len(x)):
-        d = np.zeros_like(x)
-        d[i] = step[i]
-        cols.append((fun(x + d) - fx) / step[i])
-    return np.stack(cols, axis=-1)
-
-
 def fit_model(kin: HeliostatKinematics, samples: Sequence[Sample], *, noise_mrad: float = 0.3,
               prior: TrackingModel | None = None, prior_sigma: np.ndarray | None = None,
               robust: bool = True) -> ModelFit:
@@ -179,7 +168,7 @@ def fit_model(kin: HeliostatKinematics, samples: Sequence[Sample], *, noise_mrad
     for _ in range(MAX_STEPS):
         w = np.repeat(np.sqrt(weights * age_w), 2)
         r = data_res(x)
-        jd = w[:, None] * forward_jacobian(data_res, x, r, step)
+        jd = w[:, None] * jacobian(data_res, x, step, r)
         dx = -np.linalg.solve(jd.T @ jd + np.eye(len(x)), jd.T @ (w * r) + x)
         x = x + dx
         norms = np.sqrt(age_w) * np.linalg.norm(data_res(x).reshape(-1, 2), axis=1)
@@ -188,7 +177,7 @@ def fit_model(kin: HeliostatKinematics, samples: Sequence[Sample], *, noise_mrad
             break
         weights = new
     w = np.repeat(np.sqrt(weights * age_w), 2)
-    jd = w[:, None] * forward_jacobian(data_res, x, data_res(x), step)
+    jd = w[:, None] * jacobian(data_res, x, step)
     post_x = np.linalg.inv(jd.T @ jd + np.eye(len(x)))  # covariance of x (prior-whitened)
     ratio2 = np.clip(np.diag(post_x), 0.0, 1.0)
     p_eff = float(np.sum(1.0 - ratio2))
