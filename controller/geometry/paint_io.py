@@ -181,3 +181,25 @@ def read_record(path: str | Path, towers: Towers, *, with_spot: bool = True) -> 
     spot = spots.get("UTIS", np.full(3, np.nan))
     sample = Sample(azel_to_vector(sun_az, sun_el), az_steps, el_steps, spot)
     return PaintRecord(src, sample, target, sun_az, sun_el, spots)
+
+
+@dataclass(frozen=True)
+class PaintSet:
+    """The inputs of a fit on PAINT/ARTIST files: towers, the heliostat's id (from the
+    properties file's name, ``<id>-heliostat-properties.json``), properties, nominal
+    kinematics and the records."""
+
+    towers: Towers
+    heliostat_id: str
+    properties: dict
+    kinematics: HeliostatKinematics
+    records: list[PaintRecord]
+
+
+def read_paint_set(records: list[str], properties: str | Path, towers: str | Path) -> PaintSet:
+    """Read and check every file of a fit (InputError naming the file and key)."""
+    tw = read_towers(towers)
+    props = read_heliostat_properties(properties)
+    hid = Path(properties).stem.split("-")[0]
+    kin = kinematics_from_properties(props, tw.origin_wgs84, hid)
+    return PaintSet(tw, hid, props, kin, [read_record(r, tw) for r in records])

@@ -35,25 +35,17 @@ def run(args: argparse.Namespace) -> int:
     from controller.commands._common import output_file, print_json
     from controller.errors import InputError
     from controller.geometry.model_fit import fit_model
-    from controller.geometry.paint_io import (
-        kinematics_from_properties,
-        read_heliostat_properties,
-        read_record,
-        read_towers,
-    )
+    from controller.geometry.paint_io import read_paint_set
     from controller.geometry.tracking_model import TERMS
     from controller.storage.model_file import model_document, write_model
 
     out = output_file(args.out)
     if not (args.noise_mrad > 0 and args.noise_mrad < 1e3):
         raise InputError(f"--noise-mrad must be a positive number of mrad, got {args.noise_mrad}")
-    towers = read_towers(args.towers)
-    props = read_heliostat_properties(args.heliostat_properties)
-    hid = Path(args.heliostat_properties).stem.split("-")[0]  # PAINT: "<id>-heliostat-properties.json"
-    kin = kinematics_from_properties(props, towers.origin_wgs84, hid)
-    records = [read_record(r, towers) for r in args.records]
-    fit = fit_model(kin, [r.sample for r in records], noise_mrad=args.noise_mrad)
-    doc = model_document(hid, props, towers.origin_wgs84, fit, noise_mrad=args.noise_mrad,
+    ps = read_paint_set(args.records, args.heliostat_properties, args.towers)
+    hid, records = ps.heliostat_id, ps.records
+    fit = fit_model(ps.kinematics, [r.sample for r in records], noise_mrad=args.noise_mrad)
+    doc = model_document(hid, ps.properties, ps.towers.origin_wgs84, fit, noise_mrad=args.noise_mrad,
                          records=[Path(r).name for r in args.records])
     write_model(out, doc)
     if args.json:

@@ -36,20 +36,13 @@ def run(args: argparse.Namespace) -> int:
     from controller.commands._common import print_json
     from controller.errors import InputError
     from controller.geometry.aiming import aim_normal, angle_mrad
-    from controller.geometry.paint_io import (
-        kinematics_from_properties,
-        read_heliostat_properties,
-        read_record,
-        read_towers,
-    )
+    from controller.geometry.paint_io import read_paint_set
     from controller.geometry.validation import leave_one_out
 
     if not (args.noise_mrad > 0 and args.noise_mrad < 1e3):
         raise InputError(f"--noise-mrad must be a positive number of mrad, got {args.noise_mrad}")
-    towers = read_towers(args.towers)
-    props = read_heliostat_properties(args.heliostat_properties)
-    kin = kinematics_from_properties(props, towers.origin_wgs84)
-    records = [read_record(r, towers) for r in args.records]
+    ps = read_paint_set(args.records, args.heliostat_properties, args.towers)
+    kin, records = ps.kinematics, ps.records
     folds = leave_one_out(kin, [r.sample for r in records], noise_mrad=args.noise_mrad)
     rows = []
     for f, r in zip(folds, records, strict=True):
