@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from controller.errors import InputError
@@ -15,6 +16,8 @@ from controller.errors import InputError
 # Subsample the background estimate to about this many pixels: a plane has 3 unknowns.
 _BACKGROUND_SAMPLES = 2048
 _CLIP_SIGMA = 3.0
+# The ring background searches images larger than this (px, either side) on a pyramid level.
+_LOCAL_MAX_SIDE = 320
 
 
 @dataclass(frozen=True)
@@ -94,3 +97,109 @@ def subtract_background(image: np.ndarray, background: Background) -> np.ndarray
     """Background-subtracted image (float32, or float64 for float64 input)."""
     dt = working_dtype(image)
     return np.asarray(image, dtype=dt) - background.evaluate(image.shape, dt)
+
+
+def _distance_to(region: np.ndarray) -> np.ndarray:
+    """Euclidean distance (px, float32) of every pixel to the nearest pixel of ``region``:
+    one distance transform instead of a dilation per radius."""
+    return cv2.distanceTransform((~region.astype(bool)).view(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+
+
+def _largest(above: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    """The 8-connected region of ``above`` holding the most ``weight``."""
+    n, labels = cv2.connectedComponents(above.astype(np.uint8), connectivity=8)
+    energy = np.bincount(labels.ravel(), weights=np.where(above, weight, 0.0).ravel(), minlength=n)
+    energy[0] = -np.inf
+    return labels == int(np.argmax(energy))
+
+
+def _footprint(g: np.ndarray, fraction: float) -> np.ndarray | None:
+    """The spot's footprint in the smoothed signal ``g``: the core is the most energetic region
+    above half its peak; the footprint is the region above ``fraction`` × the core's peak that
+    holds that peak, within the core's equivalent-circle radius of the core."""
+    peak = float(g.max())
+    if not peak > 0.0:
+        return None
+    core = _largest(g > 0.5 * peak, g)
+    r, c = np.unravel_index(int(np.argmax(np.where(core, g, -np.inf))), g.shape)
+    _, labels = cv2.connectedComponents((g > fraction * g[r, c]).astype(np.uint8), connectivity=8)
+    # Bounded by the core grown by its equivalent radius, so that a background structure above
+    # the low threshold and touching the spot does not join the footprint.
+    reach = _distance_to(core) <= np.sqrt(core.sum() / np.pi)
+    return (labels == labels[r, c]) & reach
+
+
+def estimate_local_background(image: np.ndarray, mask: np.ndarray | None = None, spot_fraction: float = 0.2,
+                              inner: float = 0.25, outer: float = 0.75, smooth_px: float = 3.0,
+                              iterations: int = 2) -> tuple[Background, np.ndarray]:
+    """A plane fitted only to a ring of pixels around the spot, for backgrounds one plane over
+    the whole view cannot follow (vignetting, shadow edges, a lit patch elsewhere); returns the
+    plane and the bool neighbourhood (rows, cols) where it holds.
+
+    Start from :func:`estimate_background`; then ``iterations`` times: smooth the
+    background-free image (Gaussian, σ = ``smooth_px``), find the spot's footprint (the region
+    above ``spot_fraction`` × the spot's peak around the most energetic region above half the
+    peak), and refit the sigma-clipped plane to the ring between ``inner`` and ``outer`` times
+    the footprint's equivalent radius r = √(area/π) outside it (within ``mask`` if given): the
+    ring scales with the spot, so a broad halo stays inside it. The neighbourhood is the
+    footprint grown by ``outer`` · r: outside it the plane is an extrapolation, so analysis
+    should be restricted to it. Keeps the previous plane if the ring has too few pixels.
+
+    Images larger than 320 px on a side are searched on a Gaussian pyramid level
+    (``cv2.pyrDown``, pixel x_full = 2^k x_level; σ scaled alike) and the plane's
+    slopes divided by 2^k; ``noise`` is measured at full resolution on the ring.
+    """
+    img = np.asarray(image, dtype=np.float32)
+    mask = None if mask is None else np.asarray(mask) != 0
+    small, small_mask, scale = img, mask, 1
+    while max(small.shape) > _LOCAL_MAX_SIDE:
+        small = cv2.pyrDown(small)
+        scale *= 2
+        if small_mask is not None:
+            small_mask = small_mask[::2, ::2]
+    bg, near, ring = _ring_plane(small, small_mask, spot_fraction, inner, outer, smooth_px / scale,
+                                 iterations)
+    if scale == 1:
+        return bg, near
+    rows, cols = img.shape
+
+    def full(m: np.ndarray) -> np.ndarray:
+        up = cv2.resize(m.view(np.uint8), (cols, rows), interpolation=cv2.INTER_NEAREST) > 0
+        return up if mask is None else up & mask
+
+    bg = Background(level=bg.level, slope_x=bg.slope_x / scale, slope_y=bg.slope_y / scale)
+    ring_full = full(ring)
+    if ring_full.any():
+        resid = (img - bg.evaluate(img.shape, np.float32))[ring_full]
+        bg = Background(bg.level, bg.slope_x, bg.slope_y,
+                        noise=1.4826 * float(np.median(np.abs(resid - np.median(resid)))))
+    return bg, full(near)
+
+
+def _ring_plane(img: np.ndarray, mask: np.ndarray | None, spot_fraction: float, inner: float, outer: float,
+                smooth_px: float, iterations: int) -> tuple[Background, np.ndarray, np.ndarray]:
+    """The loop of :func:`estimate_local_background` at one resolution: (plane, neighbourhood,
+    last ring)."""
+    bg = estimate_background(img, mask)
+    near = np.ones(img.shape, bool) if mask is None else np.asarray(mask, bool)
+    ring = np.zeros(img.shape, bool)
+    for _ in range(iterations):
+        signal = img - np.asarray(bg.evaluate(img.shape, np.float32), np.float32)
+        g = cv2.GaussianBlur(signal, (0, 0), smooth_px)
+        g[~near] = 0.0  # after the first pass the plane is only valid near the spot
+        spot = _footprint(g, spot_fraction)
+        if spot is None:
+            break
+        r_eq = float(np.sqrt(np.count_nonzero(spot) / np.pi))  # footprint's equivalent radius
+        dist = _distance_to(spot)
+        hood = dist <= outer * r_eq
+        new_ring = hood & (dist > inner * r_eq)
+        if mask is not None:
+            new_ring &= mask
+            hood &= mask
+        try:
+            bg = estimate_background(img, new_ring)
+        except InputError:  # ring outside the mask or the view: keep the last plane
+            break
+        near, ring = hood, new_ring
+    return bg, near, ring

@@ -32,7 +32,13 @@ import cv2
 import numpy as np
 
 from controller.errors import InputError
-from controller.imaging.background import Background, estimate_background, subtract_background, working_dtype
+from controller.imaging.background import (
+    Background,
+    estimate_background,
+    estimate_local_background,
+    subtract_background,
+    working_dtype,
+)
 from controller.imaging.moments import central_moments, hu_from_eta, normalised_central_moments
 
 SMOOTH_PX = 1.0
@@ -254,7 +260,7 @@ def _background(img: np.ndarray, background, mask: np.ndarray | None) -> Backgro
             return Background(level=0.0)
         if background == "auto":
             return estimate_background(img, mask)
-        raise InputError(f"background must be 'auto', 'none' or an image, not {background!r}")
+        raise InputError(f"background must be 'auto', 'local', 'none' or an image, not {background!r}")
     null = np.asarray(background, dtype=np.float64)
     if null.shape != img.shape:
         raise InputError(f"background image shape {null.shape} does not match image shape {img.shape}")
@@ -269,7 +275,9 @@ def analyze(image: np.ndarray, threshold: float = 0.5, background="auto", mask: 
     ----------
     image : ndarray (rows, cols), integer counts or float (HDR) intensities.
     threshold : fraction of the background-subtracted peak; pixels above it form the spot.
-    background : "auto" (sigma-clipped plane), "none", or a null image ndarray of the same shape.
+    background : "auto" (sigma-clipped plane), "local" (that plane refitted to a ring around the
+        spot, :func:`controller.imaging.background.estimate_local_background`), "none", or a
+        null image ndarray of the same shape.
     mask : optional (rows, cols) target mask, non-zero = on target.
     keep_steps : keep intermediate images in ``result.steps`` for plotting.
 
@@ -282,7 +290,11 @@ def analyze(image: np.ndarray, threshold: float = 0.5, background="auto", mask: 
         raise InputError(f"threshold must be a fraction of the peak in [0, 1), got {threshold}")
     img = check_image(image)
     m = _as_mask(mask, img.shape)
-    bg = _background(img, background, m)
+    if isinstance(background, str) and background == "local":
+        # The ring plane only holds near the spot: analyse that neighbourhood only.
+        bg, m = estimate_local_background(img, m)
+    else:
+        bg = _background(img, background, m)
     region, _, level, bbox = segment(img, bg, float(threshold), m)
     r0, r1, c0, c1 = bbox
     # A copy: for float64 input asarray would be a view, and the subtraction would write into
