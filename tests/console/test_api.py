@@ -115,7 +115,8 @@ def test_firmware_refusal_shown(plant_console):
     finally:
         drive.set_limits(original)
     body = r.json()
-    assert r.status_code == 409 and body["kind"] == "firmware_refused", body and body["outcome"] == "not_executed"
+    assert r.status_code == 409 and body["kind"] == "firmware_refused", body
+    assert body["outcome"] == "not_executed"
     assert _steps(console, "H14") == before
     assert console.holder() is None  # a refused command does not claim the target
 
