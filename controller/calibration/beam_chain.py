@@ -46,7 +46,10 @@ class BeamChain:
                 self._mergers[key] = m
         return m.merge(frame.low, frame.high)
 
-    def analyze(self, hdr: np.ndarray) -> Observation:
+    def analyze(self, hdr: np.ndarray, *, allow_clipped: bool = False) -> Observation:
+        """The beam in ``hdr``; BeamNotFound without one. A spot clipped by the view's edge is
+        refused too, unless ``allow_clipped`` (the cycle then corrects towards it and looks
+        again): its centroid is biased towards the inside, right in direction only."""
         try:
             r = analyze(hdr, threshold=self.threshold, background="auto")
         except InputError as exc:
@@ -62,7 +65,7 @@ class BeamChain:
         if not c.peak > MIN_PEAK_SNR * noise:
             raise BeamNotFound(f"no beam spot found (peak {c.peak:.4g} is within {MIN_PEAK_SNR:g}x the "
                                f"background noise σ {noise:.4g}; is the beam on the target?)")
-        if c.clipped:  # a clipped spot's centroid is biased towards the inside
+        if c.clipped and not allow_clipped:
             raise BeamNotFound(f"beam spot clipped by the {'/'.join(c.clipped)} edge of the camera view")
         if not c.total > 0:
             raise BeamNotFound("no beam energy above the threshold")
@@ -71,7 +74,7 @@ class BeamChain:
         # multi-threshold library needs the whole stack), else the analysis' Hu moments.
         hu = (np.asarray(self.library.describe(hdr, self.threshold), float).reshape(-1)
               if self.library is not None else np.asarray(r.hu))
-        return Observation((c.x, c.y), enu, hu, float(r.peak))
+        return Observation((c.x, c.y), enu, hu, float(r.peak), tuple(c.clipped))
 
     def match(self, hu: np.ndarray) -> Match | None:
         if self.library is None:

@@ -44,7 +44,7 @@ from transitions.extensions.states import Timeout, add_state_features
 
 from controller.calibration.approach import approach_path
 from controller.calibration.context import CycleContext, CycleObserver
-from controller.calibration.observations import Match, Observation
+from controller.calibration.observations import BeamNotFound, Match, Observation
 from controller.calibration.records import CorrectionRecord, RunRecord, measurement_record
 from controller.devices.drive import DriveError, LinkError, MoveCancelled
 
@@ -70,6 +70,7 @@ STATES: tuple[tuple[str, float, str], ...] = (
 )
 FINAL_STATES = ("done", "stowed", "aborted")
 FAULT_ATTEMPTS = 3  # tries to park a faulted heliostat when the link is down
+CLIPPED_LOOKS = 2  # corrections towards a spot clipped by the view's edge before giving up
 _COMPUTE_STATES = ("merging", "analysing", "matching", "verifying", "correcting")  # no device I/O
 ACTIVE_STATES = tuple(s for s, _, _ in STATES if s not in FINAL_STATES + ("fault",))
 
@@ -137,6 +138,7 @@ class CalibrationCycle:
         self.obs: Observation | None = None
         self.match: Match | None = None
         self.coarse_done = False
+        self.clipped_looks = 0
         self.observer = ctx.observer or CycleObserver()
         self.run_rec = RunRecord(ctx.heliostat_id, ctx.queue_index, "running", "idle", 0,
                                  start_s=ctx.clock(), end_s=ctx.clock())
@@ -294,6 +296,12 @@ class CalibrationCycle:
 
     def do_verifying(self) -> str:
         p, obs, m = self.ctx.pointing, self.obs, self.match
+        if obs.clipped:  # not a measurement: move towards the visible part and look again
+            self.clipped_looks += 1
+            if self.clipped_looks > CLIPPED_LOOKS:
+                raise BeamNotFound(f"beam spot clipped by the {'/'.join(obs.clipped)} edge of the camera "
+                                   f"view after {CLIPPED_LOOKS} corrections towards it")
+            return "correct"
         self.iteration += 1
         rec = measurement_record(p, obs, m, self.iteration, (self.az, self.el), self.ctx.clock(),
                                  self.ctx.utc())
@@ -320,8 +328,8 @@ class CalibrationCycle:
 
     def do_correcting(self) -> str:
         p, m = self.ctx.pointing, self.match
-        if (not self.coarse_done and m is not None and not m.unknown and m.correction_deg is not None
-                and any(abs(c) > 0 for c in m.correction_deg)):
+        if (not self.coarse_done and not self.obs.clipped and m is not None and not m.unknown
+                and m.correction_deg is not None and any(abs(c) > 0 for c in m.correction_deg)):
             step = p.coarse_correction(self.az, self.el, *m.correction_deg)
             kind = "coarse"
         else:

@@ -16,6 +16,7 @@ class Observation:
     centroid_enu: tuple[float, float, float]
     hu: np.ndarray
     peak: float
+    clipped: tuple[str, ...] = ()  # edges of the view the spot touches: its centroid is biased inward
 
 
 @dataclass(frozen=True)

@@ -24,6 +24,7 @@ Measurement chain per capture: :class:`controller.calibration.beam_chain.BeamCha
 
 from __future__ import annotations
 
+import functools
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -333,7 +334,8 @@ class Campaign:
         return CycleContext(
             heliostat_id=hid, queue_index=qi, ticket=ticket, drive=self.drive(hid),
             camera=_CameraView(self._capture), pointing=pointing,
-            merge=chain.merge, analyze=chain.analyze, match=chain.match, gate=gate,
+            merge=chain.merge, analyze=functools.partial(chain.analyze, allow_clipped=True),
+            match=chain.match, gate=gate,
             model=self.store.latest_model(hid), history=self.store.measurements(heliostat_id=hid),
             tolerance_mrad=cal.tolerance_mrad, max_iterations=1 if self.opt.observe else cal.max_iterations,
             observe_only=self.opt.observe, settle_s=self.opt.settle_s,

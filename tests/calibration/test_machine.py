@@ -238,3 +238,39 @@ def test_emergency_abort_stops_where_it_is(make_cycle):
     st = drive.status()
     assert not st.moving and (st.az_steps, st.el_steps) != plant.standby
     assert cyc.ctx.gate.blocked  # the beam may be on the target: nobody else gets it
+
+
+def test_a_clipped_spot_is_corrected_towards_and_not_recorded(make_cycle):
+    """A spot clipped by the view's edge is no measurement: the cycle moves towards it and looks
+    again (at most CLIPPED_LOOKS times), and only unclipped spots are recorded."""
+    from dataclasses import replace
+
+
+    cyc, plant, drive = make_cycle()
+    real = cyc.ctx.analyze
+    looks = []
+
+    def first_clipped(hdr):
+        obs = real(hdr)
+        looks.append(obs)
+        return replace(obs, clipped=("top",)) if len(looks) == 1 else obs
+
+    cyc.ctx.analyze = first_clipped
+    rec = cyc.run()
+    assert rec.status == "calibrated" and rec.final_state == "done"
+    assert len(looks) == rec.iterations + 1  # one look more than the recorded measurements
+    assert [c.kind for c in rec.corrections][0] == "fine"
+
+
+def test_a_spot_that_stays_clipped_faults(make_cycle):
+    from dataclasses import replace
+
+    from controller.calibration.machine import CLIPPED_LOOKS
+
+    cyc, plant, drive = make_cycle()
+    real = cyc.ctx.analyze
+    cyc.ctx.analyze = lambda hdr: replace(real(hdr), clipped=("left",))
+    rec = cyc.run()
+    assert rec.status == "failed" and rec.iterations == 0
+    assert f"after {CLIPPED_LOOKS} corrections" in rec.fault_cause
+    assert len(rec.corrections) == CLIPPED_LOOKS and rec.final_state == "done"
