@@ -1,11 +1,14 @@
-"""Auto-exposure in the loop: capture, decide (:func:`controller.imaging.autoexposure.next_exposures`),
-set, repeat."""
+"""Exposure in the loop: auto-exposure (capture, decide with
+:func:`controller.imaging.autoexposure.next_exposures`, set, repeat) and the campaign's
+capture that will not measure a beam whose core saturates both sensors."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
-from controller.devices.camera import DoubleCcdCamera
+import numpy as np
+
+from controller.devices.camera import DoubleCcdCamera, FramePair
 from controller.imaging.autoexposure import ExposureStep, next_exposures
 
 
@@ -31,3 +34,32 @@ def auto_expose(camera: DoubleCcdCamera, *, max_steps: int = 12, bit_depth: int 
             return AutoExposureResult(camera.exposures, True, tuple(steps))
         camera.set_exposures(*decision.exposures)
     return AutoExposureResult(camera.exposures, False, tuple(steps))
+
+
+RECAPTURES = 3  # shorter exposures tried before a saturated pair is handed on as it is
+
+
+def saturated_both(pair: FramePair, bit_depth: int) -> int:
+    """Pixels at full scale in the LOW (shorter) exposure, hence in both sensors: their merged
+    value is only a lower bound."""
+    return int(np.count_nonzero(np.asarray(pair.low) >= (1 << bit_depth) - 1))
+
+
+def capture_unsaturated(camera: DoubleCcdCamera, *, bit_depth: int, factor: float = 0.5,
+                        min_exposure_s: float = 1e-5) -> FramePair:
+    """A pair whose beam saturates no pixel in both sensors: when the LOW exposure has
+    saturated pixels, both exposures are shortened by ``factor`` and the pair is taken again,
+    :data:`RECAPTURES` times at most; the camera's exposures are restored afterwards. The pair's
+    metadata records ``saturated_px`` (of the pair returned) and ``recaptures``."""
+    start = camera.exposures
+    pair = camera.capture()
+    n, tries = saturated_both(pair, bit_depth), 0
+    try:
+        while n and tries < RECAPTURES and min(camera.exposures) * factor >= min_exposure_s:
+            camera.set_exposures(*(t * factor for t in camera.exposures))
+            pair = camera.capture()
+            n, tries = saturated_both(pair, bit_depth), tries + 1
+    finally:
+        if tries:
+            camera.set_exposures(*start)
+    return replace(pair, metadata={**pair.metadata, "saturated_px": n, "recaptures": tries})

@@ -34,6 +34,7 @@ from typing import Any, Protocol
 
 from controller.calibration.beam_chain import BeamChain
 from controller.calibration.context import CycleContext, CycleObserver
+from controller.calibration.exposure import capture_unsaturated
 from controller.calibration.gate import TargetGate
 from controller.calibration.machine import CalibrationCycle
 from controller.calibration.planning import order_queue
@@ -224,8 +225,9 @@ class Campaign:
         return self._drives[hid]
 
     def _capture(self):
+        # A beam core saturated in both sensors merges to lower bounds: shorter exposures first.
         with self._camera_lock:
-            return self.camera.capture()
+            return capture_unsaturated(self.camera, bit_depth=self.cfg.camera.bit_depth)
 
     # -- run ----------------------------------------------------------------------------------
     def run(self) -> CampaignResult:
