@@ -15,12 +15,12 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import statistics
 import time
 from types import SimpleNamespace
 
 import cv2
 import numpy as np
+from bench_merge import timings_ms  # this folder: the same timing for both benchmarks
 
 from controller.geometry.target_frame import TargetFrame
 from controller.imaging.beam import analyze
@@ -31,17 +31,6 @@ from simplant.sensor import SensorModel, knee_response
 
 SIZE = (1024, 768)
 CENTER = np.array([0.0, 0.0, 130.0])
-
-
-def timings_ms(fn, runs: int) -> tuple[float, float]:
-    """(median, minimum) wall time in ms."""
-    fn()  # warm-up
-    times = []
-    for _ in range(runs):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times) * 1e3, min(times) * 1e3
 
 
 def camera(shift_px: float) -> CameraModel:
