@@ -152,7 +152,7 @@ def fit_measurements(kin: HeliostatKinematics, measurements: list[MeasurementRec
     except NotIdentifiable:
         return None
     detail = {"covariance_si": fit.covariance.tolist(), "identified": fit.identified_terms(),
-              "noise_scale": fit.noise_scale}
+              "noise_scale": fit.noise_scale, "converged": fit.converged}
     return ModelRecord(fit.model.to_dict(), fit.sigma_dict(), float(fit.residual_mrad_rms), len(samples),
                        detail)
 

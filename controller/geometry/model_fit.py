@@ -90,7 +90,8 @@ class ModelFit:
     ``identified``: per term, whether the data determined it (σ < ½ prior σ); ``residual_mrad``
     per sample (angle between model and measured normals) and its RMS before/after;
     ``weights``: final robust weights; ``noise_scale`` s of Eq. (2); ``condition``: condition
-    number of the data Jacobian over the identified terms (prior-whitened)."""
+    number of the data Jacobian over the identified terms (prior-whitened); ``converged``:
+    whether the Gauss-Newton steps and robust weights settled within :data:`MAX_STEPS`."""
 
     model: TrackingModel
     sigma: np.ndarray
@@ -102,6 +103,7 @@ class ModelFit:
     weights: np.ndarray
     noise_scale: float
     condition: float
+    converged: bool = True
 
     def sigma_dict(self) -> dict[str, float]:
         return {t.key: 1e3 * float(s) for t, s in zip(TERMS, self.sigma, strict=True)}
@@ -165,6 +167,7 @@ def fit_model(kin: HeliostatKinematics, samples: Sequence[Sample], *, noise_mrad
     weights = np.ones(len(samples))
     x = np.zeros(len(TERMS))
     step = np.full(len(x), 1e-4)
+    converged = False
     for _ in range(MAX_STEPS):
         w = np.repeat(np.sqrt(weights * age_w), 2)
         r = data_res(x)
@@ -174,6 +177,7 @@ def fit_model(kin: HeliostatKinematics, samples: Sequence[Sample], *, noise_mrad
         norms = np.sqrt(age_w) * np.linalg.norm(data_res(x).reshape(-1, 2), axis=1)
         new = np.minimum(1.0, HUBER_C / np.maximum(norms, 1e-12)) if robust else weights
         if np.max(np.abs(dx)) < 1e-6 and np.allclose(new, weights, atol=1e-3):
+            converged = True
             break
         weights = new
     w = np.repeat(np.sqrt(weights * age_w), 2)
@@ -197,7 +201,8 @@ def fit_model(kin: HeliostatKinematics, samples: Sequence[Sample], *, noise_mrad
     res = np.array([normal_residual_mrad(kin, model, s) for s in samples])
     res0 = np.array([normal_residual_mrad(kin, TrackingModel(p0), s) for s in samples])
     return ModelFit(model, sigma, cov, identified, res, float(np.sqrt(np.mean(res**2))),
-                    float(np.sqrt(np.mean(res0**2))), weights, float(np.sqrt(s2)), float(sv[0] / sv[-1]))
+                    float(np.sqrt(np.mean(res0**2))), weights, float(np.sqrt(s2)), float(sv[0] / sv[-1]),
+                    converged)
 
 
 @dataclass(frozen=True, eq=False)  # numpy field

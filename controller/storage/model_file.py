@@ -56,6 +56,7 @@ def model_document(heliostat_id: str, properties: dict, origin_wgs84, fit: Model
         "noise_mrad": noise_mrad,
         "noise_scale": fit.noise_scale,
         "condition": fit.condition,
+        "converged": fit.converged,
         "training": {
             "records": records,
             "residual_mrad": [float(r) for r in fit.residual_mrad],

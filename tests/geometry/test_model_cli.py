@@ -19,7 +19,7 @@ PROPS = str(AA39 / "AA39-heliostat-properties.json")
 TOWERS = str(AA39 / "tower-measurements.json")
 RECORDS = [str(AA39 / f"AA39-calibration-properties_{i}.json") for i in (1, 2, 3)]
 DOC_KEYS = {"format", "heliostat", "origin_wgs84", "terms", "sigma", "prior_sigma", "identified",
-            "covariance_si", "noise_mrad", "noise_scale", "condition", "training"}
+            "covariance_si", "noise_mrad", "noise_scale", "condition", "converged", "training"}
 TERM_KEYS = [f"{t.name}_{t.unit}" for t in TERMS]
 N = len(TERMS)
 FIT = ["model", "fit", "--heliostat-properties", PROPS, "--towers", TOWERS]

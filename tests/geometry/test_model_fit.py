@@ -265,3 +265,12 @@ def test_predicted_daytime_error_matches_the_true_one_on_independent_truths():
     true_rms, pred_rms = np.sqrt(np.mean(true_ms)), np.sqrt(np.mean(pred_ms))
     assert 1.0 / 1.5 < true_rms / pred_rms < 1.5, (true_rms, pred_rms)
     assert np.sqrt(np.mean(uncal_ms)) > 3.0  # the truths are far from nominal: calibration mattered
+
+
+def test_a_fit_that_runs_out_of_steps_says_so(aa39, monkeypatch):
+    import controller.geometry.model_fit as mf
+
+    samples = synthetic(aa39, TRUE, 20, 0.1 * D, np.random.default_rng(5))
+    assert fit_model(aa39, samples, noise_mrad=0.1).converged
+    monkeypatch.setattr(mf, "MAX_STEPS", 1)  # one Gauss-Newton step cannot settle the weights
+    assert not fit_model(aa39, samples, noise_mrad=0.1).converged

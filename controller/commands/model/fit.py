@@ -13,6 +13,7 @@ records cannot support a fit.
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 
@@ -60,4 +61,7 @@ def run(args: argparse.Namespace) -> int:
     res = ", ".join(f"{r:.2f}" for r in fit.residual_mrad)
     print(f"  training residual (normal, mrad): {res}; RMS {fit.residual_mrad_rms:.3f} "
           f"(nominal {fit.initial_residual_mrad_rms:.3f})")
+    if not fit.converged:
+        print("  warning: the fit did not settle within its step limit; check the records for outliers",
+              file=sys.stderr)
     return 0
