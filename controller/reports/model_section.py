@@ -114,8 +114,10 @@ def _geometry_plot(cfg: PlantConfig, ids: list[str], meas, models, out: Path) ->
     rows = (n + cols - 1) // cols
     fig, axes = plt.subplots(rows, cols, figsize=(3.2 * cols, 2.8 * rows), squeeze=False, sharex=True,
                              sharey=True)
-    colours: dict[tuple, str] = {}
+    colours: dict[str, tuple] = {}
     palette = plt.get_cmap("tab10")
+    # Lamps are named by the configuration; a measurement under the sun carries no position.
+    names = {tuple(np.round(s.position_enu_m, 2)): s.id for s in cfg.light_sources if s.kind == "lamp"}
     for ax, hid in zip(axes.ravel(), ids, strict=False):
         h = cfg.heliostat(hid)
         pos = np.asarray(h.position_enu_m, float)
@@ -126,7 +128,11 @@ def _geometry_plot(cfg: PlantConfig, ids: list[str], meas, models, out: Path) ->
         for m in meas[hid]:
             if m.centroid_enu is None:
                 continue
-            key = tuple(np.round(m.source_pos_enu or m.source_dir, 2))
+            if m.source_pos_enu is None:
+                key = "sun"
+            else:
+                pos_key = tuple(np.round(m.source_pos_enu, 2))
+                key = names.get(pos_key, f"lamp at {pos_key}")
             colours.setdefault(key, palette(len(colours) % 10))
             az, el = _normals_deg([m], pos)[0]
             ax.scatter([az], [el], s=18, color=colours[key], edgecolor="k", linewidth=0.4)
@@ -140,7 +146,10 @@ def _geometry_plot(cfg: PlantConfig, ids: list[str], meas, models, out: Path) ->
         ax.set_ylabel("normal elevation, deg")
     fig.suptitle("Measured mirror normals (colour: light source) over the normals daytime tracking "
                  "needs (grey)", fontsize=10)
-    fig.tight_layout()
+    handles = [plt.Line2D([], [], ls="", marker="o", color=c, markeredgecolor="k", label=key)
+               for key, c in colours.items()]
+    fig.legend(handles=handles, loc="lower center", ncol=min(8, len(handles)), fontsize=8, frameon=False)
+    fig.tight_layout(rect=(0, 0.05, 1, 1))
     save_figure(fig, out / "geometries.png", dpi=90)
     return "Measured geometries", "geometries.png"
 
