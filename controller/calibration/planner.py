@@ -35,12 +35,11 @@ from controller.config import LampSource, PlantConfig
 from controller.errors import LimitError
 from controller.geometry.aiming import source_direction
 from controller.geometry.design import (
-    Pick,
     beam_jacobians,
     daytime_variance,
+    fixed_design,
     greedy_design,
     normal_jacobian,
-    posterior,
 )
 from controller.geometry.kinematics import HeliostatKinematics
 from controller.geometry.target_frame import TargetFrame
@@ -112,11 +111,6 @@ def candidates(cfg: PlantConfig, heliostat_id: str, model: TrackingModel) -> lis
     return out
 
 
-def _daytime_jacobians(cfg: PlantConfig, kin: HeliostatKinematics, model: TrackingModel,
-                       directions: np.ndarray) -> np.ndarray:
-    return beam_jacobians(kin, model, directions, np.asarray(cfg.target().center_enu_m, float))
-
-
 def planner_sun(cfg: PlantConfig) -> np.ndarray:
     """The sun directions the planner scores against: ``planner.sun_positions`` spread evenly
     over the yearly evaluation path (:func:`controller.calibration.daytime.sun_path`)."""
@@ -135,7 +129,7 @@ def plan_heliostat(cfg: PlantConfig, heliostat_id: str, record: ModelRecord | No
     geos = candidates(cfg, heliostat_id, model)
     if not geos:
         return []
-    a = _daytime_jacobians(cfg, kin, model, sun_dirs)
+    a = beam_jacobians(kin, model, sun_dirs, np.asarray(cfg.target().center_enu_m, float))
     v = daytime_variance(a, cov)
     predicted = 1e3 * math.sqrt(v) if math.isfinite(v) else float("inf")
     n = cal.planner.check_geometries if predicted <= cal.tolerance_mrad else cal.planner.geometries_per_night
@@ -145,13 +139,7 @@ def plan_heliostat(cfg: PlantConfig, heliostat_id: str, record: ModelRecord | No
                           np.asarray(cfg.light_source(g.lamp).position_enu_m, float)) for g in geos]
     noise = cal.model.noise_mrad * 1e-3
     if strategy == "round-robin":
-        order = round_robin(len(geos), n, offset)
-        picks, c = [], cov
-        for i in order:
-            c2 = posterior(c, hs[i], noise)
-            v2 = daytime_variance(a, c2)
-            picks.append(Pick(i, 1e3 * math.sqrt(max(v, 0.0)), 1e3 * math.sqrt(max(v2, 0.0)), v - v2))
-            c, v = c2, v2
+        picks, _ = fixed_design(cov, hs, a, noise, round_robin(len(geos), n, offset))
     elif strategy == "design":
         picks, _ = greedy_design(cov, hs, a, noise, n)
     else:

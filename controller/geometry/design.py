@@ -137,27 +137,44 @@ class Pick:
     gain: float
 
 
+def _pick(index: int, v_before: float, v_after: float) -> Pick:
+    return Pick(index, 1e3 * float(np.sqrt(max(v_before, 0.0))), 1e3 * float(np.sqrt(max(v_after, 0.0))),
+                v_before - v_after)
+
+
 def greedy_design(cov: np.ndarray, candidates: Sequence[np.ndarray], a: np.ndarray, noise_rad: float,
-                  n: int, *, distinct: bool = True) -> tuple[list[Pick], np.ndarray]:
+                  n: int) -> tuple[list[Pick], np.ndarray]:
     """Pick up to ``n`` of ``candidates`` (each an H of Eq. 1) by greatest gain, updating Σ after
-    each; returns the picks and the final covariance. ``distinct``: each candidate at most once
-    (a repeat only averages noise; a new geometry separates terms)."""
+    each, each candidate at most once (a repeat only averages noise; a new geometry separates
+    terms); returns the picks and the final covariance."""
     picks: list[Pick] = []
     used: set[int] = set()
     v = daytime_variance(a, cov)
     for _ in range(min(n, len(candidates))):
         best = None
         for i, h in enumerate(candidates):
-            if distinct and i in used:
+            if i in used:
                 continue
             c = posterior(cov, h, noise_rad)
             vi = daytime_variance(a, c)
             if best is None or vi < best[1]:
                 best = (i, vi, c)
-        if best is None:
-            break
         i, vi, cov = best
         used.add(i)
-        picks.append(Pick(i, 1e3 * float(np.sqrt(max(v, 0.0))), 1e3 * float(np.sqrt(max(vi, 0.0))), v - vi))
+        picks.append(_pick(i, v, vi))
+        v = vi
+    return picks, cov
+
+
+def fixed_design(cov: np.ndarray, candidates: Sequence[np.ndarray], a: np.ndarray, noise_rad: float,
+                 order: Sequence[int]) -> tuple[list[Pick], np.ndarray]:
+    """The candidates of ``order`` taken as they come (a schedule that does not look at the
+    gain), scored like :func:`greedy_design`."""
+    picks: list[Pick] = []
+    v = daytime_variance(a, cov)
+    for i in order:
+        cov = posterior(cov, candidates[i], noise_rad)
+        vi = daytime_variance(a, cov)
+        picks.append(_pick(i, v, vi))
         v = vi
     return picks, cov
