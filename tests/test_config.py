@@ -150,3 +150,17 @@ def test_demo_config_is_valid_and_x_keys_are_ignored():
     assert len(cfg.heliostats) == 18
     assert cfg.light_source().kind == "lamp" and cfg.target().id == "tower-target"
     assert cfg.heliostats[0].axes.azimuth.increment == pytest.approx(154166.6667)
+
+
+def test_unknown_tracking_model_term_is_refused_before_any_work(tmp_path, capsys):
+    """``calibration.model.prior_sigma`` keys are checked against the model's terms before a
+    campaign starts (a misspelt term would otherwise fail every fit of the night)."""
+    data = _demo_data()
+    data["calibration"]["model"]["prior_sigma"] = {"base_yawn_mrad": 5.0}
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(yaml.safe_dump(data))
+    out = tmp_path / "run"
+    assert main(["demo", "--config", str(bad), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and str(bad) in err and "'base_yawn_mrad'" in err
+    assert not out.exists()

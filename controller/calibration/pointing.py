@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from datetime import datetime
 
 import numpy as np
 
@@ -37,6 +38,7 @@ class GeometryPointing:
                  standby_offset_m: float, current_steps: tuple[int, int] | None = None,
                  model_settings: ModelSettings | None = None, aim_point=None) -> None:
         self.model_settings = model_settings or ModelSettings()
+        model_prior(self.model_settings)  # an unknown term is refused before anything moves
         self.kin = HeliostatKinematics.from_config(heliostat)
         self.heliostat_pos = np.asarray(heliostat.position_enu_m, float)
         self.target = target
@@ -147,8 +149,7 @@ def fit_measurements(kin: HeliostatKinematics, measurements: list[MeasurementRec
                       None if m.source_pos_enu is None else np.asarray(m.source_pos_enu, float))
                for m, w in zip(used, weights, strict=True)]
     try:
-        fit = fit_model(kin, samples, noise_mrad=settings.noise_mrad,
-                        prior_sigma=prior_sigma(settings.prior_sigma, "calibration.model.prior_sigma"))
+        fit = fit_model(kin, samples, noise_mrad=settings.noise_mrad, prior_sigma=model_prior(settings))
     except NotIdentifiable:
         return None
     detail = {"covariance_si": fit.covariance.tolist(), "identified": fit.identified_terms(),
@@ -157,12 +158,17 @@ def fit_measurements(kin: HeliostatKinematics, measurements: list[MeasurementRec
                        detail)
 
 
+def model_prior(settings: ModelSettings, source: str = "") -> np.ndarray:
+    """Prior 1-σ (SI) of every tracking-model term from ``calibration.model``; InputError
+    naming ``source`` (the config file) and an unknown term key."""
+    return prior_sigma(settings.prior_sigma, f"{source}: calibration.model.prior_sigma" if source
+                       else "calibration.model.prior_sigma")
+
+
 def age_weights(stamps: list[str], halflife_days: float) -> np.ndarray:
     """Fit weight of each measurement, w = 2^(−age / half-life), its age counted in days back
     from the newest of ``stamps`` (ISO 8601 UTC): the heliostat drifts, so old measurements
     tell less about it now. An unreadable stamp weighs 1."""
-    from datetime import datetime
-
     def parse(s: str) -> float | None:
         try:
             return datetime.fromisoformat(s.replace("Z", "+00:00")).timestamp()

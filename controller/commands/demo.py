@@ -39,9 +39,11 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from controller.calibration.pointing import model_prior
     from simplant.plant import field_selection
 
     cfg = load_config(args.config)
+    model_prior(cfg.calibration.model, str(args.config))  # refused before any slow work
     if not 1 <= args.heliostats <= len(cfg.heliostats):
         raise InputError(f"--heliostats must be 1 … {len(cfg.heliostats)} (the heliostats of {args.config}), "
                          f"got {args.heliostats}")
