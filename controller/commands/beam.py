@@ -16,7 +16,7 @@ import numpy as np
 from controller.commands._common import add_json_option, existing_file, output_dir, print_json
 from controller.errors import InputError
 from controller.imaging.beam import BeamResult, analyze
-from controller.io.images import read_image, save_figure
+from controller.io.images import pyplot, read_image, save_figure
 
 
 def add_threshold_option(parser: argparse.ArgumentParser) -> None:
@@ -81,10 +81,7 @@ def run(args: argparse.Namespace) -> int:
 def plot_steps(result: BeamResult, out: Path) -> list[Path]:
     """One PNG per step of the chain (input, background, subtracted, mask, threshold, spot with
     centroid, ellipse and d90 circle). Written atomically; returns the paths."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
     from matplotlib.patches import Circle
     from matplotlib.patches import Ellipse as EllipsePatch
 

@@ -60,12 +60,9 @@ def run_fit(args) -> int:
 
 def _plot_fit(path, crf, samples: dict) -> None:
     """Each sensor's fitted response z(X) (the inverse of the tabulated I(z)) over its data."""
-    import matplotlib
+    from controller.io.images import pyplot, save_figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from controller.io.images import save_figure
+    plt = pyplot()
 
     fig, ax = plt.subplots(figsize=(6.4, 4.2))
     for sensor, (x, z) in zip(crf.sensors, samples.values(), strict=True):

@@ -32,7 +32,7 @@ from controller.flux.sun_disc import SunDiscError, find_sun_disc
 from controller.imaging.crf import Crf
 from controller.imaging.crf_io import load_crf
 from controller.imaging.hdr import HdrMerger, merge_above_offset
-from controller.io.images import read_image, save_figure, write_float_image
+from controller.io.images import pyplot, read_image, save_figure, write_float_image
 
 HDR_DARK_OFFSET = 8.0
 
@@ -231,9 +231,7 @@ def _sun_disc(args: argparse.Namespace, sun_path: Path, sun: np.ndarray, crf: Cr
 
 
 def _write_png(path: str, flux: np.ndarray) -> None:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     fig, ax = plt.subplots(figsize=(6.4, 4.8), dpi=100)
     im = ax.imshow(flux / 1e3, cmap="inferno", origin="upper")

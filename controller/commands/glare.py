@@ -23,7 +23,7 @@ from controller.errors import InputError
 from controller.flux import glare
 from controller.flux.phlux import SUN_ANGLE_RAD
 from controller.flux.sun_disc import SunDiscError, find_sun_disc, saturation_level_for
-from controller.io.images import read_image, save_figure
+from controller.io.images import pyplot, read_image, save_figure
 
 ZONE_COLOURS = {"green": "#4caf50", "yellow": "#ffc107", "red": "#e53935"}
 
@@ -211,9 +211,7 @@ def _hazard_axes(ax, th: glare.HazardThresholds) -> None:
 
 def _write_png(path: str, th: glare.HazardThresholds, points: tuple[np.ndarray, np.ndarray],
                curve: glare.GlareCurve | None) -> None:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     if curve is None:
         fig, ax = plt.subplots(figsize=(6.4, 4.8), dpi=100)

@@ -129,6 +129,17 @@ def write_preview(path: str | Path, image: np.ndarray) -> Path:
     return p
 
 
+def pyplot():
+    """``matplotlib.pyplot`` on the Agg backend (files only, no display), imported on first use:
+    commands that draw nothing do not pay for matplotlib's import."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
 def save_figure(fig, path: str | Path, **savefig_kw) -> None:
     """Save a matplotlib figure as PNG atomically, then close it (also on failure)."""
     try:

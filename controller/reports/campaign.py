@@ -31,7 +31,7 @@ import numpy as np
 
 from controller.calibration.records import CampaignRecord, RunRecord
 from controller.errors import InputError
-from controller.io.images import read_image, save_figure, write_atomic
+from controller.io.images import pyplot, read_image, save_figure, write_atomic
 from controller.reports.confusion_plot import plot_confusion
 from controller.reports.model_section import model_section
 from controller.reports.summary import ReferenceTruth, summarize
@@ -44,10 +44,7 @@ def _fmt(v, nd: int = 3) -> str:
 
 def _plots(store: CampaignStore, camp: CampaignRecord, runs: list[RunRecord],
            out: Path) -> list[tuple[str, str]]:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     figs = []
     before = [r.error_before_mrad for r in runs if r.error_before_mrad is not None]
@@ -115,10 +112,7 @@ def _trend(store: CampaignStore, camp: CampaignRecord, out: Path) -> tuple[str, 
     nights = [c for c in store.campaigns() if c.id <= camp.id]
     if len(nights) < 2:
         return None
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     series: dict[str, list[tuple[int, float]]] = {}
     for i, c in enumerate(nights):

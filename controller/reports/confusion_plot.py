@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from controller.io.images import save_figure
+from controller.io.images import pyplot, save_figure
 
 UNKNOWN = "unknown"
 
@@ -16,10 +16,7 @@ def plot_confusion(matrix: np.ndarray, unknown: np.ndarray, labels: list[str], p
     """Heatmap of a (k, k) confusion ``matrix`` (rows true, columns predicted) with the
     ``unknown`` rejections (k,) as an extra column, counts written in every cell, a colour bar
     and ``title``; written atomically to ``path`` (PNG)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     k = len(labels)
     full = np.column_stack([np.asarray(matrix), np.asarray(unknown)])

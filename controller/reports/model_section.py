@@ -29,7 +29,7 @@ from controller.geometry.aiming import aim_normal
 from controller.geometry.kinematics import HeliostatKinematics
 from controller.geometry.tracking_model import TERMS
 from controller.geometry.vectors import vector_to_azel
-from controller.io.images import save_figure, write_atomic
+from controller.io.images import pyplot, save_figure, write_atomic
 from controller.storage.db import CampaignStore
 
 
@@ -102,10 +102,7 @@ def _terms_csv(path: Path, models: dict[str, ModelRecord | None]) -> None:
 
 
 def _geometry_plot(cfg: PlantConfig, ids: list[str], meas, models, out: Path) -> tuple[str, str]:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     path = sun_path(cfg.site)
     target = np.asarray(cfg.target().center_enu_m, float)
@@ -155,10 +152,7 @@ def _geometry_plot(cfg: PlantConfig, ids: list[str], meas, models, out: Path) ->
 
 
 def _daytime_plot(per: dict[str, float], nights: list[dict], out: Path) -> tuple[str, str]:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     fig, axes = plt.subplots(1, 2 if nights else 1, figsize=(10 if nights else 5.5, 3.6), squeeze=False)
     vals = np.array([v for v in per.values() if np.isfinite(v)])

@@ -13,7 +13,7 @@ import numpy as np
 from controller.imaging.beam import analyze
 from controller.imaging.hdr import HdrMerger
 from controller.imaging.weights import NAMES
-from controller.io.images import save_figure, write_atomic
+from controller.io.images import pyplot, save_figure, write_atomic
 from simplant.camera import SimulatedCamera
 from simplant.optics import MirrorSurface, TargetGrid, render_spot
 
@@ -127,11 +127,7 @@ def run_study(cfg, pairs: int, seed: int, heliostat_id: str | None = None, progr
 
 def write_plots(out: Path, study: WeightingStudy) -> None:
     """``rms_vs_threshold.png``, ``weighting_functions.png`` and ``profiles.png`` in ``out``."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     thr = study.thresholds
     fig, ax = plt.subplots(figsize=(6.4, 4.2))
     for w, r in study.rms_px.items():
