@@ -40,12 +40,10 @@ def _config(camp: CampaignRecord) -> PlantConfig | None:
         return None  # moved or changed since: the section says what it can without it
 
 
-def _normals_deg(ms: list[MeasurementRecord], position: np.ndarray) -> np.ndarray:
-    """(n, 2) azimuth/elevation (deg) of the normals the measurements imply."""
-    out = [vector_to_azel(aim_normal(np.asarray(m.source_dir, float), position,
-                                     np.asarray(m.centroid_enu, float)))
-           for m in ms if m.centroid_enu is not None]
-    return np.asarray(out, float).reshape(-1, 2)
+def _normal_deg(m: MeasurementRecord, position: np.ndarray) -> tuple[float, float]:
+    """Azimuth and elevation (deg) of the normal a measurement with a centroid implies."""
+    n = aim_normal(np.asarray(m.source_dir, float), position, np.asarray(m.centroid_enu, float))
+    return vector_to_azel(n)
 
 
 def model_section(store: CampaignStore, camp: CampaignRecord,
@@ -131,7 +129,7 @@ def _geometry_plot(cfg: PlantConfig, ids: list[str], meas, models, out: Path) ->
                 pos_key = tuple(np.round(m.source_pos_enu, 2))
                 key = names.get(pos_key, f"lamp at {pos_key}")
             colours.setdefault(key, palette(len(colours) % 10))
-            az, el = _normals_deg([m], pos)[0]
+            az, el = _normal_deg(m, pos)
             ax.scatter([az], [el], s=18, color=colours[key], edgecolor="k", linewidth=0.4)
         ax.set_title(f"{hid}: {len(meas[hid])} measurements", fontsize=9)
         ax.grid(alpha=0.3)
