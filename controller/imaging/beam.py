@@ -7,7 +7,9 @@
 3. :func:`segment` - threshold at a fraction of the peak; keep the connected region
    (8-connected) holding the most energy, so stray hot pixels and grid glints do not count.
 4. intensity-weighted sub-pixel centroid, from :func:`controller.imaging.moments.central_moments`
-   of the unsmoothed signal inside the region (ISO 11146-1 first-order moments).
+   of the unsmoothed signal inside the region (ISO 11146-1 first-order moments); with
+   ``background="fit"`` instead the centre of a spot model fitted with its background plane
+   (:mod:`controller.imaging.spot_fit`), which needs no threshold.
 5. peak and total of the background-subtracted spot.
 6. :func:`second_moment_ellipse` - equivalent uniform ellipse.
 7. :func:`enclosed_energy_diameter` - d90 about the centroid.
@@ -40,6 +42,7 @@ from controller.imaging.background import (
     working_dtype,
 )
 from controller.imaging.moments import central_moments, hu_from_eta, normalised_central_moments
+from controller.imaging.spot_fit import SpotFit, SpotGuess, fit_spot
 
 SMOOTH_PX = 1.0
 
@@ -71,6 +74,7 @@ class BeamResult:
     saturated_pixels: int
     bbox: tuple[int, int, int, int]
     steps: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
+    spot_fit: SpotFit | None = None  # the model fit, with background="fit"
 
     def as_dict(self) -> dict:
         """The CLI/JSON contract of ``heliocal beam``."""
@@ -86,6 +90,7 @@ class BeamResult:
                 "angle_deg": self.ellipse.angle_deg,
             },
             "d90_px": self.d90_px,
+            **({"spot_fit": self.spot_fit.as_dict()} if self.spot_fit is not None else {}),
         }
 
 
@@ -260,11 +265,25 @@ def _background(img: np.ndarray, background, mask: np.ndarray | None) -> Backgro
             return Background(level=0.0)
         if background == "auto":
             return estimate_background(img, mask)
-        raise InputError(f"background must be 'auto', 'local', 'none' or an image, not {background!r}")
+        raise InputError(f"background must be 'auto', 'local', 'fit', 'none' or an image, not {background!r}")
     null = np.asarray(background, dtype=np.float64)
     if null.shape != img.shape:
         raise InputError(f"background image shape {null.shape} does not match image shape {img.shape}")
     return Background(level=float(np.median(null)), image=null)
+
+
+def _guess(img: np.ndarray, bg: Background, threshold: float, m: np.ndarray | None) -> SpotGuess:
+    """Start of the spot-model fit: centroid, peak and second-moment widths of the segmented
+    spot (a uniform ellipse's full axis is 4 sigma, :func:`second_moment_ellipse`)."""
+    region, _, _, (r0, r1, c0, c1) = segment(img, bg, threshold, m)
+    signal = np.array(img[r0:r1, c0:c1], dtype=np.float64) - bg.evaluate((r1 - r0, c1 - c0), origin=(r0, c0))
+    weights = np.where(region, signal, 0.0)
+    cm = central_moments(weights)
+    if not cm.m00 > 0.0:
+        raise InputError("no beam: segmented spot has no energy")
+    ell = second_moment_ellipse(cm.mu["20"], cm.mu["02"], cm.mu["11"], cm.m00)
+    return SpotGuess(x=cm.cx + c0, y=cm.cy + r0, peak=float(weights.max()), sigma_major_px=ell.major_px / 4,
+                     sigma_minor_px=ell.minor_px / 4, angle_deg=ell.angle_deg)
 
 
 def analyze(image: np.ndarray, threshold: float = 0.5, background="auto", mask: np.ndarray | None = None,
@@ -276,8 +295,11 @@ def analyze(image: np.ndarray, threshold: float = 0.5, background="auto", mask: 
     image : ndarray (rows, cols), integer counts or float (HDR) intensities.
     threshold : fraction of the background-subtracted peak; pixels above it form the spot.
     background : "auto" (sigma-clipped plane), "local" (that plane refitted to a ring around the
-        spot, :func:`controller.imaging.background.estimate_local_background`), "none", or a
-        null image ndarray of the same shape.
+        spot, :func:`controller.imaging.background.estimate_local_background`), "fit" (the local
+        plane and an elliptical super-Gaussian fitted jointly by robust least squares,
+        :func:`controller.imaging.spot_fit.fit_spot`; the centroid is the model's centre and
+        the rest is measured above the fitted plane), "none", or a null image ndarray of the
+        same shape.
     mask : optional (rows, cols) target mask, non-zero = on target.
     keep_steps : keep intermediate images in ``result.steps`` for plotting.
 
@@ -290,9 +312,13 @@ def analyze(image: np.ndarray, threshold: float = 0.5, background="auto", mask: 
         raise InputError(f"threshold must be a fraction of the peak in [0, 1), got {threshold}")
     img = check_image(image)
     m = _as_mask(mask, img.shape)
-    if isinstance(background, str) and background == "local":
+    fit = None
+    if isinstance(background, str) and background in ("local", "fit"):
         # The ring plane only holds near the spot: analyse that neighbourhood only.
         bg, m = estimate_local_background(img, m)
+        if background == "fit":
+            fit = fit_spot(img, m, _guess(img, bg, float(threshold), m), bg)
+            bg = fit.background
     else:
         bg = _background(img, background, m)
     region, _, level, bbox = segment(img, bg, float(threshold), m)
@@ -306,9 +332,9 @@ def analyze(image: np.ndarray, threshold: float = 0.5, background="auto", mask: 
     cm = central_moments(weights)
     if not cm.m00 > 0.0:
         raise InputError("no beam: segmented spot has no energy")
-    cx, cy = cm.cx + c0, cm.cy + r0
+    cx, cy = (cm.cx + c0, cm.cy + r0) if fit is None else (fit.x, fit.y)
     ell = second_moment_ellipse(cm.mu["20"], cm.mu["02"], cm.mu["11"], cm.m00)
-    d90 = enclosed_energy_diameter(weights, cm.cx, cm.cy)
+    d90 = enclosed_energy_diameter(weights, cx - c0, cy - r0)
     pixels = int(np.count_nonzero(region))
     # Unit mean intensity over the spot: eta scales as mean^-(p+q)/2 (see moments.normalise_intensity).
     hu = hu_from_eta(normalised_central_moments(cm.scaled(pixels / cm.m00)))
@@ -331,6 +357,6 @@ def analyze(image: np.ndarray, threshold: float = 0.5, background="auto", mask: 
     return BeamResult(
         centroid_px=(float(cx), float(cy)), peak=peak, total=float(cm.m00), pixels=pixels, hu=hu,
         ellipse=ell, d90_px=d90, background=bg, threshold_level=level, saturated_pixels=saturated,
-        bbox=bbox, steps=steps,
+        bbox=bbox, steps=steps, spot_fit=fit,
     )
 
