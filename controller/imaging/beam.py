@@ -295,11 +295,11 @@ def analyze(image: np.ndarray, threshold: float = 0.5, background="auto", mask: 
     image : ndarray (rows, cols), integer counts or float (HDR) intensities.
     threshold : fraction of the background-subtracted peak; pixels above it form the spot.
     background : "auto" (sigma-clipped plane), "local" (that plane refitted to a ring around the
-        spot, :func:`controller.imaging.background.estimate_local_background`), "fit" (the local
-        plane and an elliptical super-Gaussian fitted jointly by robust least squares,
-        :func:`controller.imaging.spot_fit.fit_spot`; the centroid is the model's centre and
-        the rest is measured above the fitted plane), "none", or a null image ndarray of the
-        same shape.
+        spot, :func:`controller.imaging.background.estimate_local_background`), "fit" (from the local
+        plane, a quadratic background and an elliptical super-Gaussian fitted jointly by robust
+        least squares over the same neighbourhood, :func:`controller.imaging.spot_fit.fit_spot`;
+        the centroid is the model's centre, the rest is measured above the fitted surface),
+        "none", or a null image ndarray of the same shape.
     mask : optional (rows, cols) target mask, non-zero = on target.
     keep_steps : keep intermediate images in ``result.steps`` for plotting.
 
