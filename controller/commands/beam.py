@@ -1,8 +1,10 @@
 """``heliocal beam IMAGE``: beam-spot analysis (centroid, peak, total, ellipse, d90, Hu moments).
 
 JSON (``--json``): ``{"centroid_px": [x, y], "peak", "total", "pixels", "hu": [7],
-"ellipse": {"major_px", "minor_px", "angle_deg"}, "d90_px"}``; x = column, y = row, (0, 0) the
-centre of the top-left pixel. ``--plot DIR`` writes one PNG per intermediate step.
+"ellipse": {"major_px", "minor_px", "angle_deg"}, "d90_px", "saturated_px"}``; x = column,
+y = row, (0, 0) the centre of the top-left pixel. With ``--background fit`` also
+``"spot_fit": {"centre_px", "amplitude", "sigma_major_px", "sigma_minor_px", "angle_deg",
+"exponent", "residual_rms"}``. ``--plot DIR`` writes one PNG per intermediate step.
 """
 
 from __future__ import annotations
@@ -29,8 +31,10 @@ def register(subparsers) -> None:
                               description=__doc__.splitlines()[0])
     p.add_argument("image", metavar="IMAGE", help="8/16-bit grey PNG/TIFF, float .npy/.tiff")
     add_threshold_option(p)
-    p.add_argument("--background", default="auto", metavar="auto|none|FILE",
-                   help="background: auto (sigma-clipped plane), none, or a null image (default auto)")
+    p.add_argument("--background", default="auto", metavar="auto|local|fit|none|FILE",
+                   help="background: auto (sigma-clipped plane), local (plane refitted to a ring around "
+                        "the spot), fit (spot model + background surface, robust least squares; the "
+                        "centroid is the model centre), none, or a null image (default auto)")
     p.add_argument("--mask", metavar="FILE", help="target mask image (non-zero = on target)")
     p.add_argument("--plot", metavar="DIR", help="write the intermediate steps as PNGs into DIR")
     add_json_option(p)
@@ -50,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
         output_dir(args.plot, "--plot")
     image = read_image(existing_file(args.image, "image"))
     background = args.background
-    if background not in ("auto", "none"):
+    if background not in ("auto", "local", "fit", "none"):
         background = read_image(existing_file(background, "background image"))
     mask = read_image(existing_file(args.mask, "mask image")) if args.mask else None
     try:

@@ -2,22 +2,36 @@
 
 UTIS (Kuhl et al., Solar Energy 2024) is projected into the 256x256 target image through the
 target's four measured corners (beamkit.project_to_image). Measured offsets of our centroid
-(threshold 0.5) from UTIS, in px (1 px ~ 34 mm):
+from UTIS, in px (1 px ~ 34 mm; `analyze(..., background=B)`, threshold 0.5):
 
-    background       106293 137608 213508 216331 240796 99927 | mean median max
-    auto  (plane)       2.5    1.0    2.0    7.0    7.2   2.0 |  3.6   2.2   7.2
-    local (ring plane)  1.5    0.6    2.0    7.0    3.5   1.8 |  2.8   1.9   7.0
+    background         106293 137608 213508 216331 240796 99927 | mean median max
+    auto  (plane)         2.5    1.0    2.0    7.0    7.2   2.0 |  3.6   2.2   7.2
+    local (ring plane)    1.5    0.6    2.0    7.0    3.5   1.8 |  2.8   1.9   7.0
+    fit   (spot model)    0.75   0.84   0.45   7.1    3.4   1.14 | 2.29  0.99  7.1
 
-"local" refits the background plane to a ring around the spot (analysis restricted to that
-neighbourhood), which follows the shadow edge next to the spot of 240796 better than one
-plane over the view; the step itself still biases it. 216331 is the faintest spot (~40 counts
-over a 177-count target, flat-topped, so the half-peak region is small and noise-shaped);
-there the two independent methods in the record, HeliOS and UTIS, differ by 13.2 px (ours:
-7.0 px from UTIS, 11.6 px from HeliOS). The ring size (0.25-0.75 footprint radii) was chosen
-from three settings on synthetic spots *and these six photos* (docs/imaging.md), so this is
-not an independent test. The issue's goal (mean <= 1.5 px, max <= 3 px) is not
-reached. Tolerances: auto every sample < 9 px and median < 3 px; local every sample < 8 px,
-mean < 3 px, median < 2.5 px and the shadow-edge sample < 4.5 px.
+"fit" (controller/imaging/spot_fit.py) fits an elliptical super-Gaussian and a quadratic
+background by Cauchy-loss least squares over the ring neighbourhood of "local"; its centroid is
+the model's centre. **The issue's goal (mean <= 1.5 px, max <= 3 px against UTIS) is not
+reached**: mean 2.29, max 7.1. The two misses, from the images:
+
+- 216331: UTIS's own flux estimate (216331-flux.png) holds a detached lobe in the top-right
+  corner of the target (4.9 % of its energy) which moves UTIS's whole-flux centroid by 7.2 px.
+  Against the centroid of UTIS's *main lobe* (the largest connected part of the flux image) our
+  fit is 1.47 px off (local 0.55). Matching UTIS there would mean counting that corner
+  brightness as beam, which no spot method here does.
+- 240796: a shadow step runs under the lower-right tail of the spot; the background there is
+  lower than any smooth surface through the ring predicts, so the tail is under-weighted and
+  the centroid pulled up-left (3.4 px). A background with explicit step edges would be needed.
+
+Against UTIS's main lobe the fit is 0.76 0.96 0.68 1.47 3.62 1.00 px (mean 1.42, max 3.62).
+
+Not independent: the spot-model method was chosen after trying, on these six photos, a
+full-energy centroid above the ring plane (k x noise footprint), gradient-domain step removal,
+harmonic and masked-median backgrounds (docs/imaging.md); its loss scale (2 noise sigma) and
+the use of the "local" ring (0.25-0.75 radii, itself chosen with these photos) were kept from
+that comparison. The synthetic checks with known centroids are tests/imaging/test_spot_fit.py.
+Tolerances below: auto every sample < 9 px and median < 3 px; local every sample < 8 px,
+mean < 3 px, median < 2.5 px, shadow-edge sample < 4.5 px; fit as in its test.
 """
 
 from __future__ import annotations
@@ -74,3 +88,47 @@ def test_local_background_centroid_close_to_utis_on_real_photos(towers):
     assert float(np.median(list(offsets.values()))) < 2.5, offsets
     # The shadow-edge sample is where the ring plane helps: 7.2 px with the whole-view plane.
     assert offsets["240796"] < 4.5, offsets
+
+
+def _main_lobe_centroid(sample: str) -> np.ndarray:
+    """Intensity centroid of the largest (most energetic) 8-connected part of UTIS's flux image."""
+    flux = cv2.imread(str(PAINT / f"{sample}-flux.png"), cv2.IMREAD_GRAYSCALE).astype(float)
+    _, labels = cv2.connectedComponents((flux > 0).astype(np.uint8), connectivity=8)
+    energy = np.bincount(labels.ravel(), weights=flux.ravel())
+    energy[0] = -1.0
+    w = np.where(labels == int(np.argmax(energy)), flux, 0.0)
+    yy, xx = np.indices(w.shape)
+    return np.array([(w * xx).sum(), (w * yy).sum()]) / w.sum()
+
+
+def test_spot_fit_centroid_close_to_utis_on_real_photos(towers):
+    to_utis, to_main = {}, {}
+    for sample in SAMPLES:
+        r = analyze(read_image(PAINT / f"{sample}-cropped.png"), background="fit")
+        c = np.array(r.centroid_px)
+        to_utis[sample] = float(np.hypot(*(c - _utis_px(sample, towers))))
+        to_main[sample] = float(np.hypot(*(c - _main_lobe_centroid(sample))))
+    assert len(to_utis) == 6
+    # The four photos without a shadow edge under the spot or a detached lobe: measured
+    # 0.45-1.14 px (local: 0.55-2.02).
+    for sample in ("106293", "137608", "213508", "99927"):
+        assert to_utis[sample] < 1.5, to_utis
+    assert float(np.mean(list(to_utis.values()))) < 2.6, to_utis  # measured 2.29 (local 2.75)
+    assert to_utis["240796"] < 4.0, to_utis  # measured 3.42: the shadow step under the tail
+    assert to_utis["216331"] < 8.0, to_utis  # measured 7.11: UTIS counts a detached lobe
+    # Against UTIS's main lobe, 216331 agrees too (measured 1.47 px); 240796 stays at 3.6 px.
+    assert to_main["216331"] < 2.0, to_main
+    assert float(np.mean(list(to_main.values()))) < 1.6, to_main  # measured 1.42
+
+
+def test_utis_flux_of_216331_has_a_detached_lobe():
+    # Why no spot centroid reaches UTIS on 216331: UTIS's whole-flux centroid sits 7.2 px from the
+    # centroid of its own main lobe; on the other samples the two agree within 0.25 px.
+    gap = {}
+    for sample in SAMPLES:
+        flux = cv2.imread(str(PAINT / f"{sample}-flux.png"), cv2.IMREAD_GRAYSCALE).astype(float)
+        yy, xx = np.indices(flux.shape)
+        whole = np.array([(flux * xx).sum(), (flux * yy).sum()]) / flux.sum()
+        gap[sample] = float(np.hypot(*(whole - _main_lobe_centroid(sample))))
+    assert gap["216331"] > 5.0, gap
+    assert max(v for k, v in gap.items() if k != "216331") < 0.5, gap
