@@ -37,6 +37,8 @@ from controller.imaging.background import Background
 _FIT_SAMPLES = 12_000
 # Cauchy scale in units of the background noise: residuals beyond ~2 noise sigma lose weight.
 F_SCALE = 2.0
+# A fitted spot whose amplitude is below this many residual sigmas is refused as noise.
+MIN_SNR = 5.0
 
 
 @dataclass(frozen=True)
@@ -85,7 +87,7 @@ P_MIN, P_MAX = 0.5, 4.0
 def _exponent(k: float) -> tuple[float, float]:
     """P = P_MIN + (P_MAX - P_MIN) / (1 + e^-k) and dP/dk; k = 0 is P = 2.25, so the start
     k0 = logit((1 - P_MIN) / (P_MAX - P_MIN)) gives a Gaussian (P = 1)."""
-    sig = 1.0 / (1.0 + np.exp(-k))
+    sig = 0.5 * (1.0 + np.tanh(0.5 * k))  # = 1 / (1 + e^-k), without overflow for large |k|
     return P_MIN + (P_MAX - P_MIN) * sig, (P_MAX - P_MIN) * sig * (1.0 - sig)
 
 
@@ -187,8 +189,9 @@ def fit_spot(image: np.ndarray, region: np.ndarray, guess: SpotGuess, background
     sets the loss scale (``f_scale`` x its ``noise``); the curvature terms start at 0.
     Cauchy-loss Levenberg-Marquardt (:func:`_robust_lm`) with the analytic Jacobian of Eq. (1).
 
-    Raises InputError when the fit does not converge or ends with an empty, non-finite or
-    off-region spot, so that a caller never gets a centre the model does not support.
+    Raises InputError when the fit does not converge or ends with a non-finite, off-region,
+    unresolved (a width below 1 px) or insignificant spot (amplitude <= 5 residual sigmas), so
+    that a caller never gets a centre the model does not support.
     """
     img = np.asarray(image)
     reg = np.asarray(region, bool)
@@ -210,16 +213,20 @@ def fit_spot(image: np.ndarray, region: np.ndarray, guess: SpotGuess, background
     a, bx, by, amp, x0, y0, lu, lv, t, k = p[:10]
     inside = 0 <= int(round(y0)) < reg.shape[0] and 0 <= int(round(x0)) < reg.shape[1] \
         and reg[int(round(y0)), int(round(x0))]
-    if not converged or not np.all(np.isfinite(p)) or not amp > 0 or not inside:
-        raise InputError(f"spot fit failed ({'converged' if converged else 'no convergence'}; centre "
-                         f"({x0:.1f}, {y0:.1f}) px, amplitude {amp:.3g})")
     su, sv = float(np.exp(lu)), float(np.exp(lv))
+    rms = 1.4826 * float(np.median(np.abs(resid - np.median(resid))))
+    # A spot must be resolved (both widths >= 1 px) and stand out of the noise (peak above
+    # MIN_SNR residual sigmas); a fit to noise ends as a faint needle.
+    if (not converged or not np.all(np.isfinite(p)) or not inside or not amp > MIN_SNR * rms
+            or min(su, sv) < 1.0):
+        raise InputError(f"spot fit failed ({'converged' if converged else 'no convergence'}; centre "
+                         f"({x0:.1f}, {y0:.1f}) px, amplitude {amp:.3g} over residual noise {rms:.3g}, "
+                         f"widths {su:.2g} x {sv:.2g} px)")
     if sv > su:  # report the major axis first
         su, sv, t = sv, su, t + 0.5 * np.pi
     angle = float(np.degrees(np.arctan2(np.sin(2 * t), np.cos(2 * t)) / 2))  # axis: mod 180 -> (-90, 90]
     if angle <= -90.0:
         angle += 180.0
-    rms = 1.4826 * float(np.median(np.abs(resid - np.median(resid))))
     ey, ex = np.mgrid[0:reg.shape[0], 0:reg.shape[1]].astype(np.float64)
     ex -= xg
     ey -= yg
