@@ -313,7 +313,8 @@ def build_library(images: Sequence[np.ndarray], labels: Sequence[str], *, kind: 
     Each image gives one entry (its features); rotated and zoomed copies of it, and blurred
     ones for a whitened library (:func:`augmented_views`), measure the within-case spread that
     sets the feature scale and every entry's unknown threshold. ``az_deg``/``el_deg``,
-    ``sha256`` and ``names`` (image file names) and ``params`` (the error state each image shows) are carried into the entries.
+    ``sha256`` and ``names`` (image file names) and ``params`` (the error state each image
+    shows) are carried into the entries.
     ``whiten`` (default: for ``multi-hu`` only) compares features after :func:`whitening`.
     Unknown thresholds: :func:`unknown_thresholds`, raised to :func:`neighbour_thresholds`.
     An image without a beam raises InputError naming its position (or name).
