@@ -17,13 +17,17 @@ from controller.recognition.estimate import param_magnitude
 
 
 def magnitude_segments(entries: Sequence, x: np.ndarray) -> np.ndarray:
-    """Pairs (s, 2) of entry indices to interpolate between: neighbouring magnitudes of one case.
+    """Pairs (s, 2) of entry indices to interpolate between, all within one case.
 
-    Entries of a case whose ``params.magnitude`` is known are grouped by their other params
-    (heliostat, source, ...) and joined in order of magnitude. A case without magnitudes is
-    joined by its minimum spanning tree in the matching space ``x`` (n, k) (Prim's algorithm):
-    for three sizes of one mechanism that is the chain small - medium - large, since the
-    middle size lies between the other two. One entry alone has no segment.
+    * Neighbouring magnitudes: entries of a case whose ``params.magnitude`` is known, grouped
+      by their other params (heliostat, source, ...), joined in order of magnitude.
+    * The case's minimum spanning tree in the matching space ``x`` (n, k) (Prim's algorithm):
+      without magnitudes, for three sizes of one mechanism that is the chain small - medium -
+      large (the middle size lies between the other two); across heliostats it joins each
+      entry to the nearest geometry of its case, so a heliostat between two library ones is
+      interpolated too.
+
+    One entry alone has no segment; duplicates are dropped.
     """
     by_label: dict[str, list[int]] = {}
     for i, e in enumerate(entries):
@@ -40,9 +44,9 @@ def magnitude_segments(entries: Sequence, x: np.ndarray) -> np.ndarray:
             for members in groups.values():
                 members.sort()
                 pairs += [(a, b) for (_, a), (_, b) in zip(members, members[1:], strict=False)]
-        else:
-            pairs += _spanning_tree(idx, x)
-    return np.array(pairs, dtype=np.int64).reshape(-1, 2)
+        pairs += _spanning_tree(idx, x)
+    unique = sorted({(min(a, b), max(a, b)) for a, b in pairs if a != b})
+    return np.array(unique, dtype=np.int64).reshape(-1, 2)
 
 
 def _spanning_tree(idx: list[int], x: np.ndarray) -> list[tuple[int, int]]:
