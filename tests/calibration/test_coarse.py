@@ -110,3 +110,21 @@ def test_a_wild_coarse_correction_is_clamped_to_the_drive_limits(make_cycle):
     lim = drive.limits
     assert all(lim.az.min_steps <= a <= lim.az.max_steps and lim.el.min_steps <= e <= lim.el.max_steps
                for a, e in seen)
+
+
+@pytest.mark.parametrize("value, rule", [(1.5, "less than or equal to 1"), ("high", "valid number")])
+def test_bad_coarse_correction_threshold_is_refused_naming_the_key(tmp_path, capsys, value, rule):
+    import yaml
+
+    from controller.cli import main
+
+    from .conftest import REPO
+
+    data = yaml.safe_load((REPO / "configs" / "demo.yaml").read_text(encoding="utf-8"))
+    data["calibration"]["coarse_correction"] = value
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(yaml.safe_dump(data), encoding="utf-8")
+    assert main(["demo", "--config", str(bad)]) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and len(err.strip().splitlines()) == 1
+    assert f"{bad}: calibration.coarse_correction: " in err and rule in err
