@@ -128,3 +128,18 @@ def test_bad_coarse_correction_threshold_is_refused_naming_the_key(tmp_path, cap
     out, err = capsys.readouterr()
     assert out == "" and len(err.strip().splitlines()) == 1
     assert f"{bad}: calibration.coarse_correction: " in err and rule in err
+
+
+def test_demo_coarse_summary_counts_runs_with_a_coarse_first_move():
+    from types import SimpleNamespace as NS
+
+    from controller.calibration.records import CorrectionRecord
+    from controller.commands.demo import coarse_summary
+
+    runs = [NS(id=1, iterations=3), NS(id=2, iterations=1), NS(id=3, iterations=2)]
+    moves = {1: [CorrectionRecord(1, "coarse", 0, 0, 0, 0), CorrectionRecord(2, "fine", 0, 0, 0, 0)],
+             2: [], 3: [CorrectionRecord(1, "fine", 0, 0, 0, 0)]}
+    store = NS(runs=lambda cid: runs, corrections=lambda rid: moves[rid])
+    s = coarse_summary(store, 7, 0.5)
+    assert (s["threshold"], s["applied"], s["iterations_mean"]) == (0.5, 1, 2.0)
+    assert (s["iterations_mean_runs_with_coarse"], s["iterations_mean_runs_without_coarse"]) == (3.0, 1.5)
