@@ -19,6 +19,20 @@ interpolated beam pointing error against the truth over correctly recognised vie
 share and precision of views with confidence >= 0.5 (where a coarse correction would be applied)
 with the RMS pointing error before and after applying it. ``--dir`` keeps the rendered set (and
 reuses it on the next run).
+
+``--independent [--seeds 1,2,3]``: instead, the independent error set of
+:mod:`independent_spots` (a paraxial renderer written apart from ``simplant.optics``; magnitude
+0.5-1.5 and spot size x0.7-1.4 vary in the test views, library = 3 magnitudes per case), scored
+through the CLI contract (``heliocal library build`` default and ``--features hu --whiten no``,
+``heliocal report confusion --json``), plus ablations of the default through the Python API
+(no interpolation between magnitudes, no blur views in the whitening, neither).
+
+``--campaign [--threshold T] [--heliostats N]``: instead, the coarse correction in the closed
+loop. Runs ``heliocal demo --nights 0 --json`` (embedded simulated plant, demo config, seed
+``--seed``) with ``calibration.coarse_correction: T``; the demo then runs the same heliostats
+again centroid only and reports both: iterations per heliostat with and without the coarse
+correction (``iterations_mean`` vs ``iterations_centroid_only_mean``), how many runs applied
+it, and the truth's final pointing error of each.
 """
 
 from __future__ import annotations
@@ -124,12 +138,103 @@ def estimate_quality(rows, matches, ok, split) -> dict:
             "rms_before_coarse_deg": rms(truth[sure]), "rms_after_coarse_deg": rms(after)}
 
 
+def independent(seeds: list[int], views: int) -> dict:
+    """Recognition on the independent error set: CLI default and paper variant, and ablations."""
+    import subprocess
+    import sys
+
+    from independent_spots import write_set
+
+    import controller.recognition.library as library
+
+    def cli(*args: str) -> dict:
+        r = subprocess.run([sys.executable, "-m", "controller.cli", *args, "--json"], capture_output=True,
+                           text=True, check=True)
+        return json.loads(r.stdout)
+
+    def api(out: Path, interpolate: bool, blur: bool) -> dict:
+        saved = library.AUGMENT_BLUR
+        library.AUGMENT_BLUR = saved if blur else ()
+        try:
+            lib = build_library_from_manifest(out / "library.csv", "multi-hu")
+        finally:
+            library.AUGMENT_BLUR = saved
+        lib.interpolate = interpolate
+        rows = read_manifest(out / "test.csv")
+        ms = [lib.match_image(read_image(r.image)) for r in rows]
+        ok = np.array([not m.unknown and m.label == r.label for m, r in zip(ms, rows, strict=True)])
+        return {"recognition_rate": _rate(ok), "unknown_rate": _rate(np.array([m.unknown for m in ms]))}
+
+    res: dict = {"views_per_case": views, "seeds": {}}
+    for seed in seeds:
+        with tempfile.TemporaryDirectory() as tmp:
+            out = Path(tmp)
+            write_set(out, seed=seed, views=views)
+            r: dict = {}
+            paper = ("--features", "hu", "--whiten", "no")
+            for name, extra in (("multi-hu (default)", ()), ("hu raw (paper)", paper)):
+                cli("library", "build", str(out / "library.csv"), "--out", str(out / "lib.yaml"), *extra)
+                c = cli("report", "confusion", "--library", str(out / "lib.yaml"),
+                        "--test", str(out / "test.csv"), "--out", str(out / "rep"))
+                r[name] = {"recognition_rate": round(c["recognition_rate"], 2),
+                           "unknown_rate": round(100 * c["unknown_rate"], 2),
+                           "recall": {k: v["recall"] for k, v in c["per_class"].items()}}
+            r["multi-hu, no interpolation"] = api(out, False, True)
+            r["multi-hu, no blur views"] = api(out, True, False)
+            r["multi-hu, neither (before #14 work)"] = api(out, False, False)
+            res["seeds"][seed] = r
+    return res
+
+
+def campaign(seed: int, threshold: float, heliostats: int) -> dict:
+    """The demo with the coarse correction at ``threshold`` and its centroid-only twin (same seed)."""
+    import subprocess
+    import sys
+
+    import yaml
+
+    with tempfile.TemporaryDirectory() as tmp:
+        data = yaml.safe_load(CONFIG.read_text(encoding="utf-8"))
+        data["calibration"]["coarse_correction"] = threshold
+        cfg = Path(tmp) / "config.yaml"
+        cfg.write_text(yaml.safe_dump(data, sort_keys=False), encoding="utf-8")
+        t0 = time.perf_counter()
+        r = subprocess.run([sys.executable, "-m", "controller.cli", "demo", "--config", str(cfg),
+                            "--seed", str(seed), "--heliostats", str(heliostats), "--nights", "0",
+                            "--out", str(Path(tmp) / "out"), "--json"],
+                           capture_output=True, text=True, check=False)
+        if not r.stdout.strip():
+            raise SystemExit(f"demo failed (exit {r.returncode}): {r.stderr.strip()[-2000:]}")
+        d = json.loads(r.stdout)
+    c = d["coarse_correction"]
+    return {"seed": seed, "heliostats": heliostats, "threshold": threshold, "applied": c["applied"],
+            "iterations_mean": c["iterations_mean"],
+            "iterations_centroid_only_mean": c["iterations_centroid_only_mean"],
+            "iterations_ratio": (c["iterations_mean"] / c["iterations_centroid_only_mean"]
+                                 if c["iterations_centroid_only_mean"] else None),
+            "iterations_mean_runs_with_coarse": c["iterations_mean_runs_with_coarse"],
+            "error_after_mrad": d["error_after_mrad"],
+            "error_after_centroid_only_mrad": c.get("error_after_centroid_only_mrad"),
+            "calibrated": d["calibrated"], "wall_s": round(time.perf_counter() - t0, 1)}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--views", type=int, default=8)
     ap.add_argument("--dir", default=None, help="keep/reuse the rendered error set here")
+    ap.add_argument("--campaign", action="store_true", help="coarse correction in the loop (see above)")
+    ap.add_argument("--threshold", type=float, default=0.5, help="--campaign: calibration.coarse_correction")
+    ap.add_argument("--heliostats", type=int, default=12, help="--campaign: heliostats of the demo")
+    ap.add_argument("--independent", action="store_true", help="independent renderer's set (see above)")
+    ap.add_argument("--seeds", default="1,2,3", help="--independent: seeds of the sets")
     args = ap.parse_args()
+    if args.independent:
+        print(json.dumps(independent([int(v) for v in args.seeds.split(",")], 24)))
+        return
+    if args.campaign:
+        print(json.dumps(campaign(args.seed, args.threshold, args.heliostats)))
+        return
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(args.dir) if args.dir else Path(tmp)
         t0 = time.perf_counter()

@@ -9,7 +9,7 @@ import numpy as np
 
 from controller.geometry.kinematics import HeliostatKinematics
 from controller.geometry.vectors import unit
-from simplant.errorset import CASES
+from simplant.errorset import CASES, beam_error_deg, scene_from_config
 from simplant.firmware.physics import SimController
 from simplant.optics import MirrorSurface
 from simplant.plant import SimulatedPlant
@@ -26,7 +26,10 @@ def write_reference_set(cfg_data: dict, out_dir: str | Path, heliostat_ids: list
     at the target centre with the nominal model, one frame pair, merged with the camera's true
     CRF, saved as ``images/<heliostat>-<case>.npy`` (float32 HDR). Several heliostats give each
     case several entries, so the nearest-neighbour match sees how the spot shape changes
-    across the field. Returns the manifest ``library.csv`` (``image,label,az_deg,el_deg``).
+    across the field. Returns the manifest ``library.csv`` (``image,label,az_deg,el_deg,magnitude``,
+    az/el = the beam pointing error the case causes for that heliostat, degrees
+    (:func:`simplant.errorset.beam_error_deg`), magnitude 1): what a match interpolates into
+    the coarse correction.
     """
     import csv
 
@@ -49,6 +52,7 @@ def write_reference_set(cfg_data: dict, out_dir: str | Path, heliostat_ids: list
         s = unit(np.asarray(src.position_enu_m, float) - kin.position)
         aim = kin.aim(s, np.asarray(cfg.target().center_enu_m, float))
         stow = hh.controller
+        scene = scene_from_config(cfg, hid, src.id)
         for case in CASES[:cases]:
             # The reference heliostat is the surveyed one with only the case's own error.
             hh.case, hh.truth = case, hidden_truth(h, np.random.default_rng(0), 0.0, case)
@@ -59,13 +63,14 @@ def write_reference_set(cfg_data: dict, out_dir: str | Path, heliostat_ids: list
             frame = camera.capture()
             name = f"images/{hid}-{case.label}.npy"
             write_float_image(out / name, merger.merge(frame.low, frame.high))
-            rows.append((name, case.label, "", ""))
+            az, el = beam_error_deg(scene, case)
+            rows.append((name, case.label, f"{az:.6f}", f"{el:.6f}", f"{case.magnitude:.4f}"))
         hh.controller = stow
 
     def writer(tmp: Path) -> None:
         with open(tmp, "w", newline="", encoding="utf-8") as f:
             w = csv.writer(f)
-            w.writerow(["image", "label", "az_deg", "el_deg"])
+            w.writerow(["image", "label", "az_deg", "el_deg", "magnitude"])
             w.writerows(rows)
 
     write_atomic(out / "library.csv", writer)

@@ -80,4 +80,5 @@ class BeamChain:
         if self.library is None:
             return None
         m = self.library.match_hu(hu)
-        return Match(m.label, m.distance, m.runner_up, m.runner_up_distance, m.unknown, m.correction_deg)
+        return Match(m.label, m.distance, m.runner_up, m.runner_up_distance, m.unknown, m.correction_deg,
+                     m.coarse_correction_deg, m.confidence)

@@ -63,6 +63,7 @@ class CycleContext:
     ticket: int | None = None  # turn on the target (TargetGate); default: queue_index
     compute: Callable[[], Any] = contextlib.nullcontext  # context around the controller's computing
     observe_only: bool = False  # a planned observation: one measurement, no correction
+    coarse_confidence: float | None = None  # apply a match's coarse correction at >= this; None: never
     backlash_steps: tuple[int, int] = (0, 0)  # (az, el): measuring moves end moving up by more
     utc: Callable[[], str] = utc_now  # the time stamped on measurements (ISO 8601, UTC)
 

@@ -22,11 +22,13 @@ Beam safety:
   cycle ends; if that fails the heliostat is stowed, and if even that fails the cycle ends
   *aborted* with ``beam_maybe_on_target`` set, so the campaign stops using the target.
 
-Correction (docs/campaigns.md): a library entry's correction is applied once as the *coarse*
-correction; the centroid offset gives the *fine* one (``Pointing.fine_correction``), until the
-error is within ``tolerance_mrad`` or ``max_iterations`` measurements were taken (one on a
-planned night's observation); then ``Pointing.fit`` refits the heliostat's model. Measuring
-moves end moving up on both axes (:mod:`controller.calibration.approach`, backlash).
+Correction (docs/campaigns.md): on the first measurement a library entry's correction, or the
+match's interpolated correction when confident (``calibration.coarse_correction``), is applied
+once as the *coarse* correction (:mod:`controller.calibration.coarse`); the centroid offset
+gives the *fine* one (``Pointing.fine_correction``), until the error is within ``tolerance_mrad``
+or ``max_iterations`` measurements were taken (one on a planned night's observation); then
+``Pointing.fit`` refits the heliostat's model. Measuring moves end moving up on both axes
+(:mod:`controller.calibration.approach`, backlash).
 
 Units: motor steps (int), angles in degrees at this edge, errors in mrad (reflected-beam
 angle), ENU metres, plant-clock seconds.
@@ -43,6 +45,7 @@ from transitions.extensions import LockedMachine
 from transitions.extensions.states import Timeout, add_state_features
 
 from controller.calibration.approach import approach_path
+from controller.calibration.coarse import correction_step
 from controller.calibration.context import CycleContext, CycleObserver
 from controller.calibration.observations import BeamNotFound, Match, Observation
 from controller.calibration.records import CorrectionRecord, RunRecord, measurement_record
@@ -327,15 +330,8 @@ class CalibrationCycle:
         return "correct"
 
     def do_correcting(self) -> str:
-        p, m = self.ctx.pointing, self.match
-        if (not self.coarse_done and not self.obs.clipped and m is not None and not m.unknown
-                and m.correction_deg is not None and any(abs(c) > 0 for c in m.correction_deg)):
-            step = p.coarse_correction(self.az, self.el, *m.correction_deg)
-            kind = "coarse"
-        else:
-            offset = np.asarray(self.obs.centroid_enu) - p.aim_point
-            step = p.fine_correction(self.az, self.el, offset)
-            kind = "fine"
+        kind, step = correction_step(self.ctx.pointing, self.az, self.el, self.obs, self.match,
+                                     first=not self.coarse_done, min_confidence=self.ctx.coarse_confidence)
         self.coarse_done = True
         self.run_rec.corrections.append(CorrectionRecord(self.iteration, kind, step.daz_deg, step.del_deg,
                                                          step.daz_steps, step.del_steps))

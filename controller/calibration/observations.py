@@ -27,6 +27,8 @@ class Match:
     runner_up_distance: float | None = None
     unknown: bool = False
     correction_deg: tuple[float, float] | None = None  # (daz, del) of the library entry, deg
+    coarse_correction_deg: tuple[float, float] | None = None  # -(beam error) interpolated, deg
+    confidence: float = 0.0  # of the match, in [0, 1] (controller.recognition.estimate)
 
 
 @dataclass(frozen=True)

@@ -341,6 +341,7 @@ class Campaign:
             model=self.store.latest_model(hid), history=self.store.measurements(heliostat_id=hid),
             tolerance_mrad=cal.tolerance_mrad, max_iterations=1 if self.opt.observe else cal.max_iterations,
             observe_only=self.opt.observe, settle_s=self.opt.settle_s,
+            coarse_confidence=None if self.opt.observe else cal.coarse_correction,
             backlash_steps=(h.axes.azimuth.backlash_steps, h.axes.elevation.backlash_steps),
             move_timeout_s=self.opt.move_timeout_s, poll_s=self.opt.poll_s, clock=self.clock,
             sleep=self.sleep, timeouts=self.opt.timeouts, save_images=save, observer=self.observer,

@@ -69,6 +69,17 @@ def run(args: argparse.Namespace) -> int:
     summary, sim = simulated_campaign(cfg, args.config, Path(args.out), Path(args.out) / "campaign.db", ids,
                                       SimulationSettings(seed=args.seed), name, sequential=args.sequential,
                                       quiet=quiet, library_dir=Path(args.out), nights=args.nights)
+    coarse = summary["coarse_correction"]
+    coarse["iterations_centroid_only_mean"] = coarse["iterations_mean"]  # disabled: this run is it
+    if cfg.calibration.coarse_correction is not None:
+        # Before/after on the same heliostats and seed: the campaign again, centroid only.
+        plain = _centroid_only_config(Path(args.config), Path(args.out) / "centroid-only")
+        twin = plain.parent
+        other, _ = simulated_campaign(load_config(plain), str(plain), twin, twin / "campaign.db",
+                                      ids, SimulationSettings(seed=args.seed), name,
+                                      sequential=args.sequential, library_dir=Path(args.out))
+        coarse["iterations_centroid_only_mean"] = other["coarse_correction"]["iterations_mean"]
+        coarse["error_after_centroid_only_mrad"] = other["error_after_mrad"]
     if args.json:
         # The demo's --json keys are a contract (docs/campaigns.md); the outcome is the exit code.
         print_json({k: v for k, v in summary.items() if k not in ("status", "cause")})
@@ -95,6 +106,8 @@ def simulated_campaign(cfg, config_path: str, out: Path, db: Path, ids: list[str
     with open_existing(db) as store:
         report = write_report(store, out / "report", sim.result.campaign_id, truth=sim.truth)
         summary = summarize(store, sim.result.campaign_id, truth=sim.truth)
+        summary["coarse_correction"] = coarse_summary(store, sim.result.campaign_id,
+                                                      cfg.calibration.coarse_correction)
     summary["daytime_error_mrad"] = sim.daytime.to_json()
     summary["daytime_error_predicted_mrad"] = sim.predicted.to_json()
     summary["daytime_error_uncalibrated_mrad"] = sim.daytime_uncalibrated.to_json()
@@ -102,6 +115,38 @@ def simulated_campaign(cfg, config_path: str, out: Path, db: Path, ids: list[str
     summary["db"] = str(db)
     summary["report"] = str(report)
     return summary, sim
+
+
+def _centroid_only_config(config: Path, out: Path) -> Path:
+    """A copy of the plant config in ``out`` with ``calibration.coarse_correction: null``."""
+    import yaml
+
+    from controller.io.images import write_atomic
+
+    data = yaml.safe_load(config.read_text(encoding="utf-8"))
+    data["calibration"]["coarse_correction"] = None
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / "config.yaml"
+    write_atomic(path, lambda t: t.write_text(yaml.safe_dump(data, sort_keys=False), encoding="utf-8"))
+    return path
+
+
+def coarse_summary(store, campaign_id: int, threshold: float | None) -> dict:
+    """The coarse correction in the campaign: ``threshold`` (config ``calibration.coarse_correction``),
+    ``applied`` (runs whose first move was a coarse correction), ``iterations_mean`` over all
+    runs, and over the runs with and without a coarse move (``..._runs_with_coarse`` /
+    ``..._runs_without_coarse``: different heliostats, not a before/after). The before/after
+    on the same heliostats is ``iterations_centroid_only_mean``, added by :func:`run` from a
+    second, centroid-only campaign when the coarse correction is enabled."""
+    runs = store.runs(campaign_id)
+    coarse = {r.id for r in runs if any(c.kind == "coarse" for c in store.corrections(r.id))}
+
+    def mean(rs) -> float | None:
+        return round(float(sum(r.iterations for r in rs) / len(rs)), 3) if rs else None
+
+    return {"threshold": threshold, "applied": len(coarse), "iterations_mean": mean(runs),
+            "iterations_mean_runs_with_coarse": mean([r for r in runs if r.id in coarse]),
+            "iterations_mean_runs_without_coarse": mean([r for r in runs if r.id not in coarse])}
 
 
 def _print_aim(rows: list[dict]) -> None:

@@ -41,6 +41,7 @@ from controller.errors import InputError
 from controller.imaging.beam import analyze
 from controller.recognition.estimate import estimate
 from controller.recognition.matching import Matcher
+from controller.recognition.segments import magnitude_segments
 
 LIBRARY_VERSION = 1
 FEATURE_KINDS = ("multi-hu", "hu", "log-hu")
@@ -94,6 +95,7 @@ class Library:
     unknown_distance: float = float("inf")
     version: int = LIBRARY_VERSION
     whiten: np.ndarray | None = None  # (k, k): features are compared as W f (then scale is 1)
+    interpolate: bool = True  # match along segments between neighbouring magnitudes of a case
     _cache: tuple[int, Matcher] | None = field(default=None, init=False, repr=False, compare=False)
 
     @property
@@ -116,8 +118,10 @@ class Library:
         return f @ self.whiten.T if self.whiten is not None else f / self.scale
 
     def matcher(self) -> Matcher:
-        return Matcher(self.transform(self.matrix()), self.labels, None,
-                       np.array([e.unknown_distance for e in self.entries], dtype=np.float64))
+        x = self.transform(self.matrix())
+        limits = np.array([e.unknown_distance for e in self.entries], dtype=np.float64)
+        segments = magnitude_segments(self.entries, x) if self.interpolate else None
+        return Matcher(x, self.labels, None, limits, segments=segments)
 
     def describe(self, hdr: np.ndarray, threshold: float | None = None) -> np.ndarray:
         """Hu moments of a beam image at the library's thresholds, shape (len(thresholds), 7)
@@ -183,13 +187,19 @@ def image_features(image: np.ndarray, kind: str, threshold: float = 0.5) -> np.n
 AUGMENT_ANGLES_DEG = (20.0, 65.0, 110.0, 155.0)
 AUGMENT_SCALES = (0.85, 1.0, 1.18)
 UNKNOWN_FACTOR = 3.0
+AUGMENT_BLUR = (0.05, 0.1, 0.2)  # Gaussian blur sigma as a fraction of the spot's d90 (spot size)
 
 
-def augmented_views(image: np.ndarray) -> list[np.ndarray]:
-    """Rotated and zoomed copies of a library image (about its centre, bilinear, edge replicated).
+def augmented_views(image: np.ndarray, blur: bool = False) -> list[np.ndarray]:
+    """Rotated and zoomed copies of a library image (about its centre, bilinear, edge replicated)
+    and, with ``blur``, Gaussian-blurred copies (σ = 0.05, 0.1, 0.2 × the spot's d90 at the
+    lowest threshold).
 
     They stand in for the framing changes a later view of the same case will have, so the
-    library can measure its own within-case spread without extra images.
+    library can measure its own within-case spread without extra images. The blurred copies
+    stand in for a larger spot (a larger source disc or a softer focus convolves the spot with a
+    wider kernel): whitening then gives the direction in which spot size moves the features
+    the weight of a nuisance, not of a case difference.
     """
     img = np.asarray(image, dtype=np.float32)
     rows, cols = img.shape
@@ -199,6 +209,11 @@ def augmented_views(image: np.ndarray) -> list[np.ndarray]:
             m = cv2.getRotationMatrix2D(((cols - 1) / 2.0, (rows - 1) / 2.0), angle, scale)
             views.append(cv2.warpAffine(img, m, (cols, rows), flags=cv2.INTER_LINEAR,
                                         borderMode=cv2.BORDER_REPLICATE))
+    if blur:
+        d90 = analyze(img, threshold=MULTI_THRESHOLDS[0], background="auto").d90_px
+        for f in AUGMENT_BLUR:
+            views.append(cv2.GaussianBlur(img, (0, 0), sigmaX=max(f * d90, 0.3),
+                                          borderType=cv2.BORDER_REPLICATE))
     return views
 
 
@@ -295,10 +310,11 @@ def build_library(images: Sequence[np.ndarray], labels: Sequence[str], *, kind: 
                   progress: Callable[[int, int], None] | None = None) -> Library:
     """A :class:`Library` from beam images and their case labels (nothing is read or written).
 
-    Each image gives one entry (its features); rotated and zoomed copies of it
-    (:func:`augmented_views`) measure the within-case spread that sets the feature scale and
-    every entry's unknown threshold. ``az_deg``/``el_deg``, ``sha256`` and ``names`` (image
-    file names) and ``params`` (the error state each image shows) are carried into the entries.
+    Each image gives one entry (its features); rotated and zoomed copies of it, and blurred
+    ones for a whitened library (:func:`augmented_views`), measure the within-case spread that
+    sets the feature scale and every entry's unknown threshold. ``az_deg``/``el_deg``,
+    ``sha256`` and ``names`` (image file names) and ``params`` (the error state each image
+    shows) are carried into the entries.
     ``whiten`` (default: for ``multi-hu`` only) compares features after :func:`whitening`.
     Unknown thresholds: :func:`unknown_thresholds`, raised to :func:`neighbour_thresholds`.
     An image without a beam raises InputError naming its position (or name).
@@ -309,6 +325,7 @@ def build_library(images: Sequence[np.ndarray], labels: Sequence[str], *, kind: 
     if n == 0 or len(labels) != n:
         raise InputError(f"a library needs one label per image and at least one image ({n} images, "
                          f"{len(labels)} labels)")
+    whitened = kind == "multi-hu" if whiten is None else whiten
     entries = []
     deviations, owner = [], []
     for i, (image, label) in enumerate(zip(images, labels, strict=True)):
@@ -321,7 +338,7 @@ def build_library(images: Sequence[np.ndarray], labels: Sequence[str], *, kind: 
                              el_deg=el_deg[i] if el_deg else None, sha256=sha256[i] if sha256 else "",
                              image=names[i] if names is not None else "",
                              params=dict(params[i]) if params is not None and params[i] else None))
-        for view in augmented_views(image):
+        for view in augmented_views(image, blur=whitened):
             try:
                 deviations.append(image_features(view, kind, threshold) - feats)
                 owner.append(i)
@@ -332,7 +349,7 @@ def build_library(images: Sequence[np.ndarray], labels: Sequence[str], *, kind: 
     k = len(entries[0].features)
     spread = Spread(np.array(deviations).reshape(-1, k), np.array(owner, dtype=np.int64))
     lib = Library(features=kind, threshold=float(threshold), entries=entries, scale=np.ones(k))
-    if kind == "multi-hu" if whiten is None else whiten:
+    if whitened:
         lib.whiten = whitening(lib.matrix(), spread)
     else:
         lib.scale = feature_scale(spread, kind)

@@ -21,12 +21,12 @@ from beamkit import REAL, cli
 
 # Nearest case per image, as documented in docs/recognition.md.
 NEAREST = {
-    "106293-cropped.png": "facet-split", "137608-cropped.png": "wind-load",
+    "106293-cropped.png": "gravity-sag", "137608-cropped.png": "gear-backlash",
     "213508-cropped.png": "facet-split", "216331-cropped.png": "gravity-sag",
-    "240796-cropped.png": "gravity-sag", "99927-cropped.png": "facet-split",
-    "106293-flux.png": "facet-split", "137608-flux.png": "wind-load", "213508-flux.png": "facet-split",
-    "216331-flux.png": "wind-load", "240796-flux.png": "gear-backlash", "99927-flux.png": "facet-split",
-    "AA39-flux_1.png": "facet-split", "AA39-flux_2.png": "gravity-sag", "AA39-flux_3.png": "gravity-sag",
+    "240796-cropped.png": "gear-backlash", "99927-cropped.png": "gravity-sag",
+    "106293-flux.png": "gravity-sag", "137608-flux.png": "wind-load", "213508-flux.png": "gravity-sag",
+    "216331-flux.png": "wind-load", "240796-flux.png": "gear-backlash", "99927-flux.png": "gravity-sag",
+    "AA39-flux_1.png": "facet-split", "AA39-flux_2.png": "facet-split", "AA39-flux_3.png": "gravity-sag",
 }
 
 

@@ -271,6 +271,6 @@ def test_beam_chain_match_is_the_library_match_as_the_machine_type():
     want = lib.match_hu(hu)
     assert type(m) is Match
     assert m == Match(want.label, want.distance, want.runner_up, want.runner_up_distance, want.unknown,
-                      want.correction_deg)
+                      want.correction_deg, want.coarse_correction_deg, want.confidence)
     assert (m.label, m.correction_deg) == ("tall", (-0.1, 0.03))
     assert BeamChain(cfg).match(hu) is None
