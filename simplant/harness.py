@@ -194,15 +194,26 @@ def run_simulated(cfg: PlantConfig, config_path: str, out: Path, db_path: Path, 
                                    settle_s=cal.settle_s)
             truth = TruthRecorder(plant, db_path)
             path = sun_path(cfg.site)
+            live: set[Campaign] = set()  # running campaigns, one per target at most
             with LinkPool(timeout_s=0.5, retries=2) as pool:
                 def campaign(options: CampaignOptions, hids: list[str], extra=()) -> CampaignResult:
-                    return Campaign(plant_cfg, config_path, store, pool, plant.camera,
-                                    config_sha256=config_sha256(config_path), heliostat_ids=hids, library=lib,
-                                    options=options, images=ImageArchive(out / "images"), clock=plant.clock,
-                                    sleep=plant.clock.sleep, compute=plant.clock.realtime, utc=plant.utc,
-                                    meta={"plant": "simulated", "seed": settings.seed,
-                                          "clock_speedup": settings.clock_speedup},
-                                    observers=[LampSwitch(plant), truth, *extra]).run()
+                    c = Campaign(plant_cfg, config_path, store, pool,
+                                 plant.cameras[options.target or plant_cfg.calibration.target],
+                                 config_sha256=config_sha256(config_path), heliostat_ids=hids, library=lib,
+                                 options=options, images=ImageArchive(out / "images"), clock=plant.clock,
+                                 sleep=plant.clock.sleep, compute=plant.clock.realtime, utc=plant.utc,
+                                 meta={"plant": "simulated", "seed": settings.seed,
+                                       "clock_speedup": settings.clock_speedup},
+                                 observers=[LampSwitch(plant), truth, *extra])
+                    live.add(c)
+                    try:
+                        return c.run()
+                    finally:
+                        live.discard(c)
+
+                def stop_all() -> None:  # Ctrl-C during parallel targets: every campaign parks
+                    for c in list(live):
+                        c.request_stop()
 
                 result = campaign(opts, ids, observers)
                 reports = []
@@ -210,7 +221,7 @@ def run_simulated(cfg: PlantConfig, config_path: str, out: Path, db_path: Path, 
                     plant.set_night(k)
                     night = f"{name}/night-{k + 1}"
                     reports.append(_planned_night(cfg, store, plant, campaign, ids, k, night, strategy, path,
-                                                  progress))
+                                                  progress, stop_all))
                 plant.set_light(cfg.calibration.light_source)
             safety = plant.safety.report()
         # What the nights were for: open-loop tracking of the sun with each heliostat's latest
@@ -231,7 +242,7 @@ def run_simulated(cfg: PlantConfig, config_path: str, out: Path, db_path: Path, 
 
 
 def _planned_night(cfg: PlantConfig, store: CampaignStore, plant: SimulatedPlant, campaign, ids: list[str],
-                   k: int, night: str, strategy: str, path, progress) -> NightReport:
+                   k: int, night: str, strategy: str, path, progress, stop_all=None) -> NightReport:
     """Plan (or reload the stored plan of) night ``k``, run its passes, score the field."""
     plan = load_plan(store, night)
     if not plan:
@@ -246,12 +257,13 @@ def _planned_night(cfg: PlantConfig, store: CampaignStore, plant: SimulatedPlant
 
     def run_pass(p: Pass) -> CampaignResult:
         if progress is not None:
-            progress(f"{p.name}: {len(p.aims)} heliostat(s) under {p.lamp}")
+            progress(f"{p.name}: {len(p.aims)} heliostat(s) under {p.lamp}"
+                     + (f" on {p.target}" if p.target else ""))
         return campaign(CampaignOptions(name=p.name, light_source=p.lamp, aims=p.aims, observe=True,
                                         pipeline_depth=cfg.calibration.pipeline_depth,
-                                        settle_s=cfg.calibration.settle_s), list(p.aims))
+                                        settle_s=cfg.calibration.settle_s, target=p.target), list(p.aims))
 
-    results = run_night(plan, night, run_pass)
+    results = run_night(plan, night, run_pass, stop_all)
     models = {hid: store.latest_model(hid) for hid in ids}
     measured = sum(1 for r in results for run in r.runs if run.status == "measured")
     report = NightReport(k + 1, night, len(plan), measured, daytime_error(plant, cfg, models, path),
