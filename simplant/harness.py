@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import sqlite3
 import threading
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -166,6 +166,8 @@ class SimulatedRun:
     daytime_uncalibrated: DaytimeError  # the same with the nominal kinematics
     predicted: PredictedDaytime  # what the models' own covariance predicts for ``daytime``
     nights: list[NightReport]  # after each planned night (empty with nights=0)
+    on_target: dict[str, list[tuple[float, float, str]]] = field(default_factory=dict)  # per target:
+    # the plant-clock spans (start, end, heliostat) with one beam on it (the safety monitor's truth)
 
 
 def run_simulated(cfg: PlantConfig, config_path: str, out: Path, db_path: Path, ids: list[str], *,
@@ -224,6 +226,7 @@ def run_simulated(cfg: PlantConfig, config_path: str, out: Path, db_path: Path, 
                                                   progress, stop_all))
                 plant.set_light(cfg.calibration.light_source)
             safety = plant.safety.report()
+            on_target = plant.safety.intervals
         # What the nights were for: open-loop tracking of the sun with each heliostat's latest
         # model, scored against the plant's truth (and, for scale, with no model at all).
         models = {hid: store.latest_model(hid) for hid in ids}
@@ -238,7 +241,7 @@ def run_simulated(cfg: PlantConfig, config_path: str, out: Path, db_path: Path, 
     finally:
         store.close()
     return SimulatedRun(result, read_truth(db_path, result.campaign_id), safety, settings, db_path, out,
-                        daytime, uncalibrated, predicted, reports)
+                        daytime, uncalibrated, predicted, reports, on_target)
 
 
 def _planned_night(cfg: PlantConfig, store: CampaignStore, plant: SimulatedPlant, campaign, ids: list[str],

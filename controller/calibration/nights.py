@@ -7,7 +7,7 @@ geometries before the next lamp is lit (lamps are switched as rarely as possible
 a lamp one pass per target and rank, since a heliostat has one run per campaign. Under one
 lamp the targets run in parallel (:func:`controller.calibration.parallel.run_per_target`),
 each its passes in rank order. Each pass is a campaign named ``<night>/<lamp>/<k>`` (one
-target) or ``<night>/<lamp>@<target>/<k>`` (several), so a night stopped by ``kill -9``
+target) or ``<night>/<lamp>/<k>@<target>`` (several), so a night stopped by ``kill -9``
 resumes pass by pass: recorded heliostats are skipped, finished passes are not repeated.
 Measurements accumulate in the database across nights and every run refits the heliostat's
 model on all of them, weighted by age (``calibration.model.age_halflife_days``).
@@ -50,8 +50,8 @@ def night_passes(plan: list[PlanItem], night: str) -> list[Pass]:
                 continue
             for k in range(max(len(v) for v in per.values())):
                 aims = {hid: items[k].geometry.aim_enu for hid, items in per.items() if k < len(items)}
-                label = f"{lamp}@{target}" if several else lamp
-                out.append(Pass(f"{night}/{label}/{k + 1}", lamp, aims, target))
+                suffix = f"@{target}" if several else ""
+                out.append(Pass(f"{night}/{lamp}/{k + 1}{suffix}", lamp, aims, target))
     return out
 
 

@@ -101,8 +101,9 @@ class GeometryPointing:
         speed = np.array([ax.azimuth.speed_steps_per_s, ax.elevation.speed_steps_per_s])
 
         def clear(plan: list[tuple[int, int]]) -> bool:
-            # A beam that starts on the target may leave it; once off it must never enter.
+            # A beam that starts on a target may leave it; once off it must never enter one.
             inside = self.beam_on_target(*start)
+            inside_other = self.beam_on_other_target(*start)
             for a, b in zip([start] + plan[:-1], plan, strict=True):
                 a_, b_ = np.asarray(a, float), np.asarray(b, float)
                 dur = np.abs(b_ - a_) / speed
@@ -110,10 +111,10 @@ class GeometryPointing:
                 for t in np.linspace(0.0, total, 120 if total > 0 else 1):
                     frac = np.where(dur > 0, np.minimum(1.0, t / np.where(dur > 0, dur, 1.0)), 1.0)
                     pose = a_ + frac * (b_ - a_)
-                    on = self.beam_on_target(*pose)
-                    if (on and not inside) or self.beam_on_other_target(*pose):
+                    on, on_other = self.beam_on_target(*pose), self.beam_on_other_target(*pose)
+                    if (on and not inside) or (on_other and not inside_other):
                         return False
-                    inside = inside and on
+                    inside, inside_other = inside and on, inside_other and on_other
             return True
 
         plans = ([end], [(start[0], end[1]), end], [(end[0], start[1]), end])
