@@ -258,13 +258,29 @@ def _planned_night(cfg: PlantConfig, store: CampaignStore, plant: SimulatedPlant
         progress(f"{night}: {len(plan)} geometries planned for {helios} heliostats "
                  f"(worst predicted daytime RMS {before:.2f} mrad)")
 
+    tally_lock = threading.Lock()
+    planned = {i.heliostat_id for i in plan}
+    tally: dict[str, set[str]] = {"geometries": set(), "heliostats": set()}
+
     def run_pass(p: Pass) -> CampaignResult:
         if progress is not None:
             progress(f"{p.name}: {len(p.aims)} heliostat(s) under {p.lamp}"
                      + (f" on {p.target}" if p.target else ""))
-        return campaign(CampaignOptions(name=p.name, light_source=p.lamp, aims=p.aims, observe=True,
-                                        pipeline_depth=cfg.calibration.pipeline_depth,
-                                        settle_s=cfg.calibration.settle_s, target=p.target), list(p.aims))
+        r = campaign(CampaignOptions(name=p.name, light_source=p.lamp, aims=p.aims, observe=True,
+                                     pipeline_depth=cfg.calibration.pipeline_depth,
+                                     settle_s=cfg.calibration.settle_s, target=p.target), list(p.aims))
+        if progress is not None:
+            # Tonight so far, all targets: what was measured and where the field's predicted
+            # daytime error stands (the plant clock stands still: this is the operator's view).
+            with tally_lock, plant.clock.frozen():
+                done = [run for run in r.runs if run.status == "measured"]
+                tally["geometries"] |= {f"{p.name}/{run.heliostat_id}" for run in done}
+                tally["heliostats"] |= {run.heliostat_id for run in done}
+                now = predicted_daytime(cfg, {hid: store.latest_model(hid) for hid in ids}, path)
+                progress(f"{night}: {len(tally['geometries'])}/{len(plan)} geometries, "
+                         f"{len(tally['heliostats'])}/{len(planned)} heliostats measured; "
+                         f"field predicted daytime RMS {now.rms:.2f} mrad")
+        return r
 
     results = run_night(plan, night, run_pass, stop_all)
     models = {hid: store.latest_model(hid) for hid in ids}
