@@ -83,8 +83,13 @@ def run_night(plan: list[PlanItem], night: str, run_pass: Callable[[Pass], Campa
                     halted.set()
             return out
 
+        def stop() -> None:  # Ctrl-C: no further pass starts, the running ones park
+            halted.set()
+            if stop_all is not None:
+                stop_all()
+
         done = run_per_target({str(t): (lambda todo=todo: sequence(todo)) for t, todo in per_target.items()},
-                              stop_all)
+                              stop)
         results += [r for rs in done.values() for r in rs]
         if halted.is_set():
             break

@@ -23,8 +23,10 @@ def run_per_target(jobs: dict[str, Callable[[], R]],
         ((tid, job),) = jobs.items()
         return {tid: job()}
     with ThreadPoolExecutor(max_workers=len(jobs), thread_name_prefix="target") as pool:
-        futures = {tid: pool.submit(job) for tid, job in jobs.items()}
+        futures = {}
         try:
+            for tid, job in jobs.items():
+                futures[tid] = pool.submit(job)
             # Short waits: the main thread must stay interruptible by Ctrl-C.
             while wait(futures.values(), timeout=0.2).not_done:
                 pass

@@ -220,3 +220,27 @@ def test_two_targets_work_in_parallel_on_the_simulated_plant(small_config, tmp_p
         covered += max(0.0, b - max(a, end))
         end = max(end, b)
     assert covered < 0.9 * busy
+
+
+def test_ctrl_c_asks_every_target_to_stop_and_waits_for_them():
+    import _thread
+
+    from controller.calibration.parallel import run_per_target
+
+    stop = threading.Event()
+    ended: list[str] = []
+    started = threading.Barrier(2, timeout=scaled_s(10))
+
+    def job(name: str, interrupt: bool):
+        def run():
+            started.wait()
+            if interrupt:
+                _thread.interrupt_main()  # Ctrl-C, delivered to the main thread as a signal would be
+            assert stop.wait(scaled_s(10)), "nobody asked this target to stop"
+            ended.append(name)
+            return name
+        return run
+
+    with pytest.raises(KeyboardInterrupt):
+        run_per_target({"upper": job("upper", True), "lower": job("lower", False)}, stop.set)
+    assert sorted(ended) == ["lower", "upper"]  # both parked and ended before the interrupt went on
