@@ -24,8 +24,8 @@ from typing import Annotated, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from controller.camera_config import Camera, Gige, Sensor  # noqa: F401 - the camera section
-from controller.config_keys import did_you_mean, key_path
 from controller.errors import ConfigError, InputError
+from controller.io.config_keys import did_you_mean, key_path
 from controller.io.yaml_files import parse_yaml, read_text
 
 Vec3 = tuple[float, float, float]
