@@ -3,7 +3,6 @@ slews, corrections and the tracking-error fit (the cycle's ``Pointing``)."""
 
 from __future__ import annotations
 
-import itertools
 import math
 from dataclasses import dataclass
 from datetime import datetime
@@ -95,8 +94,7 @@ class GeometryPointing:
     def path_to(self, start: tuple[int, int], end: tuple[int, int]) -> list[tuple[int, int]]:
         """Waypoints from ``start`` to ``end`` (a point off the target) along which the beam
         never crosses the target nor any of the ``others``: both axes together, else elevation
-        first, else azimuth first, else a detour (elevation to a clear level, azimuth there,
-        then elevation), the levels tried nearest the start first across the soft range.
+        first, else azimuth first.
         The motion model moves each axis at its configured speed (acceleration ignored).
         Raises :class:`UnsafePath` when no such path exists."""
         ax = self.heliostat.axes
@@ -119,11 +117,7 @@ class GeometryPointing:
                     inside, inside_other = inside and on, inside_other and on_other
             return True
 
-        lim = ax.elevation.soft_limits
-        levels = sorted({int(round(e)) for e in np.linspace(lim.min_steps, lim.max_steps, 9)},
-                        key=lambda e: abs(e - start[1]))
-        plans = itertools.chain(([end], [(start[0], end[1]), end], [(end[0], start[1]), end]),
-                                ([(start[0], e), (end[0], e), end] for e in levels))
+        plans = ([end], [(start[0], end[1]), end], [(end[0], start[1]), end])
         for plan in plans:
             if clear(plan):
                 return [p for p in plan if p != start]
