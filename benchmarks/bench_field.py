@@ -2,25 +2,31 @@
 
 The field: heliostats on staggered rows north of the tower (40-300 m), each with the demo's
 AA39 actuators; up to three targets on the tower (upper, middle, lower; each with its camera
-and a 2 × 2 aim grid); six lamps. Each heliostat belongs to the target in front of its
-sector. Per heliostat the planner (:mod:`controller.calibration.planner`) chooses tonight's
-geometries for its target — that is the real planner, timed per decision.
+and a 2 × 2 aim grid, all in ``calibration.targets``); six lamps. The queue is shared out
+over the targets by the planner's own rule (heliostat i takes target i mod n on the first
+night, :func:`controller.calibration.planner.plan_night`), and per heliostat the real planner
+(:func:`controller.calibration.planner.plan_heliostat`) chooses tonight's geometries on its
+target — timed per decision.
 
-The night itself is a discrete-event run of the runner's rules in plant time, with cheap
-optics (no ray tracing, no camera): one beam per target at a time, lamps lit one at a time
-(every target works under the lit lamp), slews at the configured axis speeds
-(:func:`controller.calibration.planning.slew_time_s`) overlapped with the previous
-measurement (pipelining), and per measurement the settle time plus the capture-to-record
-time measured in the demo (:data:`PROCESS_S`). The night's budget is 8 h. It prints JSON:
-planner time per decision, plant time used, wall time, measurements and heliostats
-covered, heliostats/hour/target — and the same for one, two and three targets, to show how
-the night's coverage scales with the number of targets.
+The night is **not a run of the runner**: it is a discrete-event model of its rules in plant
+time, with cheap optics (no ray tracing, no camera, no drives). The passes are the runner's
+own (:func:`controller.calibration.nights.night_passes`: per lamp, per target, per rank);
+under one lamp every target works through its passes at the same time, one beam per target
+(the runner's one thread, gate and camera per target), and the next lamp is lit when every
+target is done (:data:`LAMP_SWITCH_S`). Per measurement the target is occupied for the
+approach from standby and back, at the configured axis speeds
+(:func:`controller.calibration.planning.slew_time_s`; the slew to standby overlaps the
+previous measurement: pipelining), the settle time and the capture-to-record time measured
+in the demo (:data:`PROCESS_S`). The night's budget is 8 h. It prints JSON: planner time
+per decision, plant time used, wall time, measurements and heliostats covered,
+heliostats/hour/target — for one, two and three targets, to show how the night's coverage
+scales with the number of targets.
 
-    python benchmarks/bench_field.py [--heliostats 1000] [--planned 200]
+    python benchmarks/bench_field.py [--heliostats 1000] [--planned 200] [--geometries 3]
 
 ``--planned`` heliostats are planned by the real planner (its time per decision is
-measured on them); the others reuse the plan of the planned heliostat nearest to them
-(same target, similar geometry), which keeps the benchmark within minutes.
+measured on them); the others reuse the plan of the planned heliostat nearest to them on the
+same target, which keeps the benchmark within minutes.
 """
 
 from __future__ import annotations
@@ -30,11 +36,13 @@ import copy
 import json
 import math
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import yaml
 
+from controller.calibration.nights import night_passes
 from controller.calibration.planner import plan_heliostat, planner_sun
 from controller.calibration.planning import slew_time_s
 from controller.config import parse_config
@@ -48,7 +56,7 @@ LAMPS = ([0.0, 5.0, 60.0], [-60.0, 30.0, 25.0], [60.0, 30.0, 25.0], [0.0, 3.0, 8
          [-200.0, 40.0, 40.0], [200.0, 40.0, 40.0])
 
 
-def field_config(n: int, targets: int) -> dict:
+def field_config(n: int, targets: int, geometries: int = 3) -> dict:
     base = yaml.safe_load((ROOT / "configs" / "demo.yaml").read_text())
     proto = base["heliostats"][0]
     data = copy.deepcopy(base)
@@ -58,9 +66,10 @@ def field_config(n: int, targets: int) -> dict:
         {"kind": "lamp", "id": f"L{i + 1}", "position_enu_m": p, "diameter_m": 0.3}
         for i, p in enumerate(LAMPS)]
     cal = data["calibration"]
-    cal.update(light_source="L1", target="T1", lamps=[f"L{i + 1}" for i in range(len(LAMPS))],
+    cal.update(light_source="L1", target="T1", targets=[f"T{k + 1}" for k in range(targets)],
+               lamps=[f"L{i + 1}" for i in range(len(LAMPS))],
                aim_grid={"rows": 2, "cols": 2, "margin_m": 2.5},
-               planner={"geometries_per_night": 3, "check_geometries": 1, "sun_positions": 16})
+               planner={"geometries_per_night": geometries, "check_geometries": 1, "sun_positions": 16})
     hs, r, k = [], 40.0, 0
     while len(hs) < n:
         count = int(2 * math.pi * r / 2 / 6.0)  # half a circle, 6 m apart
@@ -81,78 +90,72 @@ def field_config(n: int, targets: int) -> dict:
     return data
 
 
-def target_of(position: list[float], targets: int) -> int:
-    """Sector assignment: the field split by azimuth into ``targets`` equal sectors."""
-    az = math.degrees(math.atan2(position[0], position[1]))
-    return min(targets - 1, int((az + 70.0) / 140.0 * targets))
+def target_of(index: int, targets: int) -> int:
+    """The target of the heliostat at ``index`` on the first night: the planner's rule
+    (:func:`controller.calibration.planner.plan_night`, i mod n)."""
+    return index % targets
 
 
 def plan_field(data: dict, targets: int, planned: int) -> tuple[dict[str, list], float, int]:
     """Plans per heliostat (real planner on ``planned`` of them), seconds per decision, decisions."""
-    cfgs = []
-    for k in range(targets):
-        d = copy.deepcopy(data)
-        d["calibration"]["target"] = f"T{k + 1}"
-        cfgs.append(parse_config(d, f"field-T{k + 1}"))
-    sun = planner_sun(cfgs[0])
+    cfg = parse_config(data, f"field-{targets}")
+    tids = cfg.calibration.parallel_targets()
+    sun = planner_sun(cfg)
     hs = data["heliostats"]
     sample = set(np.linspace(0, len(hs) - 1, min(planned, len(hs))).round().astype(int).tolist())
     plans: dict[str, list] = {}
     t0 = time.perf_counter()
     for i in sorted(sample):
-        h = hs[i]
-        cfg = cfgs[target_of(h["position_enu_m"], targets)]
-        plans[h["id"]] = plan_heliostat(cfg, h["id"], None, "n1", sun)
+        plans[hs[i]["id"]] = plan_heliostat(cfg, hs[i]["id"], None, "n1", sun,
+                                            targets=(tids[target_of(i, targets)],))
     per = (time.perf_counter() - t0) / max(1, len(sample))
-    planned_ids = [hs[i] for i in sorted(sample)]
-    for h in hs:
+    for i, h in enumerate(hs):
         if h["id"] not in plans:
-            near = min((p for p in planned_ids if target_of(p["position_enu_m"], targets)
-                        == target_of(h["position_enu_m"], targets)),
-                       key=lambda p: np.hypot(p["position_enu_m"][0] - h["position_enu_m"][0],
-                                              p["position_enu_m"][1] - h["position_enu_m"][1]))
-            plans[h["id"]] = plans[near["id"]]
+            near = min((j for j in sample if target_of(j, targets) == target_of(i, targets)),
+                       key=lambda j: np.hypot(hs[j]["position_enu_m"][0] - h["position_enu_m"][0],
+                                              hs[j]["position_enu_m"][1] - h["position_enu_m"][1]))
+            plans[h["id"]] = [replace(it, heliostat_id=h["id"]) for it in plans[hs[near]["id"]]]
     return plans, per, len(sample)
 
 
 def run_night(data: dict, plans: dict[str, list], targets: int) -> dict:
-    """Discrete-event night (module docstring): lamp by lamp, every target serving its queue."""
+    """Discrete-event night (module docstring): lamp by lamp, every target its passes."""
     ax = data["heliostats"][0]["axes"]
     az, el = ax["azimuth"], ax["elevation"]
     settle = float(data["calibration"].get("settle_s", 0.5))
-    by_lamp: dict[str, list[list[tuple[str, tuple[int, int]]]]] = {}
-    for h in data["heliostats"]:
-        k = target_of(h["position_enu_m"], targets)
-        for item in plans[h["id"]]:
-            by_lamp.setdefault(item.geometry.lamp, [[] for _ in range(targets)])[k].append(
-                (h["id"], item.geometry.steps))
+    steps = {(it.heliostat_id, it.geometry.lamp, it.geometry.aim_enu): it.geometry.steps
+             for p in plans.values() for it in p}
+    passes = night_passes([it for p in plans.values() for it in p], "n1")
     clock, done, helios = 0.0, 0, set()
-    busy = [0.0] * targets
-    for queues in by_lamp.values():
+    per_target = {}
+    for lamp in dict.fromkeys(p.lamp for p in passes):
         if clock + LAMP_SWITCH_S > NIGHT_S:
             break
         clock += LAMP_SWITCH_S
-        busy = [clock] * targets
-        for k, q in enumerate(queues):
-            for hid, steps in q:
+        busy = dict.fromkeys((p.target for p in passes if p.lamp == lamp), clock)
+        for p in (p for p in passes if p.lamp == lamp):
+            for hid, aim in p.aims.items():
+                s = steps[(hid, p.lamp, aim)]
                 # Standby → aim is a short slew; the slew from stow to standby overlaps the
                 # previous heliostat's measurement (pipelining), so only the approach counts.
-                approach = max(slew_time_s(0.02 * abs(steps[0]), az["speed_steps_per_s"],
+                approach = max(slew_time_s(0.02 * abs(s[0]), az["speed_steps_per_s"],
                                            az["acceleration_steps_per_s2"]),
-                               slew_time_s(0.02 * abs(steps[1]), el["speed_steps_per_s"],
+                               slew_time_s(0.02 * abs(s[1]), el["speed_steps_per_s"],
                                            el["acceleration_steps_per_s2"]))
                 occupancy = 2 * approach + settle + PROCESS_S  # in, measure, back to standby
-                if busy[k] + occupancy > NIGHT_S:
+                if busy[p.target] + occupancy > NIGHT_S:
                     break
-                busy[k] += occupancy
+                busy[p.target] += occupancy
+                per_target[p.target] = per_target.get(p.target, 0.0) + occupancy
                 done += 1
                 helios.add(hid)
-        clock = max(busy)
+        clock = max(busy.values())
     planned = sum(len(p) for p in plans.values())
-    used = max(busy)
+    used = clock
     return {"targets": targets, "planned_measurements": planned, "measurements": done,
             "coverage": done / planned if planned else float("nan"), "heliostats_covered": len(helios),
             "plant_time_h": used / 3600.0,
+            "target_occupancy_h": {str(t): v / 3600.0 for t, v in per_target.items()},
             "heliostats_per_hour_per_target": len(helios) / (used / 3600.0) / targets if used else 0.0}
 
 
@@ -160,19 +163,24 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--heliostats", type=int, default=1000)
     ap.add_argument("--planned", type=int, default=200)
+    ap.add_argument("--geometries", type=int, default=3,
+                    help="planned per heliostat (more than one target's night holds shows the coverage "
+                         "gained by more targets)")
     args = ap.parse_args()
     wall0 = time.perf_counter()
     rows = []
     planner = {}
     for targets in (1, 2, 3):
-        data = field_config(args.heliostats, targets)
+        data = field_config(args.heliostats, targets, args.geometries)
         plans, per, n = plan_field(data, targets, args.planned)
         planner[targets] = {"s_per_decision": per, "decisions_timed": n}
         rows.append(run_night(data, plans, targets))
     print(json.dumps({"benchmark": "field night", "heliostats": args.heliostats, "lamps": len(LAMPS),
                       "night_budget_h": NIGHT_S / 3600.0, "planner": planner, "by_targets": rows,
+                      "geometries_per_heliostat": args.geometries,
                       "coverage_ratio_3_over_1_target":
                           rows[-1]["measurements"] / max(1, rows[0]["measurements"]),
+                      "plant_time_ratio_1_over_3_targets": rows[0]["plant_time_h"] / rows[-1]["plant_time_h"],
                       "wall_s": time.perf_counter() - wall0}, indent=1))
 
 

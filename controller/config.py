@@ -25,6 +25,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from controller.camera_config import Camera, Gige, Sensor  # noqa: F401 - the camera section
 from controller.errors import ConfigError, InputError
+from controller.io.config_keys import did_you_mean, key_path
 from controller.io.yaml_files import parse_yaml, read_text
 
 Vec3 = tuple[float, float, float]
@@ -57,6 +58,8 @@ class Target(_Model):
     normal: Vec3
     width_m: float = Field(gt=0)
     height_m: float = Field(gt=0)
+    camera: Camera | None = Field(default=None, description="this target's camera (schema of the "
+                                  "top-level camera); None: the top-level camera")
 
     _check_normal = field_validator("normal")(classmethod(lambda cls, v: _unit(v)))
 
@@ -238,7 +241,9 @@ class Planner(_Model):
 
 class Calibration(_Model):
     light_source: str = Field(description="id of the light source used for calibration")
-    target: str = Field(description="id of the calibration target")
+    target: str = Field(description="id of the calibration target (the default, first one)")
+    targets: tuple[str, ...] = Field(default=(), description="ids of the targets calibrated in parallel "
+                                     "(default: target only)")
     threshold: float = Field(default=0.5, gt=0, lt=1, description="beam segmentation fraction")
     centroid_threshold: float = Field(default=0.05, gt=0, lt=1,
                                       description="fraction of the peak above which pixels weigh in "
@@ -261,6 +266,9 @@ class Calibration(_Model):
 
     def planned_lamps(self) -> tuple[str, ...]:
         return self.lamps or (self.light_source,)
+
+    def parallel_targets(self) -> tuple[str, ...]:
+        return self.targets or (self.target,)
 
 
 class PlantConfig(_Model):
@@ -293,6 +301,10 @@ class PlantConfig(_Model):
         if self.calibration.target not in {t.id for t in self.targets}:
             raise ValueError(f"calibration.target: {self.calibration.target!r} "
                              "is not the id of any entry of targets")
+        for index, tid in enumerate(self.calibration.targets):
+            if tid not in {t.id for t in self.targets} or tid in self.calibration.targets[:index]:
+                raise ValueError(f"calibration.targets[{index}]: {tid!r} is not the id of an entry of "
+                                 "targets, or is listed twice")
         seen: dict[tuple, str] = {}
         for index, h in enumerate(self.heliostats):
             link = h.link
@@ -312,45 +324,26 @@ class PlantConfig(_Model):
 
     def target(self, tid: str | None = None) -> Target:
         tid = tid or self.calibration.target
-        return next(t for t in self.targets if t.id == tid)
+        for t in self.targets:
+            if t.id == tid:
+                return t
+        raise ConfigError(f"no target {tid!r} in the configuration "
+                          f"(known: {', '.join(t.id for t in self.targets)})")
+
+    def camera_of(self, tid: str | None = None) -> Camera:
+        """The camera looking at target ``tid`` (default: the calibration target): its own, else
+        the top-level ``camera``."""
+        return self.target(tid).camera or self.camera
+
+    def for_target(self, tid: str) -> PlantConfig:
+        """This configuration as seen by the pipeline of target ``tid``: it is the calibration
+        target and its camera the camera (the other targets stay listed for beam safety)."""
+        return self.model_copy(update={"camera": self.camera_of(tid),
+                                       "calibration": self.calibration.model_copy(update={"target": tid})})
 
     def light_source(self, sid: str | None = None) -> SunSource | LampSource:
         sid = sid or self.calibration.light_source
         return next(s for s in self.light_sources if s.id == sid)
-
-
-def _key_path(loc: tuple) -> str:
-    out = ""
-    for part in loc:
-        if isinstance(part, int):
-            out += f"[{part}]"
-        elif part in ("sun", "lamp", "serial", "modbus-tcp", "modbus-rtu"):
-            continue  # discriminator tags pydantic inserts; not part of the user's key path
-        else:
-            out += ("." if out else "") + str(part)
-    return out or "(top level)"
-
-
-def _field_names(model: type[BaseModel], seen: set[type] | None = None) -> set[str]:
-    """Every key name the configuration schema knows (all nested models)."""
-    seen = seen if seen is not None else set()
-    if model in seen:
-        return set()
-    seen.add(model)
-    names = set(model.model_fields)
-    for f in model.model_fields.values():
-        for arg in (f.annotation, *getattr(f.annotation, "__args__", ())):
-            for inner in (arg, *getattr(arg, "__args__", ())):
-                if isinstance(inner, type) and issubclass(inner, BaseModel):
-                    names |= _field_names(inner, seen)
-    return names
-
-
-def _did_you_mean(key: str) -> str:
-    import difflib
-
-    close = difflib.get_close_matches(key, sorted(_field_names(PlantConfig)), n=1, cutoff=0.75)
-    return f" (did you mean {close[0]!r}?)" if close else ""
 
 
 def parse_config(data: object, source: str = "<config>") -> PlantConfig:
@@ -368,13 +361,13 @@ def parse_config(data: object, source: str = "<config>") -> PlantConfig:
         err = exc.errors()[0]
         rule = err["msg"].removeprefix("Value error, ")
         if err["type"] == "extra_forbidden":
-            rule = "unknown key" + _did_you_mean(str(err["loc"][-1]))
+            rule = "unknown key" + did_you_mean(str(err["loc"][-1]), PlantConfig)
         elif err["type"] == "missing":
             rule = "required key is missing"
         more = f" (and {len(exc.errors()) - 1} more problems)" if len(exc.errors()) > 1 else ""
         if not err["loc"] and err["type"] == "value_error":
             raise ConfigError(f"{source}: {rule}{more}") from None  # the rule names its key path
-        raise ConfigError(f"{source}: {_key_path(err['loc'])}: {rule}{more}") from None
+        raise ConfigError(f"{source}: {key_path(err['loc'])}: {rule}{more}") from None
 
 
 def config_sha256(path: str | Path) -> str:

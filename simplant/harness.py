@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import sqlite3
 import threading
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -166,6 +166,8 @@ class SimulatedRun:
     daytime_uncalibrated: DaytimeError  # the same with the nominal kinematics
     predicted: PredictedDaytime  # what the models' own covariance predicts for ``daytime``
     nights: list[NightReport]  # after each planned night (empty with nights=0)
+    on_target: dict[str, list[tuple[float, float, str]]] = field(default_factory=dict)  # per target:
+    # the plant-clock spans (start, end, heliostat) with one beam on it (the safety monitor's truth)
 
 
 def run_simulated(cfg: PlantConfig, config_path: str, out: Path, db_path: Path, ids: list[str], *,
@@ -194,15 +196,26 @@ def run_simulated(cfg: PlantConfig, config_path: str, out: Path, db_path: Path, 
                                    settle_s=cal.settle_s)
             truth = TruthRecorder(plant, db_path)
             path = sun_path(cfg.site)
+            live: set[Campaign] = set()  # running campaigns, one per target at most
             with LinkPool(timeout_s=0.5, retries=2) as pool:
                 def campaign(options: CampaignOptions, hids: list[str], extra=()) -> CampaignResult:
-                    return Campaign(plant_cfg, config_path, store, pool, plant.camera,
-                                    config_sha256=config_sha256(config_path), heliostat_ids=hids, library=lib,
-                                    options=options, images=ImageArchive(out / "images"), clock=plant.clock,
-                                    sleep=plant.clock.sleep, compute=plant.clock.realtime, utc=plant.utc,
-                                    meta={"plant": "simulated", "seed": settings.seed,
-                                          "clock_speedup": settings.clock_speedup},
-                                    observers=[LampSwitch(plant), truth, *extra]).run()
+                    c = Campaign(plant_cfg, config_path, store, pool,
+                                 plant.cameras[options.target or plant_cfg.calibration.target],
+                                 config_sha256=config_sha256(config_path), heliostat_ids=hids, library=lib,
+                                 options=options, images=ImageArchive(out / "images"), clock=plant.clock,
+                                 sleep=plant.clock.sleep, compute=plant.clock.realtime, utc=plant.utc,
+                                 meta={"plant": "simulated", "seed": settings.seed,
+                                       "clock_speedup": settings.clock_speedup},
+                                 observers=[LampSwitch(plant), truth, *extra])
+                    live.add(c)
+                    try:
+                        return c.run()
+                    finally:
+                        live.discard(c)
+
+                def stop_all() -> None:  # Ctrl-C during parallel targets: every campaign parks
+                    for c in list(live):
+                        c.request_stop()
 
                 result = campaign(opts, ids, observers)
                 reports = []
@@ -210,9 +223,10 @@ def run_simulated(cfg: PlantConfig, config_path: str, out: Path, db_path: Path, 
                     plant.set_night(k)
                     night = f"{name}/night-{k + 1}"
                     reports.append(_planned_night(cfg, store, plant, campaign, ids, k, night, strategy, path,
-                                                  progress))
+                                                  progress, stop_all))
                 plant.set_light(cfg.calibration.light_source)
             safety = plant.safety.report()
+            on_target = plant.safety.intervals
         # What the nights were for: open-loop tracking of the sun with each heliostat's latest
         # model, scored against the plant's truth (and, for scale, with no model at all).
         models = {hid: store.latest_model(hid) for hid in ids}
@@ -227,11 +241,11 @@ def run_simulated(cfg: PlantConfig, config_path: str, out: Path, db_path: Path, 
     finally:
         store.close()
     return SimulatedRun(result, read_truth(db_path, result.campaign_id), safety, settings, db_path, out,
-                        daytime, uncalibrated, predicted, reports)
+                        daytime, uncalibrated, predicted, reports, on_target)
 
 
 def _planned_night(cfg: PlantConfig, store: CampaignStore, plant: SimulatedPlant, campaign, ids: list[str],
-                   k: int, night: str, strategy: str, path, progress) -> NightReport:
+                   k: int, night: str, strategy: str, path, progress, stop_all=None) -> NightReport:
     """Plan (or reload the stored plan of) night ``k``, run its passes, score the field."""
     plan = load_plan(store, night)
     if not plan:
@@ -244,14 +258,31 @@ def _planned_night(cfg: PlantConfig, store: CampaignStore, plant: SimulatedPlant
         progress(f"{night}: {len(plan)} geometries planned for {helios} heliostats "
                  f"(worst predicted daytime RMS {before:.2f} mrad)")
 
+    tally_lock = threading.Lock()
+    planned = {i.heliostat_id for i in plan}
+    tally: dict[str, set[str]] = {"geometries": set(), "heliostats": set()}
+
     def run_pass(p: Pass) -> CampaignResult:
         if progress is not None:
-            progress(f"{p.name}: {len(p.aims)} heliostat(s) under {p.lamp}")
-        return campaign(CampaignOptions(name=p.name, light_source=p.lamp, aims=p.aims, observe=True,
-                                        pipeline_depth=cfg.calibration.pipeline_depth,
-                                        settle_s=cfg.calibration.settle_s), list(p.aims))
+            progress(f"{p.name}: {len(p.aims)} heliostat(s) under {p.lamp}"
+                     + (f" on {p.target}" if p.target else ""))
+        r = campaign(CampaignOptions(name=p.name, light_source=p.lamp, aims=p.aims, observe=True,
+                                     pipeline_depth=cfg.calibration.pipeline_depth,
+                                     settle_s=cfg.calibration.settle_s, target=p.target), list(p.aims))
+        if progress is not None:
+            # Tonight so far, all targets: what was measured and where the field's predicted
+            # daytime error stands (the plant clock stands still: this is the operator's view).
+            with tally_lock, plant.clock.frozen():
+                done = [run for run in r.runs if run.status == "measured"]
+                tally["geometries"] |= {f"{p.name}/{run.heliostat_id}" for run in done}
+                tally["heliostats"] |= {run.heliostat_id for run in done}
+                now = predicted_daytime(cfg, {hid: store.latest_model(hid) for hid in ids}, path)
+                progress(f"{night}: {len(tally['geometries'])}/{len(plan)} geometries, "
+                         f"{len(tally['heliostats'])}/{len(planned)} heliostats measured; "
+                         f"field predicted daytime RMS {now.rms:.2f} mrad")
+        return r
 
-    results = run_night(plan, night, run_pass)
+    results = run_night(plan, night, run_pass, stop_all)
     models = {hid: store.latest_model(hid) for hid in ids}
     measured = sum(1 for r in results for run in r.runs if run.status == "measured")
     report = NightReport(k + 1, night, len(plan), measured, daytime_error(plant, cfg, models, path),

@@ -14,7 +14,8 @@ What it runs, all in this process but reachable only through the real wire proto
   ``tracking_error_mrad``/3) and an injected error *case* from the error set (its mirror
   shape: deformation, focus, wind rocking, and its own pointing), so that the morning report
   can score the Hu-moment recognition against the truth;
-* a simulated double-CCD camera (:class:`PlantCamera`) looking at the target under the lamp.
+* a simulated double-CCD camera (:class:`PlantCamera`) per target, looking at it under the lamp
+  (``cameras``, by target id; ``camera`` is the calibration target's).
   Its scene is the sum of the beams of every heliostat whose reflected central ray lands
   within the view (plus margin), each ray traced from the TRUE normal: the hidden heliostat
   at the rods' true positions (``SimController.output_steps``, backlash included).
@@ -154,7 +155,8 @@ class SimulatedPlant:
         self.serial: dict[str, object] = {}
         self.modbus = None
         self.safety = BeamSafetyMonitor(self)
-        self.camera: PlantCamera | None = None
+        self.camera: PlantCamera | None = None  # the calibration target's camera
+        self.cameras: dict[str, PlantCamera] = {}  # target id -> its camera
         self.config: PlantConfig | None = None
 
     # -- lifecycle -------------------------------------------------------------------------------
@@ -201,16 +203,29 @@ class SimulatedPlant:
             if link.get("kind") == "modbus-tcp" and port is not None:
                 link["host"], link["port"] = "127.0.0.1", port
         self.config = parse_config(self.data, str(self.run_dir / "plant.yaml"))
-        self.camera = PlantCamera(self, self.config, seed=self.seed)
-        if not self.config.camera.crf_file:
-            # The simulated sensors are non-linear: hand the controller their response, as an
-            # integrating-sphere calibration would (controller.imaging.crf file format).
-            crf_path = self.run_dir / "crf.yaml"
-            self.camera.true_crf().save(crf_path)
-            self.data["camera"]["crf_file"] = str(crf_path)
-            self.config = parse_config(self.data, str(self.run_dir / "plant.yaml"))
+        self._start_cameras()
         self.safety.start()
         return self.config
+
+    def _start_cameras(self) -> None:
+        """One camera per target (seeded apart, the calibration target's with the plant seed).
+        The simulated sensors are non-linear: hand the controller each camera's response, as
+        an integrating-sphere calibration would (controller.imaging.crf file format)."""
+        cfg = self.config
+        default = cfg.calibration.target
+        for k, t in enumerate(cfg.targets):
+            seed = self.seed if t.id == default else self.seed + 1000 * (k + 1)
+            self.cameras[t.id] = PlantCamera(self, cfg.for_target(t.id), seed=seed)
+        self.camera = self.cameras[default]
+        if not cfg.camera.crf_file:
+            self.camera.true_crf().save(self.run_dir / "crf.yaml")
+            self.data["camera"]["crf_file"] = str(self.run_dir / "crf.yaml")
+        for t, raw in zip(cfg.targets, self.data["targets"], strict=True):
+            if t.camera is not None and not t.camera.crf_file:
+                path = self.run_dir / f"crf-{t.id}.yaml"
+                self.cameras[t.id].true_crf().save(path)
+                raw["camera"]["crf_file"] = str(path)
+        self.config = parse_config(self.data, str(self.run_dir / "plant.yaml"))
 
     def stop(self) -> None:
         self.safety.stop()

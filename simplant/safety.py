@@ -1,4 +1,4 @@
-"""Beam safety as the plant's truth sees it: whose reflected central ray is on the target."""
+"""Beam safety as the plant's truth sees it: whose reflected central ray is on each target."""
 
 from __future__ import annotations
 
@@ -15,10 +15,12 @@ if TYPE_CHECKING:  # the plant owns its monitor: a runtime import would be circu
 
 
 class BeamSafetyMonitor:
-    """Watches the plant's truth: whose reflected central ray is on the target right now.
+    """Watches the plant's truth: whose reflected central ray is on each target right now.
 
-    Samples every ``period_s`` of wall time; ``violations`` counts samples with more than
-    one beam on the target (the controller must never cause one), ``report()`` summarises."""
+    Samples every ``period_s`` of wall time; ``violations`` counts the (sample, target) pairs
+    with more than one beam on the target (the controller must never cause one), ``report()`` summarises;
+    ``intervals`` lists, per target, the plant-clock spans (start, end, heliostat) during
+    which one beam was on it."""
 
     def __init__(self, plant: SimulatedPlant, period_s: float = 0.02) -> None:
         self.plant = plant
@@ -27,14 +29,18 @@ class BeamSafetyMonitor:
         self.violations = 0
         self.max_on_target = 0
         self.offenders: set[tuple[str, ...]] = set()
+        self.intervals: dict[str, list[tuple[float, float, str]]] = {}
+        self._open: dict[str, tuple[float, str]] = {}
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
-    def on_target(self) -> list[str]:
+    def on_target(self, target: str | None = None) -> list[str]:
+        """The heliostats whose true reflected central ray lands on ``target`` (default: the
+        calibration target) now."""
         p = self.plant
-        tgt = p.cfg.target()
+        tgt = p.cfg.target(target)
         c, nrm = np.asarray(tgt.center_enu_m, float), unit(np.asarray(tgt.normal, float))
-        base = camera_grid(p.cfg)
+        base = camera_grid(p.cfg.for_target(tgt.id))
         lamp = np.asarray(p.lamp().position_enu_m, float)
         out = []
         for hid, hh in p.hidden.items():
@@ -53,14 +59,26 @@ class BeamSafetyMonitor:
                 out.append(hid)
         return out
 
-    def _run(self) -> None:
-        while not self._stop.wait(self.period_s):
-            on = self.on_target()
-            self.samples += 1
+    def sample(self) -> None:
+        """One look at every target (the monitor's thread calls this every ``period_s``)."""
+        now = self.plant.clock()
+        self.samples += 1
+        for t in self.plant.cfg.targets:
+            on = self.on_target(t.id)
             self.max_on_target = max(self.max_on_target, len(on))
             if len(on) > 1:
                 self.violations += 1
                 self.offenders.add(tuple(sorted(on)))
+            held = self._open.get(t.id)
+            if held is not None and (len(on) != 1 or on[0] != held[1]):
+                self.intervals.setdefault(t.id, []).append((held[0], now, held[1]))
+                del self._open[t.id]
+            if len(on) == 1 and t.id not in self._open:
+                self._open[t.id] = (now, on[0])
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.period_s):
+            self.sample()
 
     def start(self) -> None:
         self._stop.clear()
@@ -72,6 +90,10 @@ class BeamSafetyMonitor:
         if self._thread is not None:
             self._thread.join(timeout=2.0)
             self._thread = None
+        now = self.plant.clock()
+        for tid, (start, hid) in self._open.items():
+            self.intervals.setdefault(tid, []).append((start, now, hid))
+        self._open.clear()
 
     def report(self) -> dict:
         return {"samples": self.samples, "violations": self.violations,

@@ -1,57 +1,96 @@
 """Planned nights: the planner's geometries run as campaigns, one lamp at a time.
 
 A night's plan (:mod:`controller.calibration.planner`) lists, per heliostat, a few
-(lamp, aim point) geometries. They run as ordinary campaigns — the same cycle, target gate,
-beam-safe slews and per-heliostat transactions — in *passes*: all of one lamp's geometries
-before the next lamp is lit (lamps are switched as rarely as possible), and within a lamp
-one pass per rank, since a heliostat has one run per campaign. Each pass is a campaign named
-``<night>/<lamp>/<k>``, so a night stopped by ``kill -9`` resumes pass by pass: recorded
-heliostats are skipped, finished passes are not repeated. Measurements accumulate in the
-database across nights and every run refits the heliostat's model on all of them, weighted
-by age (``calibration.model.age_halflife_days``).
+(lamp, target, aim point) geometries. They run as ordinary campaigns — the same cycle, target
+gate, beam-safe slews and per-heliostat transactions — in *passes*: all of one lamp's
+geometries before the next lamp is lit (lamps are switched as rarely as possible), and within
+a lamp one pass per target and rank, since a heliostat has one run per campaign. Under one
+lamp the targets run in parallel (:func:`controller.calibration.parallel.run_per_target`),
+each its passes in rank order. Each pass is a campaign named ``<night>/<lamp>/<k>`` (one
+target) or ``<night>/<lamp>/<k>@<target>`` (several), so a night stopped by ``kill -9``
+resumes pass by pass: recorded heliostats are skipped, finished passes are not repeated.
+Measurements accumulate in the database across nights and every run refits the heliostat's
+model on all of them, weighted by age (``calibration.model.age_halflife_days``).
 """
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from controller.calibration.parallel import run_per_target
 from controller.calibration.planner import PlanItem
 from controller.calibration.runner import CampaignResult
 
 
 @dataclass(frozen=True)
 class Pass:
-    """One campaign of a planned night: its ``name``, the ``lamp`` lit, and the aim point
-    (m ENU) of each heliostat in it."""
+    """One campaign of a planned night: its ``name``, the ``lamp`` lit, the aim point (m ENU)
+    of each heliostat in it and its ``target`` (None: the calibration target)."""
 
     name: str
     lamp: str
     aims: dict[str, tuple[float, float, float]]
+    target: str | None = None
 
 
 def night_passes(plan: list[PlanItem], night: str) -> list[Pass]:
-    """The passes of ``plan`` (module docstring), lamps in order of first appearance."""
-    lamps: dict[str, dict[str, list[PlanItem]]] = {}
+    """The passes of ``plan`` (module docstring): lamps in order of first appearance, within a
+    lamp by target (order of first appearance), then rank."""
+    groups: dict[tuple[str, str | None], dict[str, list[PlanItem]]] = {}
     for it in sorted(plan, key=lambda i: (i.heliostat_id, i.rank)):
-        lamps.setdefault(it.geometry.lamp, {}).setdefault(it.heliostat_id, []).append(it)
+        key = (it.geometry.lamp, it.geometry.target)
+        groups.setdefault(key, {}).setdefault(it.heliostat_id, []).append(it)
+    several = len({target for _, target in groups}) > 1
     out = []
-    for lamp, per in lamps.items():
-        for k in range(max(len(v) for v in per.values())):
-            aims = {hid: items[k].geometry.aim_enu for hid, items in per.items() if k < len(items)}
-            out.append(Pass(f"{night}/{lamp}/{k + 1}", lamp, aims))
+    for lamp in dict.fromkeys(lamp for lamp, _ in groups):
+        for (lamp_, target), per in groups.items():
+            if lamp_ != lamp:
+                continue
+            for k in range(max(len(v) for v in per.values())):
+                aims = {hid: items[k].geometry.aim_enu for hid, items in per.items() if k < len(items)}
+                suffix = f"@{target}" if several else ""
+                out.append(Pass(f"{night}/{lamp}/{k + 1}{suffix}", lamp, aims, target))
     return out
 
 
-def run_night(plan: list[PlanItem], night: str,
-              run_pass: Callable[[Pass], CampaignResult]) -> list[CampaignResult]:
+def run_night(plan: list[PlanItem], night: str, run_pass: Callable[[Pass], CampaignResult],
+              stop_all: Callable[[], None] | None = None) -> list[CampaignResult]:
     """Run every pass of the night with ``run_pass`` (which builds and runs one observing
-    campaign: ``CampaignOptions(name=p.name, light_source=p.lamp, aims=p.aims, observe=True)``).
-    Stops at the first pass that did not end ``finished``/``partial`` (aborted, interrupted)."""
-    results = []
-    for p in night_passes(plan, night):
-        r = run_pass(p)
-        results.append(r)
-        if r.status not in ("finished", "partial"):
+    campaign: ``CampaignOptions(name=p.name, light_source=p.lamp, aims=p.aims, observe=True,
+    target=p.target)``), the targets of a lamp in parallel. A target stops at its first pass
+    that did not end ``finished``/``partial`` (aborted, interrupted), the other targets after
+    their present pass, and no further lamp is lit. ``stop_all``: asks every running campaign
+    to stop (Ctrl-C, :func:`run_per_target`)."""
+    results: list[CampaignResult] = []
+    halted = threading.Event()
+    passes = night_passes(plan, night)
+    for lamp in dict.fromkeys(p.lamp for p in passes):
+        per_target: dict[str | None, list[Pass]] = {}
+        for p in passes:
+            if p.lamp == lamp:
+                per_target.setdefault(p.target, []).append(p)
+
+        def sequence(todo: list[Pass]) -> list[CampaignResult]:
+            out = []
+            for p in todo:
+                if halted.is_set():
+                    break
+                r = run_pass(p)
+                out.append(r)
+                if r.status not in ("finished", "partial"):
+                    halted.set()
+            return out
+
+        def stop() -> None:  # Ctrl-C: no further pass starts, the running ones park
+            halted.set()
+            if stop_all is not None:
+                stop_all()
+
+        done = run_per_target({str(t): (lambda todo=todo: sequence(todo)) for t, todo in per_target.items()},
+                              stop)
+        results += [r for rs in done.values() for r in rs]
+        if halted.is_set():
             break
     return results

@@ -1,12 +1,13 @@
 """The nightly planner: which geometries each heliostat is measured at tonight.
 
-A *geometry* is a lamp and an aim point on the calibration target (the aim grid of
-``calibration.aim_grid``). Each one puts the heliostat at another pose, and the spread of
-poses is what lets the fit separate the model's terms. For every heliostat the planner
+A *geometry* is a lamp, a target and an aim point on it (the aim grid of
+``calibration.aim_grid``, over each of ``calibration.targets``). Each one puts the heliostat
+at another pose, and the spread of poses is what lets the fit separate the model's terms.
+For every heliostat the planner
 
-1. lists the candidate geometries it can take: each lit lamp × each aim point, kept when the
-   heliostat reaches the pose within its soft limits with its present model and the lamp
-   lights the mirror's front (incidence below :data:`MAX_INCIDENCE_DEG`);
+1. lists the candidate geometries it can take: each lit lamp × each aim point of tonight's
+   target(s), kept when the heliostat reaches the pose within its soft limits with its
+   present model and the lamp lights the mirror's front (incidence below :data:`MAX_INCIDENCE_DEG`);
 2. scores them by the expected reduction of its *daytime* pointing variance
    (:mod:`controller.geometry.design`, Eq. 1-2) from its present model covariance, over
    ``calibration.planner.sun_positions`` positions of the yearly sun path;
@@ -50,13 +51,15 @@ MAX_INCIDENCE_DEG = 75.0  # beyond this the lamp grazes the mirror: a faint, sme
 
 @dataclass(frozen=True)
 class Geometry:
-    """A candidate: ``lamp`` id, aim point (m ENU) with its grid cell (row, col), and the
-    steps the heliostat would take there with its present model."""
+    """A candidate: ``lamp`` id, aim point (m ENU) with its grid cell (row, col), the steps
+    the heliostat would take there with its present model, and the ``target`` id (None: the
+    calibration target)."""
 
     lamp: str
     aim_enu: tuple[float, float, float]
     cell: tuple[int, int]
     steps: tuple[int, int]
+    target: str | None = None
 
 
 @dataclass(frozen=True)
@@ -74,10 +77,11 @@ class PlanItem:
     strategy: str = "design"
 
 
-def aim_points(cfg: PlantConfig) -> list[tuple[tuple[int, int], np.ndarray]]:
-    """The aim grid over the calibration target: ((row, col), point m ENU), row 0 at the top."""
+def aim_points(cfg: PlantConfig, target: str | None = None) -> list[tuple[tuple[int, int], np.ndarray]]:
+    """The aim grid over ``target`` (default: the calibration target): ((row, col), point m
+    ENU), row 0 at the top."""
     g = cfg.calibration.aim_grid
-    t = cfg.target()
+    t = cfg.target(target)
     frame = TargetFrame.from_config(t, (1, 1))
     half_w = max(0.0, t.width_m / 2 - g.margin_m)
     half_h = max(0.0, t.height_m / 2 - g.margin_m)
@@ -87,8 +91,10 @@ def aim_points(cfg: PlantConfig) -> list[tuple[tuple[int, int], np.ndarray]]:
             for r, y in enumerate(ys) for c, x in enumerate(xs)]
 
 
-def candidates(cfg: PlantConfig, heliostat_id: str, model: TrackingModel) -> list[Geometry]:
-    """Every geometry of the module docstring's step 1 for one heliostat."""
+def candidates(cfg: PlantConfig, heliostat_id: str, model: TrackingModel,
+               targets: tuple[str, ...] | None = None) -> list[Geometry]:
+    """Every geometry of the module docstring's step 1 for one heliostat, on ``targets``
+    (default: every target of ``calibration.targets``)."""
     h = cfg.heliostat(heliostat_id)
     kin = HeliostatKinematics.from_config(h)
     pos = np.asarray(h.position_enu_m, float)
@@ -98,7 +104,8 @@ def candidates(cfg: PlantConfig, heliostat_id: str, model: TrackingModel) -> lis
         if not isinstance(lamp, LampSource):
             continue
         s = np.asarray(source_direction(lamp, pos), float)
-        for cell, point in aim_points(cfg):
+        for tid, (cell, point) in ((t, a) for t in targets or cfg.calibration.parallel_targets()
+                                   for a in aim_points(cfg, t)):
             try:
                 steps = model_aim(kin, model, s, point)
             except (LimitError, ValueError):
@@ -107,7 +114,7 @@ def candidates(cfg: PlantConfig, heliostat_id: str, model: TrackingModel) -> lis
             if math.degrees(math.acos(min(1.0, float(s @ n)))) > MAX_INCIDENCE_DEG:
                 continue
             out.append(Geometry(lamp_id, tuple(float(v) for v in point), cell,
-                                (int(steps[0]), int(steps[1]))))
+                                (int(steps[0]), int(steps[1])), tid))
     return out
 
 
@@ -120,13 +127,15 @@ def planner_sun(cfg: PlantConfig) -> np.ndarray:
 
 
 def plan_heliostat(cfg: PlantConfig, heliostat_id: str, record: ModelRecord | None, night: str,
-                   sun_dirs: np.ndarray, *, strategy: str = "design", offset: int = 0) -> list[PlanItem]:
-    """Tonight's measurements of one heliostat (module docstring). ``strategy`` ``design`` (by
-    expected gain) or ``round-robin`` (:func:`round_robin`, starting at candidate ``offset``)."""
+                   sun_dirs: np.ndarray, *, strategy: str = "design", offset: int = 0,
+                   targets: tuple[str, ...] | None = None) -> list[PlanItem]:
+    """Tonight's measurements of one heliostat (module docstring) on ``targets`` (default:
+    all). ``strategy`` ``design`` (by expected gain) or ``round-robin`` (:func:`round_robin`,
+    starting at candidate ``offset``)."""
     cal = cfg.calibration
     model, cov = model_covariance(record, cal.model.prior_sigma)
     kin = HeliostatKinematics.from_config(cfg.heliostat(heliostat_id))
-    geos = candidates(cfg, heliostat_id, model)
+    geos = candidates(cfg, heliostat_id, model, targets)
     if not geos:
         return []
     a = beam_jacobians(kin, model, sun_dirs, np.asarray(cfg.target().center_enu_m, float))
@@ -156,10 +165,15 @@ def round_robin(count: int, n: int, offset: int) -> list[int]:
 
 def plan_night(cfg: PlantConfig, models: dict[str, ModelRecord | None], night: str, *,
                strategy: str = "design", night_index: int = 0) -> list[PlanItem]:
-    """Tonight's plan for the heliostats in ``models`` (id -> latest model or None)."""
+    """Tonight's plan for the heliostats in ``models`` (id -> latest model or None). The queue
+    is distributed over ``calibration.targets`` (which run in parallel): heliostat i takes
+    tonight target (i + night_index) mod n, so each target gets its share and each heliostat
+    another target the next night."""
     sun = planner_sun(cfg)
+    targets = cfg.calibration.parallel_targets()
     out: list[PlanItem] = []
-    for hid, rec in models.items():
+    for i, (hid, rec) in enumerate(models.items()):
         per = cfg.calibration.planner.geometries_per_night
-        out += plan_heliostat(cfg, hid, rec, night, sun, strategy=strategy, offset=night_index * per)
+        out += plan_heliostat(cfg, hid, rec, night, sun, strategy=strategy, offset=night_index * per,
+                              targets=(targets[(i + night_index) % len(targets)],))
     return out

@@ -32,11 +32,14 @@ class GeometryPointing:
 
     The aim point is the target centre; the standby point lies ``standby_offset_m`` beside it in
     the target plane, on the heliostat's own side, so the approach is a short horizontal slew.
+    ``others``: the plant's other targets, which slews must never cross either (their beams
+    belong to other pipelines that run at the same time).
     """
 
     def __init__(self, heliostat: Heliostat, target: Target, source, frame: TargetFrame,
                  standby_offset_m: float, current_steps: tuple[int, int] | None = None,
-                 model_settings: ModelSettings | None = None, aim_point=None) -> None:
+                 model_settings: ModelSettings | None = None, aim_point=None,
+                 others: tuple[Target, ...] = ()) -> None:
         self.model_settings = model_settings or ModelSettings()
         model_prior(self.model_settings)  # an unknown term is refused before anything moves
         self.kin = HeliostatKinematics.from_config(heliostat)
@@ -49,6 +52,8 @@ class GeometryPointing:
                            else None)
         self.heliostat = heliostat
         self.frame = frame
+        self.others = tuple((np.asarray(t.center_enu_m, float), TargetFrame.from_config(t, (1, 1)), t)
+                            for t in others if t.id != target.id)
         self.standby_point = self.aim_point + standby_offset_m * frame.side(self.heliostat_pos)
         if current_steps is not None:
             # Park on the side the slew from the present pose reaches first (azimuth steps
@@ -68,35 +73,48 @@ class GeometryPointing:
     def beam_on_target(self, az_steps: float, el_steps: float, margin_m: float = 2.0) -> bool:
         """Whether the nominal reflected central ray lands on the target grown by ``margin_m``
         (spot radius plus model error)."""
+        return self._lands_on(az_steps, el_steps, np.asarray(self.target.center_enu_m, float), self.frame,
+                              self.target, margin_m)
+
+    def beam_on_other_target(self, az_steps: float, el_steps: float, margin_m: float = 2.0) -> bool:
+        """Whether the nominal reflected central ray lands on one of the ``others`` targets
+        grown by ``margin_m``."""
+        return any(self._lands_on(az_steps, el_steps, c, f, t, margin_m) for c, f, t in self.others)
+
+    def _lands_on(self, az_steps: float, el_steps: float, center: np.ndarray, frame: TargetFrame,
+                  target: Target, margin_m: float) -> bool:
         try:
-            hit = self.kin.spot(az_steps, el_steps, self.source_dir, self.aim_point, self.frame.normal)
+            hit = self.kin.spot(az_steps, el_steps, self.source_dir, center, frame.normal)
         except (ValueError, FloatingPointError):
             return False  # the beam points away from the target plane
-        d = hit - self.aim_point
-        return (abs(float(d @ self.frame.u)) <= self.target.width_m / 2 + margin_m
-                and abs(float(d @ self.frame.v)) <= self.target.height_m / 2 + margin_m)
+        d = hit - center
+        return (abs(float(d @ frame.u)) <= target.width_m / 2 + margin_m
+                and abs(float(d @ frame.v)) <= target.height_m / 2 + margin_m)
 
     def path_to(self, start: tuple[int, int], end: tuple[int, int]) -> list[tuple[int, int]]:
         """Waypoints from ``start`` to ``end`` (a point off the target) along which the beam
-        never crosses the target: both axes together, else elevation first, else azimuth first.
+        never crosses the target nor any of the ``others``: both axes together, else elevation
+        first, else azimuth first.
         The motion model moves each axis at its configured speed (acceleration ignored).
         Raises :class:`UnsafePath` when no such path exists."""
         ax = self.heliostat.axes
         speed = np.array([ax.azimuth.speed_steps_per_s, ax.elevation.speed_steps_per_s])
 
         def clear(plan: list[tuple[int, int]]) -> bool:
-            # A beam that starts on the target may leave it; once off it must never enter.
+            # A beam that starts on a target may leave it; once off it must never enter one.
             inside = self.beam_on_target(*start)
+            inside_other = self.beam_on_other_target(*start)
             for a, b in zip([start] + plan[:-1], plan, strict=True):
                 a_, b_ = np.asarray(a, float), np.asarray(b, float)
                 dur = np.abs(b_ - a_) / speed
                 total = float(dur.max())
                 for t in np.linspace(0.0, total, 120 if total > 0 else 1):
                     frac = np.where(dur > 0, np.minimum(1.0, t / np.where(dur > 0, dur, 1.0)), 1.0)
-                    on = self.beam_on_target(*(a_ + frac * (b_ - a_)))
-                    if on and not inside:
+                    pose = a_ + frac * (b_ - a_)
+                    on, on_other = self.beam_on_target(*pose), self.beam_on_other_target(*pose)
+                    if (on and not inside) or (on_other and not inside_other):
                         return False
-                    inside = inside and on
+                    inside, inside_other = inside and on, inside_other and on_other
             return True
 
         plans = ([end], [(start[0], end[1]), end], [(end[0], start[1]), end])
@@ -104,7 +122,7 @@ class GeometryPointing:
             if clear(plan):
                 return [p for p in plan if p != start]
         raise UnsafePath(f"{self.heliostat.id}: no slew from {start} to standby {end} keeps the beam "
-                         "off the target")
+                         "off the targets")
 
     def _steps(self, point: np.ndarray, model: ModelRecord | None) -> tuple[int, int]:
         return steps_to_aim(self.kin, model, self.source_dir, point, self.source_pos)

@@ -1,7 +1,9 @@
 """Nightly calibration campaign: the queue, the pipeline and resumption.
 
 A campaign calibrates a list of heliostats against one target under one light source (a
-lamp at night). It knows only the plant configuration, drives from
+lamp at night). Several targets work in parallel as one campaign each, each with its own
+camera, beam chain and gate (:mod:`controller.calibration.parallel`); slews never cross
+another target (:meth:`GeometryPointing.path_to`). It knows only the plant configuration, drives from
 :class:`controller.devices.factory.LinkPool`, a :class:`DoubleCcdCamera`, a record store and
 an image archive (both handed in by the interface layer); nothing here knows whether the
 plant is simulated. What happens is told to :class:`CampaignObserver` s: a terminal progress
@@ -153,6 +155,7 @@ class CampaignOptions:
     light_source: str | None = None  # lamp lit for this campaign (default: calibration.light_source)
     aims: dict[str, tuple[float, float, float]] | None = None  # per-heliostat aim point (planned night)
     observe: bool = False  # planned observations: one measurement each, no correction
+    target: str | None = None  # the target of this campaign (default: calibration.target)
 
 
 class Campaign:
@@ -169,6 +172,8 @@ class Campaign:
                  clock: Callable[[], float] = time.monotonic, sleep: Callable[[float], None] = time.sleep,
                  meta: dict | None = None, compute=None,
                  observers: Sequence[CampaignObserver] = (), utc: Callable[[], str] | None = None) -> None:
+        # A campaign works on one target: it is the calibration target and its camera the camera.
+        cfg = cfg.for_target(options.target) if options is not None and options.target else cfg
         self.cfg = cfg
         self.config_path = str(config_path)
         self.config_sha256 = config_sha256
@@ -243,7 +248,8 @@ class Campaign:
             except DriveError:  # unreachable now: its cycle will record the failure
                 pass
         pointing = {hid: GeometryPointing(self.cfg.heliostat(hid), target, source, self.chain.frame,
-                                          cal.standby_offset_m, current.get(hid), cal.model, aims.get(hid))
+                                          cal.standby_offset_m, current.get(hid), cal.model, aims.get(hid),
+                                          others=self.cfg.targets)
                     for hid in self.ids}
         existing = self.store.campaign_by_name(self.opt.name)
         queue = existing.queue if existing is not None else order_queue(self.cfg, self.ids, current, pointing)

@@ -243,12 +243,14 @@ class CampaignStore:
                     "source_u, source_az_deg, source_el_deg, centroid_e, centroid_n, centroid_u, "
                     "centroid_x_px, centroid_y_px, aim_e, aim_n, aim_u, error_mrad, matched_label, "
                     "match_distance, runner_up_label, runner_up_distance, plant_time_s, measured_utc, "
-                    "source_pos_e, source_pos_n, source_pos_u) "
-                    "VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?)",
+                    "source_pos_e, source_pos_n, source_pos_u, target) "
+                    "VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,"
+                    "(SELECT target FROM campaigns WHERE id=?))",
                     (run_id, m.iteration, int(m.az_steps), int(m.el_steps), *map(float, m.source_dir),
                      m.source_az_deg, m.source_el_deg, *c, *px, *map(float, m.aim_enu), m.error_mrad,
                      m.matched_label, m.match_distance, m.runner_up_label, m.runner_up_distance,
-                     m.plant_time_s, m.measured_utc, *(m.source_pos_enu or (None, None, None))))
+                     m.plant_time_s, m.measured_utc, *(m.source_pos_enu or (None, None, None)),
+                     campaign_id))
                 for im in m.images:
                     db.execute("INSERT INTO images (measurement_id, kind, path, sha256, exposure_low_s, "
                                "exposure_high_s) VALUES (?,?,?,?,?,?)",

@@ -1,7 +1,7 @@
 """The ``plan`` table: what the nightly planner chose for each heliostat and why.
 
-One row per planned measurement (night name, heliostat, rank), with the geometry (lamp, aim
-point and grid cell, the steps it expected), the expected gain and the predicted daytime RMS
+One row per planned measurement (night name, heliostat, rank), with the geometry (lamp, target,
+aim point and grid cell, the steps it expected), the expected gain and the predicted daytime RMS
 before and after it. A resumed night runs the plan stored for it, not a new one.
 """
 
@@ -20,9 +20,9 @@ def record_plan(store: CampaignStore, items: list[PlanItem]) -> None:
             db.execute(
                 "INSERT OR IGNORE INTO plan (night, heliostat_id, rank, strategy, lamp, aim_e, aim_n, aim_u, "
                 "cell_row, cell_col, az_steps, el_steps, expected_gain, predicted_before_mrad, "
-                "predicted_after_mrad, created_utc) VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?)",
+                "predicted_after_mrad, created_utc, target) VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?)",
                 (it.night, it.heliostat_id, it.rank, it.strategy, g.lamp, *g.aim_enu, *g.cell, *g.steps,
-                 it.gain, it.predicted_before_mrad, it.predicted_after_mrad, utc_now()))
+                 it.gain, it.predicted_before_mrad, it.predicted_after_mrad, utc_now(), g.target))
 
 
 def load_plan(store: CampaignStore, night: str | None = None) -> list[PlanItem]:
@@ -33,6 +33,6 @@ def load_plan(store: CampaignStore, night: str | None = None) -> list[PlanItem]:
         rows = store.query("SELECT * FROM plan WHERE night=? ORDER BY id", (night,))
     return [PlanItem(r["heliostat_id"], r["night"],
                      Geometry(r["lamp"], (r["aim_e"], r["aim_n"], r["aim_u"]), (r["cell_row"], r["cell_col"]),
-                              (r["az_steps"], r["el_steps"])),
+                              (r["az_steps"], r["el_steps"]), r["target"]),
                      r["rank"], r["expected_gain"], r["predicted_before_mrad"], r["predicted_after_mrad"],
                      r["strategy"]) for r in rows]

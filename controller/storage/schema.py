@@ -144,6 +144,15 @@ MIGRATIONS: tuple[str, ...] = (
     ALTER TABLE measurements ADD COLUMN source_pos_n REAL;
     ALTER TABLE measurements ADD COLUMN source_pos_u REAL;
     """,
+    # v7: several targets in parallel: the target each measurement and planned geometry was on
+    # (earlier measurements were on their campaign's target; earlier plans on the calibration
+    # target, left NULL).
+    """
+    ALTER TABLE measurements ADD COLUMN target TEXT;
+    UPDATE measurements SET target = (SELECT c.target FROM heliostat_runs r JOIN campaigns c
+                                      ON c.id = r.campaign_id WHERE r.id = measurements.run_id);
+    ALTER TABLE plan ADD COLUMN target TEXT;
+    """,
 )
 
 SCHEMA_VERSION = len(MIGRATIONS)

@@ -258,9 +258,10 @@ REPO = Path(__file__).resolve().parents[2]
 
 @pytest.fixture
 def small_config(tmp_path) -> Path:
-    """The demo plant with a 256×192 camera, to keep tests quick (run it with :data:`FAST`)."""
+    """The demo plant with 256×192 cameras, to keep tests quick (run it with :data:`FAST`)."""
     data = yaml.safe_load((REPO / "configs" / "demo.yaml").read_text())
-    data["camera"]["width_px"], data["camera"]["height_px"] = 256, 192
+    for cam in [data["camera"]] + [t["camera"] for t in data["targets"] if t.get("camera")]:
+        cam["width_px"], cam["height_px"] = 256, 192
     p = tmp_path / "small.yaml"
     p.write_text(yaml.safe_dump(data))
     return p
