@@ -124,13 +124,17 @@ def demo_library(cfg: PlantConfig, config_path: str, out: Path, ids: list[str], 
 
 
 class LampSwitch(CampaignObserver):
-    """Lights the lamp a campaign asks for in the simulated plant (a lamp controller's job)."""
+    """Lights the lamp (and the fiducial lamps) a campaign asks for in the simulated plant (a
+    lamp controller's job)."""
 
     def __init__(self, plant: SimulatedPlant) -> None:
         self.plant = plant
 
     def light_source_needed(self, source_id: str) -> None:
         self.plant.set_light(source_id)
+
+    def fiducial_lamps(self, on: bool) -> None:
+        self.plant.set_fiducials(on)
 
 
 @dataclass(frozen=True)

@@ -201,7 +201,7 @@ class SimulatedPlant:
             if link.get("kind") == "modbus-tcp" and port is not None:
                 link["host"], link["port"] = "127.0.0.1", port
         self.config = parse_config(self.data, str(self.run_dir / "plant.yaml"))
-        self.camera = PlantCamera(self, self.config, seed=self.seed)
+        self.camera = PlantCamera(self, self.config, seed=self.seed, perspective=True)
         if not self.config.camera.crf_file:
             # The simulated sensors are non-linear: hand the controller their response, as an
             # integrating-sphere calibration would (controller.imaging.crf file format).
@@ -235,6 +235,11 @@ class SimulatedPlant:
     def set_night(self, night: int) -> None:
         """Which night it is (0 the first): the hidden heliostats drift between nights."""
         self.night = int(night)
+
+    def set_fiducials(self, on: bool) -> None:
+        """Switch the target's fiducial lamps (camera registration; simplant.perspective)."""
+        if self.camera is not None:
+            self.camera.fiducials_lit = bool(on)
 
     def set_light(self, source_id: str) -> None:
         """Light lamp ``source_id`` (the others go dark): one lamp at a time, as a campaign asks."""
