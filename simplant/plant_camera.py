@@ -52,9 +52,10 @@ class PlantCamera(DoubleCcdCamera):
             from simplant.perspective import PerspectiveView, fiducial_scene, true_camera
 
             self.view = PerspectiveView(true_camera(cfg, seed), self.grid)
-            # Fiducial lamps at 40 % of HIGH's range at its starting exposure: bright, unclipped.
+            # Fiducial lamps at 80 % of HIGH's range at its starting exposure (before the blur of
+            # the optics): bright, unclipped.
             self._fiducials = fiducial_scene(self.grid, np.asarray(cam.registration.fiducials_enu_m, float),
-                                             0.4 * span / t_high)
+                                             0.8 * span / t_high)
 
     def _nominal_peak(self) -> float:
         p = self.plant

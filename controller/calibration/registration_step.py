@@ -110,16 +110,20 @@ def register_camera(cfg: PlantConfig, camera: DoubleCcdCamera, lamps: Callable[[
     dark, lit = fiducial_frame(camera, lamps)
     pts = np.asarray(reg_cfg.fiducials_enu_m, float)
     predicted = nominal.project(pts)
+    # A search disc never reaches halfway to a neighbour's nominal pixel: each disc holds one
+    # fiducial, whatever the configured radius.
+    gaps = np.hypot(*(predicted[:, None, :] - predicted[None, :, :]).transpose(2, 0, 1))
+    radius = min(reg_cfg.search_radius_px, 0.45 * float(gaps[~np.eye(len(pts), dtype=bool)].min()))
     regs = []
     found = len(pts)
     for k, name in enumerate(SENSORS):
         diff = (np.asarray((lit.low, lit.high)[k], float) - np.asarray((dark.low, dark.high)[k], float))
-        px = detect_fiducials(diff, predicted, reg_cfg.search_radius_px)
+        px = detect_fiducials(diff, predicted, radius)
         ok = np.isfinite(px).all(axis=1)
         if ok.sum() < 4:
             raise RegistrationError(
                 f"camera registration: {name.upper()} sensor sees {int(ok.sum())} of {len(pts)} fiducials "
-                f"within {reg_cfg.search_radius_px:g} px of their nominal pixels (needs 4); are the "
+                f"within {radius:.0f} px of their nominal pixels (needs 4); are the "
                 "fiducial lamps lit and camera.position_enu_m / camera.registration right?")
         try:
             regs.append(register(pts[ok], px[ok], nominal.image_size, fix_intrinsics=nominal,

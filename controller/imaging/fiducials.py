@@ -45,7 +45,7 @@ def look_at_pose(position_enu, look_at_enu, roll_rad: float = 0.0) -> tuple[np.n
 
 
 def detect_fiducials(image: np.ndarray, predicted_px: np.ndarray, radius_px: float,
-                     min_snr: float = 20.0) -> np.ndarray:
+                     min_snr: float = 10.0) -> np.ndarray:
     """Pixel (u, v) of each lit fiducial in ``image`` (a lamps-on minus lamps-off difference,
     float), looked for within ``radius_px`` of its predicted pixel; NaN rows where none stands
     ``min_snr`` noise σ above the background.
