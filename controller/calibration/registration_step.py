@@ -129,8 +129,9 @@ def register_camera(cfg: PlantConfig, camera: DoubleCcdCamera, lamps: Callable[[
             regs.append(register(pts[ok], px[ok], nominal.image_size, fix_intrinsics=nominal,
                                  max_rms_px=reg_cfg.max_rms_px))
         except HeliocalError as exc:
-            raise RegistrationError(f"camera registration of the {name.upper()} sensor refused: {exc} "
-                                    "(camera.registration.max_rms_px)") from None
+            bound = " (camera.registration.max_rms_px)" if "exceeds" in str(exc) else ""
+            raise RegistrationError(f"camera registration of the {name.upper()} sensor refused: {exc}{bound}"
+                                    ) from None
         found = min(found, int(ok.sum()))
     return CameraRegistration.build(regs[0], regs[1], frame, found, cfg.camera.bit_depth)
 
