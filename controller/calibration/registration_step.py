@@ -23,6 +23,7 @@ import numpy as np
 
 from controller.config import PlantConfig
 from controller.devices.camera import DoubleCcdCamera, FramePair
+from controller.devices.file_camera import FileCamera
 from controller.errors import HeliocalError
 from controller.geometry.target_frame import TargetFrame
 from controller.imaging.fiducials import detect_fiducials, look_at_pose, rectify_sensor
@@ -141,8 +142,9 @@ def register_chain(cfg: PlantConfig, camera: DoubleCcdCamera, chain, lamps: Call
     """With ``camera.registration`` configured: register ``camera`` (holding ``lock``, the
     camera's), make ``chain`` (a BeamChain) rectify through it and keep the result in the
     campaign metadata ``meta["camera_registration"]`` (:meth:`CameraRegistration.to_json`).
-    Without it nothing happens: the camera's pairs are taken as already rectified."""
-    if cfg.camera.registration is None:
+    Without it, or for recorded pairs (a :class:`FileCamera`: they are rectified views, and a
+    replay has no fiducial lamps to switch), nothing happens: the pairs are taken as rectified."""
+    if cfg.camera.registration is None or isinstance(camera, FileCamera):
         return
     with lock:
         chain.registration = register_camera(cfg, camera, lamps, chain.frame)
