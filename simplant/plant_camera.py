@@ -52,8 +52,8 @@ class PlantCamera(DoubleCcdCamera):
             from simplant.perspective import PerspectiveView, fiducial_scene, true_camera
 
             self.view = PerspectiveView(true_camera(cfg, seed), self.grid)
-            # Fiducial lamps at 80 % of HIGH's range at its starting exposure (before the blur of
-            # the optics): bright, unclipped.
+            # Fiducial lamps peaking at 80 % of HIGH's range at its starting exposure on the
+            # target grid (the warp into the camera lowers the peak): bright, unclipped.
             self._fiducials = fiducial_scene(self.grid, np.asarray(cam.registration.fiducials_enu_m, float),
                                              0.8 * span / t_high)
 
