@@ -64,6 +64,32 @@ class Gige(_Model):
         return self
 
 
+class CameraRegistration(_Model):
+    """The camera model the controller is told (lab-calibrated intrinsics, nominal pose) and
+    the target's surveyed fiducials it registers each sensor to (docs/camera.md, "Registration").
+    Pose: the camera at ``camera.position_enu_m`` looking at ``look_at_enu_m`` (default the
+    calibration target's centre), image x (column) level, ``roll_mrad`` about the line of sight."""
+
+    focal_px: float = Field(gt=0, le=1e6, description="focal length, px (fx = fy)")
+    principal_point_px: tuple[float, float] | None = Field(
+        default=None, description="(cx, cy) px; None: the image centre")
+    distortion: tuple[float, float, float, float] = Field(
+        default=(0.0, 0.0, 0.0, 0.0), description="Brown-Conrady k1, k2, p1, p2 (OpenCV)")
+    look_at_enu_m: Vec3 | None = Field(default=None, description="None: the calibration target's centre")
+    roll_mrad: float = Field(default=0.0, ge=-3142, le=3142)
+    fiducials_enu_m: tuple[Vec3, ...] = Field(min_length=4, description="surveyed fiducials, m ENU")
+    max_rms_px: float = Field(default=0.5, gt=0, le=10, description="refuse a registration above this")
+    search_radius_px: float = Field(default=100.0, ge=5, le=2000,
+                                    description="how far from its nominal pixel a fiducial is looked for")
+
+    @field_validator("fiducials_enu_m")
+    @classmethod
+    def _distinct(cls, v: tuple[Vec3, ...]) -> tuple[Vec3, ...]:
+        if len(set(v)) != len(v):
+            raise ValueError("fiducials must be distinct points")
+        return v
+
+
 class Camera(_Model):
     """The double-CCD prism camera. ``sensors[0]`` is the shorter exposure (LOW)."""
 
@@ -79,6 +105,8 @@ class Camera(_Model):
     driver: Literal["gige"] | None = Field(default=None, description="the field camera's driver "
                                            "(gige: section gige); None: recorded pairs only")
     gige: Gige | None = None
+    registration: CameraRegistration | None = Field(
+        default=None, description="register both sensors to the target's fiducials (docs/camera.md)")
 
     @model_validator(mode="after")
     def _low_first(self) -> Camera:
@@ -94,6 +122,8 @@ class Camera(_Model):
         elif self.gige is not None and self.bit_depth not in (8, 12, 16):
             raise ValueError(f"gige.pixel_format: required for bit_depth {self.bit_depth} "
                              "(GigE delivers Mono8, Mono12 or Mono16)")
+        if self.registration is not None and self.position_enu_m is None:
+            raise ValueError("registration: needs position_enu_m (the camera's nominal position)")
         return self
 
     def gige_pixel_format(self) -> str:

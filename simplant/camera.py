@@ -1,7 +1,8 @@
 """Simulated double-CCD camera: two sensor models looking at one irradiance scene.
 
 The scene is whatever ``scene_fn()`` returns at capture time: an irradiance image of what the
-camera sees, in **counts per second at unit gain before response** (see
+camera sees (or a (LOW, HIGH) pair of them when the two sensors see it differently, see
+:mod:`simplant.perspective`), in **counts per second at unit gain before response** (see
 :mod:`simplant.sensor`), shape (rows, cols). The simulated plant plugs beam spots from
 :func:`simplant.optics.render_spot` in here, scaled by ``irradiance_scale``.
 
@@ -82,15 +83,16 @@ class SimulatedCamera(DoubleCcdCamera):
         if self._failures > 0:
             self._failures -= 1
             raise CameraError("simulated camera failure (injected)")
-        scene = np.asarray(self._scene_fn(), dtype=float)
-        if scene.ndim != 2:
-            raise CameraError(f"scene must be a 2-D irradiance image, got shape {scene.shape}")
-        if not np.all(np.isfinite(scene)):
-            raise CameraError("scene contains NaN or infinite irradiance")
-        scene = scene * self._scale
+        raw = self._scene_fn()
+        scenes = [np.asarray(x, dtype=float) for x in (raw if isinstance(raw, tuple) else (raw, raw))]
+        for scene in scenes:
+            if scene.ndim != 2:
+                raise CameraError(f"scene must be a 2-D irradiance image, got shape {scene.shape}")
+            if not np.all(np.isfinite(scene)):
+                raise CameraError("scene contains NaN or infinite irradiance")
         stamp = float(self._clock())
-        low = self.sensors[0].expose(scene, self._exposures[0], self._rng)
-        high = self.sensors[1].expose(scene, self._exposures[1], self._rng)
+        low = self.sensors[0].expose(scenes[0] * self._scale, self._exposures[0], self._rng)
+        high = self.sensors[1].expose(scenes[1] * self._scale, self._exposures[1], self._rng)
         self.frames_captured += 1
         return FramePair(low, high, self._exposures, stamp,
                          {"camera": "simulated", "sensors": list(self.names), "frame": self.frames_captured})

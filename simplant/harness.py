@@ -124,13 +124,18 @@ def demo_library(cfg: PlantConfig, config_path: str, out: Path, ids: list[str], 
 
 
 class LampSwitch(CampaignObserver):
-    """Lights the lamp a campaign asks for in the simulated plant (a lamp controller's job)."""
+    """Lights the lamp (and the fiducial lamps) a campaign asks for in the simulated plant (a
+    lamp controller's job)."""
 
-    def __init__(self, plant: SimulatedPlant) -> None:
+    def __init__(self, plant: SimulatedPlant, target: str | None = None) -> None:
         self.plant = plant
+        self.target = target
 
     def light_source_needed(self, source_id: str) -> None:
         self.plant.set_light(source_id)
+
+    def fiducial_lamps(self, on: bool) -> None:
+        self.plant.set_fiducials(on, self.target)
 
 
 @dataclass(frozen=True)
@@ -199,14 +204,14 @@ def run_simulated(cfg: PlantConfig, config_path: str, out: Path, db_path: Path, 
             live: set[Campaign] = set()  # running campaigns, one per target at most
             with LinkPool(timeout_s=0.5, retries=2) as pool:
                 def campaign(options: CampaignOptions, hids: list[str], extra=()) -> CampaignResult:
-                    c = Campaign(plant_cfg, config_path, store, pool,
-                                 plant.cameras[options.target or plant_cfg.calibration.target],
+                    tid = options.target or plant_cfg.calibration.target
+                    c = Campaign(plant_cfg, config_path, store, pool, plant.cameras[tid],
                                  config_sha256=config_sha256(config_path), heliostat_ids=hids, library=lib,
                                  options=options, images=ImageArchive(out / "images"), clock=plant.clock,
                                  sleep=plant.clock.sleep, compute=plant.clock.realtime, utc=plant.utc,
                                  meta={"plant": "simulated", "seed": settings.seed,
                                        "clock_speedup": settings.clock_speedup},
-                                 observers=[LampSwitch(plant), truth, *extra])
+                                 observers=[LampSwitch(plant, tid), truth, *extra])
                     live.add(c)
                     try:
                         return c.run()

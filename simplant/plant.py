@@ -215,7 +215,7 @@ class SimulatedPlant:
         default = cfg.calibration.target
         for k, t in enumerate(cfg.targets):
             seed = self.seed if t.id == default else self.seed + 1000 * (k + 1)
-            self.cameras[t.id] = PlantCamera(self, cfg.for_target(t.id), seed=seed)
+            self.cameras[t.id] = PlantCamera(self, cfg.for_target(t.id), seed=seed, perspective=True)
         self.camera = self.cameras[default]
         if not cfg.camera.crf_file:
             self.camera.true_crf().save(self.run_dir / "crf.yaml")
@@ -250,6 +250,14 @@ class SimulatedPlant:
     def set_night(self, night: int) -> None:
         """Which night it is (0 the first): the hidden heliostats drift between nights."""
         self.night = int(night)
+
+    def set_fiducials(self, on: bool, target: str | None = None) -> None:
+        """Switch the fiducial lamps of ``target`` (None: every target's) for camera registration
+        (simplant.perspective). Per target, because the targets' campaigns register in parallel:
+        one target's lit fiducials must not fall into another's dark frame."""
+        for tid, cam in self.cameras.items():
+            if target is None or tid == target:
+                cam.fiducials_lit = bool(on)
 
     def set_light(self, source_id: str) -> None:
         """Light lamp ``source_id`` (the others go dark): one lamp at a time, as a campaign asks."""

@@ -23,9 +23,14 @@ class PlantCamera(DoubleCcdCamera):
     LOW does not), as in the error set. A capture stops the plant clock while it is simulated
     and advances it by the HIGH exposure. :meth:`inject_failure` makes the next captures
     raise :class:`CameraError` (fault tests).
+
+    ``perspective`` (with ``camera.registration`` configured): each sensor sees the target
+    through the true camera of :mod:`simplant.perspective` (pose error, lens distortion, the
+    sensors misregistered), and :attr:`fiducials_lit` adds the target's lit fiducials.
+    Otherwise both sensors see the target's rectified view (``camera_grid``).
     """
 
-    def __init__(self, plant, cfg: PlantConfig, seed: int = 0) -> None:
+    def __init__(self, plant, cfg: PlantConfig, seed: int = 0, *, perspective: bool = False) -> None:
         from simplant.camera import SimulatedCamera
 
         cam = cfg.camera
@@ -41,6 +46,16 @@ class PlantCamera(DoubleCcdCamera):
         self._ambient = (0.0025 + 0.0012 * xx / cols) * 1.6 * span / t_high
         self.sim = SimulatedCamera(cam, self._scene, seed=seed, clock=plant.clock)
         self.captures = 0
+        self.fiducials_lit = False
+        self.view = None
+        if perspective and cam.registration is not None:
+            from simplant.perspective import PerspectiveView, fiducial_scene, true_camera
+
+            self.view = PerspectiveView(true_camera(cfg, seed), self.grid)
+            # Fiducial lamps peaking at 80 % of HIGH's range at its starting exposure on the
+            # target grid (the warp into the camera lowers the peak): bright, unclipped.
+            self._fiducials = fiducial_scene(self.grid, np.asarray(cam.registration.fiducials_enu_m, float),
+                                             0.8 * span / t_high)
 
     def _nominal_peak(self) -> float:
         p = self.plant
@@ -55,8 +70,11 @@ class PlantCamera(DoubleCcdCamera):
         return float(render_spot(pos, n, lamp, d, nominal, coarse, rng=np.random.default_rng(0),
                                  n_rays=RENDER_RAYS).max())
 
-    def _scene(self) -> np.ndarray:
-        return self.plant.scene(self.grid, self._scene_rng) * self.counts_per_s + self._ambient
+    def _scene(self) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
+        scene = self.plant.scene(self.grid, self._scene_rng) * self.counts_per_s + self._ambient
+        if self.view is None:
+            return scene
+        return self.view.warp(scene + self._fiducials if self.fiducials_lit else scene)
 
     def true_crf(self):
         """The sensors' exact inverse responses (stand-in for an integrating-sphere CRF fit)."""

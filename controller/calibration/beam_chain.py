@@ -36,14 +36,20 @@ class BeamChain:
         self.min_peak_fraction = min_peak_fraction
         self._mergers: dict[tuple[float, float], HdrMerger] = {}
         self._lock = threading.Lock()
+        # Set by the campaign's registration step (camera.registration): the pair is then
+        # rectified onto ``frame`` before the merge (controller.calibration.registration_step).
+        self.registration = None
 
     def merge(self, frame) -> np.ndarray:
+        """The HDR image of a frame pair in the target frame (rectified first when registered)."""
         key = (float(frame.exposures[0]), float(frame.exposures[1]))
         with self._lock:
             m = self._mergers.get(key)
             if m is None:
                 m = HdrMerger.from_camera_config(self.cfg.camera, self.crf, exposures=key)
                 self._mergers[key] = m
+        if self.registration is not None:
+            return m.merge(*self.registration.rectify(frame))
         return m.merge(frame.low, frame.high)
 
     def analyze(self, hdr: np.ndarray, *, allow_clipped: bool = False) -> Observation:

@@ -18,6 +18,7 @@ Nothing here knows whether the drive or camera is simulated.
 
 from __future__ import annotations
 
+import contextlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,6 +27,7 @@ import numpy as np
 from controller.calibration.beam_chain import BeamChain
 from controller.calibration.observations import BeamNotFound, Observation
 from controller.calibration.pointing import GeometryPointing
+from controller.calibration.registration_step import register_chain
 from controller.config import PlantConfig
 from controller.errors import HeliocalError, InputError
 from controller.geometry.aiming import pointing_error_mrad
@@ -49,15 +51,20 @@ class Capture:
 
 
 class Commissioning:
-    """One heliostat's commissioning session over a drive and a camera."""
+    """One heliostat's commissioning session over a drive and a camera. ``fiducial_lamps(on)``
+    (a live camera whose configuration has ``camera.registration``): register the camera to
+    the target's fiducials first, as a campaign does (docs/camera.md, "Registration"); without
+    it the pairs are taken as rectified (recorded pairs)."""
 
     def __init__(self, cfg: PlantConfig, heliostat_id: str, drive, camera, *, library=None,
-                 model=None, move_timeout_s: float = 300.0) -> None:
+                 model=None, move_timeout_s: float = 300.0, fiducial_lamps=None) -> None:
         self.cfg = cfg
         self.h = cfg.heliostat(heliostat_id)
         self.drive = drive
         self.camera = camera
         self.chain = BeamChain(cfg, library)
+        if fiducial_lamps is not None:  # a live camera: register it as a campaign does
+            register_chain(cfg, camera, self.chain, fiducial_lamps, {}, contextlib.nullcontext())
         st = drive.status()
         self.pointing = GeometryPointing(self.h, cfg.target(), cfg.light_source(), self.chain.frame,
                                          cfg.calibration.standby_offset_m, (st.az_steps, st.el_steps),

@@ -48,6 +48,7 @@ from controller.calibration.records import (
     ModelRecord,
     RunRecord,
 )
+from controller.calibration.registration_step import register_chain
 from controller.config import PlantConfig
 from controller.devices.drive import DriveError, DriveLimits
 from controller.errors import InputError
@@ -93,6 +94,10 @@ class CampaignObserver(CycleObserver):
         """The campaign is about to move heliostats for light source ``source_id``: it must be
         lit now (an operator or a lamp controller does so; a simulated plant switches it)."""
 
+    def fiducial_lamps(self, on: bool) -> None:
+        """The target's fiducial lamps must be on (``on``) or off now, for the camera
+        registration's fiducial frame (docs/camera.md, "Registration")."""
+
 
 class _Observers(CampaignObserver):
     """Fans every hook out to several observers, in order."""
@@ -123,6 +128,10 @@ class _Observers(CampaignObserver):
     def light_source_needed(self, source_id: str) -> None:
         for o in self._all:
             o.light_source_needed(source_id)
+
+    def fiducial_lamps(self, on: bool) -> None:
+        for o in self._all:
+            o.fiducial_lamps(on)
 
 
 @dataclass
@@ -256,6 +265,9 @@ class Campaign:
         site = self.cfg.site
         self.meta.setdefault("site", [site.latitude_deg, site.longitude_deg, site.elevation_m])
         self.meta.setdefault("target_normal", list(target.normal))
+        # Camera registration (camera.registration) before the campaign opens: refused, nothing is recorded.
+        register_chain(self.cfg, self.camera, self.chain, self.observer.fiducial_lamps, self.meta,
+                       self._camera_lock)
         cid, resumed = self.store.open_campaign(
             self.opt.name, config_path=self.config_path, config_sha256=self.config_sha256,
             light_source=source.id, target=target.id, queue=queue, meta=self.meta)

@@ -123,7 +123,7 @@ def _with_simulated(cfg, args, steps, library) -> int:
         h = pcfg.heliostat(args.heliostat)
         with LinkPool() as pool:
             drive = pool.drive(h.link, DriveLimits.from_axes(h.axes))
-            return _session(pcfg, args, steps, drive, plant.camera, library)
+            return _session(pcfg, args, steps, drive, plant.camera, library, plant.set_fiducials)
 
 
 def _do(c, name: str, params: tuple, args) -> dict:
@@ -152,10 +152,10 @@ def _do(c, name: str, params: tuple, args) -> dict:
     raise InputError(f"unknown step {name!r}")
 
 
-def _session(cfg, args, steps, drive, camera, library) -> int:
+def _session(cfg, args, steps, drive, camera, library, fiducial_lamps=None) -> int:
     from controller.calibration.commissioning import Commissioning
 
-    c = Commissioning(cfg, args.heliostat, drive, camera, library=library)
+    c = Commissioning(cfg, args.heliostat, drive, camera, library=library, fiducial_lamps=fiducial_lamps)
     results: dict = {}
     try:
         if not steps:

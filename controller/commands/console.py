@@ -147,7 +147,8 @@ def _simulated(args, ids, library, token, sock) -> int:
         hooks = PlantHooks(clock=plant.clock, sleep=plant.clock.sleep, compute=plant.clock.realtime,
                            meta={"plant": "simulated", "seed": settings.seed,
                                  "clock_speedup": settings.clock_speedup},
-                           safety=plant.safety.report, label=f"simulated plant (seed {settings.seed})")
+                           safety=plant.safety.report, label=f"simulated plant (seed {settings.seed})",
+                           fiducial_lamps=plant.set_fiducials)
         with LinkPool(timeout_s=0.5, retries=2) as pool:
             return serve(pcfg, args, ids, pool, plant.camera, library, token, sock, hooks)
 

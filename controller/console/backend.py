@@ -54,6 +54,9 @@ class PlantHooks:
     meta: dict = field(default_factory=dict)
     safety: Callable[[], dict] | None = None
     label: str = "field"  # shown in the page header ("simulated plant" for --simulate)
+    # Switches the target's fiducial lamps for the camera registration (camera.registration,
+    # docs/camera.md); None: none wired, campaigns and sessions then do not register.
+    fiducial_lamps: Callable[[bool], None] | None = None
 
 
 @dataclass
@@ -132,7 +135,8 @@ class Console:
         if hid not in self.sessions:
             self.sessions[hid] = Commissioning(self.cfg, hid, self.drive(hid), self.camera,
                                                library=self.library, model=model,
-                                               move_timeout_s=self.move_timeout_s)
+                                               move_timeout_s=self.move_timeout_s,
+                                               fiducial_lamps=self.hooks.fiducial_lamps)
         self.sessions[hid].model = model
         return self.sessions[hid]
 

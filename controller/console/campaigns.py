@@ -142,6 +142,10 @@ class CampaignControl(CampaignObserver):
             self.states[hid] = "recorded earlier"
         self._publish("queue")
 
+    def fiducial_lamps(self, on: bool) -> None:
+        if self.c.hooks.fiducial_lamps is not None:
+            self.c.hooks.fiducial_lamps(on)
+
     def state_changed(self, heliostat_id: str, state: str) -> None:
         self.states[heliostat_id] = state
         self.max_on_target = max(self.max_on_target, len(self.on_target()))

@@ -262,6 +262,9 @@ def small_config(tmp_path) -> Path:
     data = yaml.safe_load((REPO / "configs" / "demo.yaml").read_text())
     for cam in [data["camera"]] + [t["camera"] for t in data["targets"] if t.get("camera")]:
         cam["width_px"], cam["height_px"] = 256, 192
+        reg = cam.get("registration")
+        if reg:  # the same lens on a 4x binned sensor: a quarter of the focal length in pixels
+            reg["focal_px"] = reg["focal_px"] * 256 / 1024
     p = tmp_path / "small.yaml"
     p.write_text(yaml.safe_dump(data))
     return p

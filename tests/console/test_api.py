@@ -36,7 +36,8 @@ def plant_console(tmp_path_factory):
                         settings=SimulationSettings(clock_speedup=50.0), source=str(cfg_path)) as plant:
         pcfg = plant.start()
         hooks = PlantHooks(clock=plant.clock, sleep=plant.clock.sleep, compute=plant.clock.realtime,
-                           safety=plant.safety.report, label="simulated plant")
+                           safety=plant.safety.report, label="simulated plant",
+                           fiducial_lamps=plant.set_fiducials)
         with LinkPool(timeout_s=0.5, retries=2) as pool, CampaignStore(tmp / "c.db") as store:
             console = Console(pcfg, str(cfg_path), store, pool, plant.camera, heliostat_ids=ids, hooks=hooks,
                               work_dir=tmp / "work")

@@ -1,0 +1,80 @@
+"""The campaign's registration step against the simulated plant (small camera, real drivers):
+recorded in the campaign's metadata when it succeeds; a refused one stops the campaign before
+it opens, and the fiducial lamps are off again either way."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from controller.calibration.registration_step import RegistrationError, nominal_camera
+from controller.calibration.runner import Campaign, CampaignObserver, CampaignOptions
+from controller.config import config_sha256
+from controller.devices.factory import LinkPool
+from controller.imaging.registration import CameraModel
+from controller.storage.db import CampaignStore
+from simplant.plant import SimulatedPlant, load_config_data
+from tests.calibration.conftest import FAST
+
+
+class _Lamps(CampaignObserver):
+    """Switches the plant's fiducial lamps (or, ``broken``, never lights them) and logs it."""
+
+    def __init__(self, plant, broken: bool = False) -> None:
+        self.plant, self.broken, self.calls = plant, broken, []
+
+    def fiducial_lamps(self, on: bool) -> None:
+        self.calls.append(on)
+        self.plant.set_fiducials(on and not self.broken)
+
+    def light_source_needed(self, source_id: str) -> None:
+        self.plant.set_light(source_id)
+
+
+def _run(plant, small_config, tmp_path, lamps: _Lamps, ids: list[str]):
+    with plant, CampaignStore(tmp_path / "c.db") as store:
+        pcfg = plant.start()
+        with LinkPool() as pool:
+            campaign = Campaign(pcfg, str(small_config), store, pool, plant.camera,
+                                config_sha256=config_sha256(small_config), heliostat_ids=ids,
+                                options=CampaignOptions(name="reg"), clock=plant.clock,
+                                sleep=plant.clock.sleep, observers=[lamps])
+            result = campaign.run()
+        return result, store.campaign(result.campaign_id), pcfg
+
+
+def test_a_campaign_registers_the_camera_and_records_it(small_config, tmp_path):
+    plant = SimulatedPlant(load_config_data(small_config), tmp_path / "p", heliostat_ids=["H02"],
+                           settings=FAST, seed=2)
+    lamps = _Lamps(plant)
+    result, camp, pcfg = _run(plant, small_config, tmp_path, lamps, ["H02"])
+    assert result.status == "finished"
+    reg = camp.meta["camera_registration"]
+    assert reg["fiducials"] == 9
+    assert reg["low"]["rms_px"] < 0.25 and reg["high"]["rms_px"] < 0.25  # a 4x binned sensor
+    assert lamps.calls == [False, True, False] and not plant.camera.fiducials_lit
+    # the recorded pose, with the configured intrinsics, is the simulator's true camera
+    nominal = nominal_camera(pcfg)
+    truth = plant.camera.view.truth
+    x, z = np.meshgrid(np.linspace(-3.8, 3.8, 5), np.linspace(26.7, 33.3, 5))
+    pts = np.column_stack([x.ravel(), np.zeros(x.size), z.ravel()])
+    for sensor, name in enumerate(("low", "high")):
+        rec = CameraModel(nominal.K, nominal.dist, np.array(reg[name]["rvec"]), np.array(reg[name]["tvec_m"]),
+                          nominal.image_size)
+        err = np.hypot(*(rec.project(pts) - truth.project(pts, sensor)).T)
+        # Within half a pixel: on this 4x binned sensor the 2 cm fiducial lamps are undersampled
+        # (the full-size camera is held to 0.1 px in test_registration_sim).
+        assert err.max() < 0.5, (name, err.max())
+        assert np.hypot(*(nominal.project(pts) - truth.project(pts, sensor)).T).max() > 3.0
+
+
+def test_unlit_fiducials_stop_the_campaign_before_it_opens(small_config, tmp_path):
+    plant = SimulatedPlant(load_config_data(small_config), tmp_path / "p", heliostat_ids=["H02"],
+                           settings=FAST, seed=2)
+    lamps = _Lamps(plant, broken=True)
+    with pytest.raises(RegistrationError, match="LOW sensor sees 0 of 9 fiducials") as exc:
+        _run(plant, small_config, tmp_path, lamps, ["H02"])
+    assert exc.value.exit_code == 1
+    assert lamps.calls == [False, True, False]
+    with CampaignStore(tmp_path / "c.db") as store:
+        assert store.campaign_by_name("reg") is None  # nothing recorded
