@@ -38,7 +38,7 @@ def sim(tmp_path_factory):
     data = load_config_data(REPO / "configs" / "demo.yaml")
     plant = SimulatedPlant(data, tmp_path_factory.mktemp("plant"), heliostat_ids=["H01"], seed=5)
     cam = PlantCamera(plant, plant.cfg, seed=5, perspective=True)
-    plant.camera = cam
+    plant.camera = plant.cameras[plant.cfg.calibration.target] = cam
     g = cam.grid
     rows, cols = g.shape
     yy, xx = np.mgrid[0:rows, 0:cols]
