@@ -9,6 +9,7 @@ measurement. Reports written by the simulation commands read it back (:func:`rea
 
 from __future__ import annotations
 
+import json
 import sqlite3
 import threading
 from dataclasses import dataclass, field
@@ -23,6 +24,7 @@ from controller.calibration.records import MeasurementRecord, RunRecord
 from controller.calibration.runner import Campaign, CampaignObserver, CampaignOptions, CampaignResult
 from controller.config import PlantConfig, config_sha256
 from controller.devices.factory import LinkPool
+from controller.geometry.vectors import unit
 from controller.recognition.library import Library
 from controller.reports.summary import ReferenceTruth
 from controller.storage.db import CampaignStore
@@ -79,6 +81,82 @@ def read_truth(db_path: str | Path, campaign_id: int) -> dict[str, ReferenceTrut
         rows = db.execute("SELECT heliostat_id, truth_label, true_error_before_mrad, true_error_after_mrad "
                           "FROM sim_truth WHERE campaign_id=?", (campaign_id,)).fetchall()
     return {hid: ReferenceTruth(label, before, after) for hid, label, before, after in rows}
+
+
+_BUDGET_SCHEMA = """
+CREATE TABLE IF NOT EXISTS sim_budget (
+    id INTEGER PRIMARY KEY,
+    heliostat_id TEXT NOT NULL,
+    night INTEGER NOT NULL,
+    az_steps INTEGER NOT NULL,
+    el_steps INTEGER NOT NULL,
+    vectors TEXT NOT NULL
+)
+"""
+
+
+class MeasurementBudget(CampaignObserver):
+    """Error budget of every measurement (simulation only, the plant knows both sides).
+
+    Stores, per measurement, the lamp (``lamp_enu``), the true mirror centre (``center_enu``)
+    and the normals whose angles split the measured normal's error
+    against ``true_normal_at`` at the commanded steps (what the model must learn):
+    ``ref`` that normal; ``rods`` the beam normal at the rods' true positions (backlash);
+    ``pose`` the same with the move's repeatability error (rocking gear averaged);
+    ``energy`` the bisector of the lamp and the noise-free energy centroid of the traced spot
+    (the spot's geometry-dependent shift against ``pose``); ``measured`` the bisector of the
+    lamp and the camera's centroid (centroid/pixel error against ``energy``). Every bisector is
+    taken from the true mirror centre, so position errors do not enter. Drift is the change of
+    ``ref`` between nights (:func:`read_budget` leaves that to its caller)."""
+
+    def __init__(self, plant: SimulatedPlant, db_path: str | Path) -> None:
+        self.plant = plant
+        self.db_path = str(db_path)
+        with sqlite3.connect(self.db_path) as db:
+            db.execute(_BUDGET_SCHEMA)
+
+    def measured(self, heliostat_id: str, measurement: MeasurementRecord) -> None:
+        from simplant.grids import camera_grid
+        from simplant.optics import TargetGrid, render_spot
+
+        p, hh = self.plant, self.plant.hidden[heliostat_id]
+        cmd = (float(measurement.az_steps), float(measurement.el_steps))
+        rods = hh.controller.output_steps()
+        lamp = np.asarray(p.lamp().position_enu_m, float)
+        pos = hh.truth.mirror_center(*rods, night=p.night)
+        s = unit(lamp - pos)
+        with p.clock.frozen():
+            normals = p.beam_normals(heliostat_id)
+            pose = hh.beam_normal(unit(np.mean(normals, axis=0)))
+            beam = 2.0 * (s @ pose) * pose - s
+            base = camera_grid(p.cfg)
+            hit = pos + float(base.normal @ (base.center - pos)) / float(base.normal @ beam) * beam
+            grid = TargetGrid(hit, base.normal, base.u_axis, base.v_axis, 12.0, 12.0, (64, 64))
+            diameter = float(p.lamp().diameter_m) / float(np.linalg.norm(lamp - pos))
+            img = sum(render_spot(pos, nn, lamp, diameter, hh.mirror, grid, rng=np.random.default_rng(1),
+                                  n_rays=100_000 // len(normals)) for nn in normals)
+        yy, xx = np.mgrid[0:64, 0:64]
+        tot = float(img.sum())
+        energy = grid.pixel_to_enu(float((img * xx).sum() / tot), float((img * yy).sum() / tot))
+        out = {"ref": p.true_normal_at(heliostat_id, *cmd),
+               "rods": hh.beam_normal(hh.truth.normal(*rods, night=p.night)),
+               "pose": pose, "energy": unit(s + unit(energy - pos)), "lamp_enu": lamp, "center_enu": pos}
+        if measurement.centroid_enu is not None:
+            out["measured"] = unit(s + unit(np.asarray(measurement.centroid_enu, float) - pos))
+        with sqlite3.connect(self.db_path, timeout=10.0) as db:
+            db.execute("INSERT INTO sim_budget (heliostat_id, night, az_steps, el_steps, vectors) "
+                       "VALUES (?,?,?,?,?)",
+                       (heliostat_id, p.night, measurement.az_steps, measurement.el_steps,
+                        json.dumps({k: [float(x) for x in v] for k, v in out.items()})))
+
+
+def read_budget(db_path: str | Path) -> list[dict]:
+    """Rows of ``sim_budget`` (:class:`MeasurementBudget`): heliostat, night, steps, vectors."""
+    with sqlite3.connect(f"file:{db_path}?mode=ro", uri=True) as db:
+        rows = db.execute("SELECT heliostat_id, night, az_steps, el_steps, vectors FROM sim_budget "
+                          "ORDER BY id").fetchall()
+    return [{"heliostat": h, "night": k, "steps": (az, el),
+             "vectors": {n: np.asarray(v) for n, v in json.loads(js).items()}} for h, k, az, el, js in rows]
 
 
 FIELD_FACTOR = 1.5
@@ -178,7 +256,7 @@ class SimulatedRun:
 def run_simulated(cfg: PlantConfig, config_path: str, out: Path, db_path: Path, ids: list[str], *,
                   settings: SimulationSettings, name: str, sequential: bool = False,
                   library_dir: Path | None = None, observers=(), progress=None, nights: int = 0,
-                  strategy: str = "design") -> SimulatedRun:
+                  strategy: str = "design", budget: bool = False) -> SimulatedRun:
     """Start the simulated plant in ``out``, run (or resume) campaign ``name`` into ``db_path``
     through the real drivers — the closed-loop calibration at the calibration lamp — then
     ``nights`` planned nights (:mod:`controller.calibration.nights`, planner ``strategy``), and
@@ -200,6 +278,7 @@ def run_simulated(cfg: PlantConfig, config_path: str, out: Path, db_path: Path, 
             opts = CampaignOptions(name=name, pipeline_depth=1 if sequential else cal.pipeline_depth,
                                    settle_s=cal.settle_s)
             truth = TruthRecorder(plant, db_path)
+            budgeted = [MeasurementBudget(plant, db_path)] if budget else []
             path = sun_path(cfg.site)
             live: set[Campaign] = set()  # running campaigns, one per target at most
             with LinkPool(timeout_s=0.5, retries=2) as pool:
@@ -211,7 +290,7 @@ def run_simulated(cfg: PlantConfig, config_path: str, out: Path, db_path: Path, 
                                  sleep=plant.clock.sleep, compute=plant.clock.realtime, utc=plant.utc,
                                  meta={"plant": "simulated", "seed": settings.seed,
                                        "clock_speedup": settings.clock_speedup},
-                                 observers=[LampSwitch(plant, tid), truth, *extra])
+                                 observers=[LampSwitch(plant, tid), truth, *budgeted, *extra])
                     live.add(c)
                     try:
                         return c.run()

@@ -20,6 +20,16 @@ the model lacks — widen the uncertainty). A term is
 *identified* when the data shrink its σ below half its prior σ; the others stay at the
 prior and are reported as such. The fit refuses when no term is identified.
 
+Drift: the joint references of a heliostat wander from night to night (thermal drift). A
+sample taken on an earlier night e (``Sample.epoch``, 0 = the newest night) sees the model
+with its two reference offsets moved by d_e ~ N(0, σ_e² I₂), σ_e from ``epoch_sigma``:
+
+    n_k(p, d) = n(p + D d_e(k)),   D: the rows of ``az_offset`` and ``el_offset``            (3)
+
+and every earlier night's d_e is fitted beside p with that Gaussian prior (nuisance terms):
+the data of all nights still determine the other terms, while the reference offsets are those
+of the newest night. Σ and the identified terms of (2) are those of p alone (the marginal).
+
 Outliers: iteratively reweighted least squares with Huber weights on each measurement's
 whitened residual norm r_k, w_k = min(1, c / r_k), c = 3.
 
@@ -58,6 +68,7 @@ from controller.geometry.tracking_model import (
     poses,
 )
 
+_OFFSETS = np.array([NAMES.index("az_offset"), NAMES.index("el_offset")])
 HUBER_C = 3.0
 MAX_STEPS = 12
 IDENTIFIED_RATIO = 0.5
@@ -80,6 +91,7 @@ class Sample:
     spot_enu: np.ndarray
     weight: float = 1.0
     source_pos: np.ndarray | None = None  # a lamp's position, m ENU (None: the sun, at infinity)
+    epoch: int = 0  # the night it was taken, counted back from the newest (Eq. 3 of the module)
 
 
 @dataclass(frozen=True, eq=False)  # numpy fields
@@ -127,9 +139,11 @@ def normal_residual_mrad(kin: HeliostatKinematics, model: TrackingModel, s: Samp
 
 def fit_model(kin: HeliostatKinematics, samples: Sequence[Sample], *, noise_mrad: float = 0.3,
               prior: TrackingModel | None = None, prior_sigma: np.ndarray | None = None,
-              robust: bool = True) -> ModelFit:
+              robust: bool = True, epoch_sigma: dict[int, float] | None = None) -> ModelFit:
     """MAP fit of Eq. (1); Σ of Eq. (2). ``prior`` (default zero) is p₀; ``prior_sigma`` (SI,
     default :data:`TERMS`' σ) may be narrowed (e.g. the posterior of a previous night).
+    ``epoch_sigma``: σ_e (rad) of the reference drift of each earlier night e (Eq. 3); samples
+    of a night not in it share the newest night's references.
 
     Raises InputError when there are no samples, a sample is not finite, or the samples
     identify no term (they cannot support a fit)."""
@@ -143,29 +157,46 @@ def fit_model(kin: HeliostatKinematics, samples: Sequence[Sample], *, noise_mrad
         if not np.all(np.isfinite(vals)) or s.weight <= 0:
             raise InputError(f"model fit: measurement {i + 1} has a non-finite value or weight <= 0")
     p0 = (prior or TrackingModel.zero()).values
+    npar = len(p0)
+    drifting = sorted({s.epoch for s in samples if s.epoch != 0 and s.epoch in (epoch_sigma or {})})
+    slot = {e: npar + 2 * i for i, e in enumerate(drifting)}
     s0 = PRIOR_SIGMA_SI if prior_sigma is None else np.asarray(prior_sigma, float)
+    s0 = np.concatenate([s0, np.repeat([float(epoch_sigma[e]) for e in drifting], 2)]) if drifting else s0
     sig_n = noise_mrad * 1e-3
     # The measured normals move with the mirror centre (position terms, Eq. 4 of the model):
     # they are re-evaluated with the model; the tangent bases stay those at the prior.
     bases = [tangents(measured_normal(kin, TrackingModel(p0), s)) for s in samples]
     age_w = np.array([s.weight for s in samples])
+    groups: dict[int | None, list[int]] = {}
+    for i, s in enumerate(samples):
+        groups.setdefault(s.epoch if s.epoch in slot else None, []).append(i)
 
-    steps = [(s.az_steps, s.el_steps) for s in samples]
+    def epoch_model(x: np.ndarray, epoch: int | None) -> TrackingModel:
+        """The model of Eq. (3) on night ``epoch`` (None: the newest night's references)."""
+        p = p0 + x[:npar] * s0[:npar]
+        if epoch is not None:
+            j = slot[epoch]
+            p = p.copy()
+            p[_OFFSETS] += x[j:j + 2] * s0[j:j + 2]
+        return TrackingModel(p)
 
     def data_res(x: np.ndarray) -> np.ndarray:
-        m = TrackingModel(p0 + x * s0)
-        base = kin.position + m.position_offset()
-        out = []
-        for s, b, rot in zip(samples, bases, poses(kin, m, steps), strict=True):
-            center = base + rot @ kin.concentrator_translation
-            implied = bisector_normal(center, s.source_dir, s.spot_enu, s.source_pos)
-            out.append(b @ (rot @ BODY_NORMAL - implied))
-        return np.concatenate(out) / sig_n
+        out = np.empty((len(samples), 2))
+        for epoch, idx in groups.items():
+            m = epoch_model(x, epoch)
+            base = kin.position + m.position_offset()
+            for i, rot in zip(idx, poses(kin, m, [(samples[i].az_steps, samples[i].el_steps) for i in idx]),
+                              strict=True):
+                s = samples[i]
+                center = base + rot @ kin.concentrator_translation
+                implied = bisector_normal(center, s.source_dir, s.spot_enu, s.source_pos)
+                out[i] = bases[i] @ (rot @ BODY_NORMAL - implied)
+        return out.ravel() / sig_n
 
     # Gauss-Newton on the prior-whitened terms x (p = p₀ + x σ₀) with iteratively reweighted
     # (Huber) samples: the problem is nearly linear, so a few steps converge.
     weights = np.ones(len(samples))
-    x = np.zeros(len(TERMS))
+    x = np.zeros(len(s0))
     step = np.full(len(x), 1e-4)
     converged = False
     for _ in range(MAX_STEPS):
@@ -190,15 +221,16 @@ def fit_model(kin: HeliostatKinematics, samples: Sequence[Sample], *, noise_mrad
     # The stated noise is a floor: residuals larger than it (noise or effects the model lacks)
     # widen the uncertainty once there are enough of them to tell; smaller ones never narrow it.
     s2 = max(1.0, chi2 / dof) if dof >= MIN_DOF_FOR_NOISE else 1.0
-    cov = s2 * post_x * np.outer(s0, s0)
+    cov = (s2 * post_x * np.outer(s0, s0))[:npar, :npar]  # the terms' marginal (drift offsets out)
     sigma = np.sqrt(np.diag(cov))
-    identified = np.sqrt(ratio2) * np.sqrt(s2) < IDENTIFIED_RATIO
+    identified = np.sqrt(ratio2[:npar]) * np.sqrt(s2) < IDENTIFIED_RATIO
     if not identified.any():
         raise NotIdentifiable(f"model fit: {len(samples)} measurement(s) identify no term of the model "
                          f"(every σ stays above {IDENTIFIED_RATIO:g}× its prior); measure more geometries")
-    sv = np.linalg.svd(jd[:, identified], compute_uv=False)
-    model = TrackingModel(p0 + x * s0)
-    res = np.array([normal_residual_mrad(kin, model, s) for s in samples])
+    sv = np.linalg.svd(jd[:, :npar][:, identified], compute_uv=False)
+    model = epoch_model(x, None)
+    res = np.array([normal_residual_mrad(kin, epoch_model(x, s.epoch if s.epoch in slot else None), s)
+                    for s in samples])
     res0 = np.array([normal_residual_mrad(kin, TrackingModel(p0), s) for s in samples])
     return ModelFit(model, sigma, cov, identified, res, float(np.sqrt(np.mean(res**2))),
                     float(np.sqrt(np.mean(res0**2))), weights, float(np.sqrt(s2)), float(sv[0] / sv[-1]),

@@ -137,15 +137,29 @@ class TrackingModel:
         return cls(values)
 
 
+# Not a term of the model: the 1-σ per night of the random walk of both joint references
+# (thermal drift), given with the terms' prior σ since it is a prior too (:func:`drift_sigma`).
+DRIFT_KEY = "drift_mrad"
+
+
 def prior_sigma(overrides: dict[str, float] | None = None, what: str = "prior_sigma") -> np.ndarray:
     """Prior 1-σ of every term, SI: the documented defaults with ``overrides`` (``{key: σ}`` in
-    the key's unit) applied. InputError naming an unknown key."""
+    the key's unit) applied (:data:`DRIFT_KEY` is no term and is skipped). InputError naming an
+    unknown key."""
     sigma = PRIOR_SIGMA_SI.copy()
     for key, v in (overrides or {}).items():
+        if key == DRIFT_KEY:
+            continue
         if key not in _KEYS:
-            raise InputError(f"{what}: unknown term {key!r} (known: {', '.join(_KEYS)})")
+            raise InputError(f"{what}: unknown term {key!r} (known: {', '.join([*_KEYS, DRIFT_KEY])})")
         sigma[_KEYS[key]] = 1e-3 * float(v)
     return sigma
+
+
+def drift_sigma(overrides: dict[str, float] | None = None) -> float:
+    """1-σ (rad) per night of the joint references' random walk, ``overrides[DRIFT_KEY]`` (mrad);
+    0 when not given (the references do not drift)."""
+    return 1e-3 * float((overrides or {}).get(DRIFT_KEY, 0.0))
 
 
 def actuated(kin: HeliostatKinematics, model: TrackingModel) -> HeliostatKinematics:

@@ -32,3 +32,12 @@ def test_unknown_start_close_below_and_no_backlash():
 def test_pre_position_respects_the_soft_limits():
     path = approach_path((600, 600), (505, 510), (12, 12), LIM)
     assert path[0] == (500, 500) and path[-1] == (505, 510)
+
+
+def test_the_move_down_from_just_below_is_longer_than_the_backlash():
+    """Starting a few steps below the target (an axis the slew from standby hardly moves), the
+    pre-position is the margin below the *present* steps, not the target: a reversal shorter
+    than the play would leave the gear between its flanks."""
+    path = approach_path((24990, 20000), (25000, 15000), (12, 12), LIM)
+    assert path == [(24990 - 12 - MARGIN_STEPS, 15000 - 12 - MARGIN_STEPS), (25000, 15000)]
+    assert 24990 - path[0][0] > 12 and 20000 - path[0][1] > 12
