@@ -119,7 +119,9 @@ class SimAxis:
             return
         d = 1 if step > 0 else -1
         if d != self._last_dir and self._last_dir != 0:
-            self._slack = float(self.params.backlash)
+            # The motor crosses the gap back: only the part of it already crossed in the old
+            # direction (a reversal inside the gap must not ratchet the output away).
+            self._slack = float(self.params.backlash) - self._slack
         self._last_dir = d
         taken_by_slack = min(self._slack, abs(step))
         self._slack -= taken_by_slack

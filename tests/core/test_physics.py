@@ -56,6 +56,20 @@ def test_backlash_lags_output_after_reversal():
     assert out_az == pytest.approx(557.0)  # the rod stops short by the backlash
 
 
+def test_reversal_inside_the_backlash_gap_does_not_ratchet():
+    # Up 100, back 5 (inside the 7-step gap: the rod stays), up 100 again: the motor has only
+    # crossed back the 5 steps, so the rod follows after 5 steps and ends where a plain up
+    # move would leave it. Resetting the slack to the whole gap at every reversal left the rod
+    # 7 steps behind the motor after each such wiggle, drifting further each time.
+    ctl, clock = make(backlash=7)
+    for k, target in enumerate((600, 595, 695, 690, 790)):
+        ctl.move_abs(target, 500)
+        clock.t = 10.0 * (k + 1)
+    assert ctl.status()["az_steps"] == 790
+    out_az, _ = ctl.output_steps()
+    assert out_az == pytest.approx(790.0)
+
+
 def test_stall_latches_until_clear_and_blocks_motion():
     ctl, clock = make()
     ctl.move_abs(800, 500)
