@@ -81,6 +81,9 @@ class CameraRegistration(_Model):
     max_rms_px: float = Field(default=0.5, gt=0, le=10, description="refuse a registration above this")
     search_radius_px: float = Field(default=100.0, ge=5, le=2000,
                                     description="how far from its nominal pixel a fiducial is looked for")
+    lamp_command: tuple[str, ...] | None = Field(
+        default=None, min_length=1, max_length=32,
+        description="argv of the plant's fiducial-lamp switch, run with 'on' or 'off' appended")
 
     @field_validator("fiducials_enu_m")
     @classmethod

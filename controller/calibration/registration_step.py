@@ -16,6 +16,7 @@ Hu moments of recognition all work in the rectified view they were written for.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -24,6 +25,7 @@ import numpy as np
 from controller.config import PlantConfig
 from controller.devices.camera import DoubleCcdCamera, FramePair
 from controller.devices.file_camera import FileCamera
+from controller.devices.lamps import switch_lamps
 from controller.errors import HeliocalError
 from controller.geometry.target_frame import TargetFrame
 from controller.imaging.fiducials import detect_fiducials, look_at_pose, rectify_sensor
@@ -108,6 +110,8 @@ def register_camera(cfg: PlantConfig, camera: DoubleCcdCamera, lamps: Callable[[
     RegistrationError names the sensor and what failed."""
     reg_cfg = cfg.camera.registration
     nominal = nominal_camera(cfg)
+    if reg_cfg.lamp_command:  # the plant's own lamp controller, not the caller's hook
+        lamps = functools.partial(switch_lamps, reg_cfg.lamp_command)
     dark, lit = fiducial_frame(camera, lamps)
     pts = np.asarray(reg_cfg.fiducials_enu_m, float)
     predicted = nominal.project(pts)
