@@ -135,8 +135,10 @@ class Library:
         return Matcher(x, self.labels, None, limits, segments=segments)
 
     def describe(self, hdr: np.ndarray, threshold: float | None = None) -> np.ndarray:
-        """Hu moments of a beam image at the library's thresholds, shape (len(thresholds), 7)
-        (background auto; ``threshold`` overrides a single-threshold library's)."""
+        """The descriptor stack of a beam image, shape (len(thresholds), 7): Hu moments at the
+        library's thresholds, and for a blur kind the whole-spot blur-invariant Hu as the last
+        row (:func:`controller.recognition.features.describe`; background auto; ``threshold``
+        overrides a single-threshold library's)."""
         if threshold is None or self.features not in ("hu", "log-hu"):
             return describe(hdr, self.features, self.threshold)
         return hu_stack(hdr, (threshold,))
