@@ -10,6 +10,7 @@ import json
 import cv2
 import numpy as np
 import pytest
+import yaml
 from beamkit import cli, gaussian
 
 from controller.imaging.blur_moments import blur_invariant_hu, energy_moments
@@ -142,3 +143,22 @@ def test_blur_kinds_through_the_cli(tmp_path, capsys, kind):
         code, out, err = cli(capsys, "match", str(tmp_path / "q.npy"), "--library", lib, "--json")
         assert code == 0, err
         assert json.loads(out)["label"] == label
+
+
+def test_blur_library_file_validated(tmp_path, capsys):
+    imgs = {"a0": blurred(gauss(1.0)), "b0": blurred(gauss(1.0), other_spot())}
+    for name, img in imgs.items():
+        np.save(tmp_path / f"{name}.npy", img.astype(np.float32))
+    (tmp_path / "lib.csv").write_text("image,label,az_deg,el_deg\na0.npy,a,,\nb0.npy,b,,\n", encoding="utf-8")
+    lib = tmp_path / "lib.yaml"
+    code, _, err = cli(capsys, "library", "build", str(tmp_path / "lib.csv"), "--out", str(lib),
+                       "--features", "multi-blur-hu")
+    assert code == 0, err
+    doc = yaml.safe_load(lib.read_text(encoding="utf-8"))
+    assert doc["thresholds"] == [0.1, 0.3, 0.5, 0.05] and len(doc["entries"][0]["features"]) == 27
+    doc["thresholds"] = [0.1, 0.3, 0.5]
+    lib.write_text(yaml.safe_dump(doc), encoding="utf-8")
+    np.save(tmp_path / "q.npy", imgs["a0"].astype(np.float32))
+    code, _, err = cli(capsys, "match", str(tmp_path / "q.npy"), "--library", str(lib))
+    assert code == 2
+    assert "thresholds" in err and str(lib) in err and len(err.strip().splitlines()) == 1
