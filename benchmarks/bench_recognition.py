@@ -23,9 +23,11 @@ reuses it on the next run).
 ``--independent [--seeds 1,2,3]``: instead, the independent error set of
 :mod:`independent_spots` (a paraxial renderer written apart from ``simplant.optics``; magnitude
 0.5-1.5 and spot size x0.7-1.4 vary in the test views, library = 3 magnitudes per case), scored
-through the CLI contract (``heliocal library build`` default and ``--features hu --whiten no``,
-``heliocal report confusion --json``), plus ablations of the default through the Python API
-(no interpolation between magnitudes, no blur views in the whitening, neither).
+through the CLI contract (``heliocal library build`` default, ``--features blur-hu``,
+``--features multi-blur-hu`` and ``--features hu --whiten no``, ``heliocal report confusion
+--json``), plus ablations of the default through the Python API (no interpolation between
+magnitudes, no blur views in the whitening, neither) and the default's rate split by the view's
+effective magnitude m / spot (inside or outside the library's 0.5-1.5; see docs/recognition.md).
 
 ``--campaign [--threshold T] [--heliostats N]``: instead, the coarse correction in the closed
 loop. Runs ``heliocal demo --nights 0 --json`` (embedded simulated plant, demo config, seed
@@ -65,6 +67,8 @@ VARIANTS = {  # name: (features, whiten, library sizes, library heliostats)
     "hu raw (paper), 6 heliostats x 3 sizes": ("hu", False, THREE, SIX),
     "hu whitened, 6 heliostats x 3 sizes": ("hu", True, THREE, SIX),
     "log-hu, 6 heliostats x 3 sizes": ("log-hu", False, THREE, SIX),
+    "blur-hu whitened, 6 heliostats x 3 sizes": ("blur-hu", None, THREE, SIX),
+    "multi-blur-hu whitened, 6 heliostats x 3 sizes": ("multi-blur-hu", None, THREE, SIX),
 }
 CONFIDENT = 0.5
 
@@ -152,6 +156,18 @@ def independent(seeds: list[int], views: int) -> dict:
                            text=True, check=True)
         return json.loads(r.stdout)
 
+    def by_effective_magnitude(out: Path) -> dict:
+        # The renderer scales the aperture image and the source disc together with the spot size,
+        # so a view is its case at magnitude m / spot, zoomed: the rate inside/outside the library's range.
+        lib = build_library_from_manifest(out / "library.csv", "multi-hu")
+        rows = read_manifest(out / "test.csv")
+        ms = [lib.match_image(read_image(r.image)) for r in rows]
+        ok = np.array([not m.unknown and m.label == r.label for m, r in zip(ms, rows, strict=True)])
+        eff = np.array([float(r.extra["magnitude"]) / float(r.extra["spot"]) for r in rows])
+        inside = (eff >= min(THREE)) & (eff <= max(THREE))
+        return {"inside": {"n": int(inside.sum()), "recognition_rate": _rate(ok[inside])},
+                "outside": {"n": int((~inside).sum()), "recognition_rate": _rate(ok[~inside])}}
+
     def api(out: Path, interpolate: bool, blur: bool) -> dict:
         saved = library.AUGMENT_BLUR
         library.AUGMENT_BLUR = saved if blur else ()
@@ -172,7 +188,9 @@ def independent(seeds: list[int], views: int) -> dict:
             write_set(out, seed=seed, views=views)
             r: dict = {}
             paper = ("--features", "hu", "--whiten", "no")
-            for name, extra in (("multi-hu (default)", ()), ("hu raw (paper)", paper)):
+            kinds = (("multi-hu (default)", ()), ("blur-hu", ("--features", "blur-hu")),
+                     ("multi-blur-hu", ("--features", "multi-blur-hu")), ("hu raw (paper)", paper))
+            for name, extra in kinds:
                 cli("library", "build", str(out / "library.csv"), "--out", str(out / "lib.yaml"), *extra)
                 c = cli("report", "confusion", "--library", str(out / "lib.yaml"),
                         "--test", str(out / "test.csv"), "--out", str(out / "rep"))
@@ -182,6 +200,7 @@ def independent(seeds: list[int], views: int) -> dict:
             r["multi-hu, no interpolation"] = api(out, False, True)
             r["multi-hu, no blur views"] = api(out, True, False)
             r["multi-hu, neither (before #14 work)"] = api(out, False, False)
+            r["multi-hu by effective magnitude m/spot"] = by_effective_magnitude(out)
             res["seeds"][seed] = r
     return res
 

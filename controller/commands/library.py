@@ -3,8 +3,9 @@
 MANIFEST is a CSV ``image,label,az_deg,el_deg`` (paths relative to it; further columns such as
 ``heliostat,source,slant_m,magnitude`` become each entry's ``params``). The library YAML holds
 the feature kind (``multi-hu`` by default: Hu moments at three thresholds, whitened by the
-library's own spread; ``hu`` raw as in the paper; or ``log-hu``), the normalisation, the unknown
-threshold calibrated from the library's own spread, and one entry per image. See
+library's own spread; ``hu`` raw as in the paper; ``log-hu``; ``blur-hu`` / ``multi-blur-hu``:
+moment invariants to a symmetric blur of the whole spot, alone or beside multi-hu), the
+normalisation, the unknown threshold calibrated from the library's own spread, and one entry per image. See
 docs/recognition.md. ``--json`` prints ``{"library", "entries", "labels", "features",
 "unknown_distance"}``.
 """
@@ -50,10 +51,11 @@ def register(subparsers) -> None:
     b.add_argument("--out", required=True, metavar="LIB.yaml", help="library file to write")
     b.add_argument("--features", choices=FEATURE_KINDS, default="multi-hu",
                    help="multi-hu = raw Hu moments at thresholds 0.1, 0.3, 0.5 (default), hu = raw Hu "
-                        "moments at --threshold (the paper's), log-hu = -sign(h) log10|h|")
+                        "moments at --threshold (the paper's), log-hu = -sign(h) log10|h|, blur-hu = "
+                        "invariants to a symmetric blur (whole spot, no threshold), multi-blur-hu = both")
     b.add_argument("--whiten", choices=("auto", "yes", "no"), default="auto",
                    help="compare features after whitening by the library's own spread "
-                        "(auto: for multi-hu only; 'no' with --features hu is the paper's raw distance)")
+                        "(auto: all but hu and log-hu; 'no' with --features hu is the paper's raw distance)")
     add_threshold_option(b)
     add_json_option(b)
     b.set_defaults(func=run_build)

@@ -6,9 +6,10 @@ YAML files are handled by :mod:`controller.recognition.library_io`.
 Library document (YAML)::
 
     version: 1
-    features: hu | log-hu | multi-hu   # raw Hu (paper), -sign(h) log10|h|, or raw Hu at 3 thresholds
+    features: hu | log-hu | multi-hu | blur-hu | multi-blur-hu   # see controller.recognition.features
     threshold: 0.5                 # beam segmentation threshold (hu, log-hu)
-    thresholds: [0.1, 0.3, 0.5]    # multi-hu only: one Hu vector per threshold, k = 7 x 3 features
+    thresholds: [0.1, 0.3, 0.5]    # the descriptor rows: multi-hu k = 7 x 3; blur-hu [0.05] (the
+                                   # whole-spot window) k = 6; multi-blur-hu [0.1, 0.3, 0.5, 0.05] k = 27
     normalisation: {intensity: unit-mean, scale: [k numbers], whiten: [[k x k]] (optional)}
     unknown_distance: <float>      # largest per-entry threshold (informative)
     entries:
@@ -27,6 +28,10 @@ Feature kinds:
   wings (a small twist, a short backlash smear) still moves the features. By default the library
   is *whitened* (``normalisation.whiten``, W = C^-1/2 of its own spread, see
   :func:`whitening`), and the distance stays Euclidean in the whitened space.
+* ``blur-hu``: six features invariant to a circularly symmetric blur, to zoom and brightness,
+  from Hu's phi_2..phi_7 of the whole (unthresholded) spot signal
+  (:mod:`controller.imaging.blur_moments`, :mod:`controller.recognition.blur_features`);
+  ``multi-blur-hu``: the multi-hu stack and these side by side (27). Both whitened by default.
 """
 
 from __future__ import annotations
@@ -40,13 +45,19 @@ import numpy as np
 from controller.errors import InputError
 from controller.imaging.beam import analyze
 from controller.recognition.estimate import estimate
+from controller.recognition.features import (
+    FEATURE_KINDS,
+    MULTI_THRESHOLDS,
+    describe,
+    hu_features,
+    hu_stack,
+    image_features,
+    kind_thresholds,
+)
 from controller.recognition.matching import Matcher
 from controller.recognition.segments import magnitude_segments
 
 LIBRARY_VERSION = 1
-FEATURE_KINDS = ("multi-hu", "hu", "log-hu")
-MULTI_THRESHOLDS = (0.1, 0.3, 0.5)
-_LOG_FLOOR = 1e-30
 
 
 @dataclass(frozen=True)
@@ -105,7 +116,7 @@ class Library:
     @property
     def thresholds(self) -> tuple[float, ...]:
         """Segmentation thresholds of the features (one Hu vector each)."""
-        return MULTI_THRESHOLDS if self.features == "multi-hu" else (self.threshold,)
+        return kind_thresholds(self.features, self.threshold)
 
     def matrix(self) -> np.ndarray:
         """(n, k) entry features as stored (before whitening/scaling)."""
@@ -124,10 +135,13 @@ class Library:
         return Matcher(x, self.labels, None, limits, segments=segments)
 
     def describe(self, hdr: np.ndarray, threshold: float | None = None) -> np.ndarray:
-        """Hu moments of a beam image at the library's thresholds, shape (len(thresholds), 7)
-        (background auto; ``threshold`` overrides a single-threshold library's)."""
-        ts = self.thresholds if threshold is None or self.features == "multi-hu" else (threshold,)
-        return hu_stack(hdr, ts)
+        """The descriptor stack of a beam image, shape (len(thresholds), 7): Hu moments at the
+        library's thresholds, and for a blur kind the whole-spot blur-invariant Hu as the last
+        row (:func:`controller.recognition.features.describe`; background auto; ``threshold``
+        overrides a single-threshold library's)."""
+        if threshold is None or self.features not in ("hu", "log-hu"):
+            return describe(hdr, self.features, self.threshold)
+        return hu_stack(hdr, (threshold,))
 
     def match_hu(self, hu: np.ndarray) -> LibraryMatch:
         """The nearest entry to a beam's Hu moments and the nearest of another case (Euclidean
@@ -160,28 +174,6 @@ class Library:
         if self._cache is None or self._cache[0] != len(self.entries):
             self._cache = (len(self.entries), self.matcher())
         return self._cache[1]
-
-
-def hu_stack(image: np.ndarray, thresholds: Sequence[float]) -> np.ndarray:
-    """Hu moments (len(thresholds), 7) of the beam segmented at each threshold (background auto)."""
-    return np.array([analyze(image, threshold=t, background="auto").hu for t in thresholds], dtype=np.float64)
-
-
-def hu_features(hu: np.ndarray, kind: str) -> np.ndarray:
-    """Feature vector from Hu moments: raw (``hu``: 7, ``multi-hu``: the stack flattened) or
-    signed log (``log-hu``)."""
-    h = np.asarray(hu, dtype=np.float64)
-    if kind in ("hu", "multi-hu"):
-        return h.reshape(-1).copy()
-    if kind == "log-hu":
-        return -np.sign(h.reshape(-1)) * np.log10(np.maximum(np.abs(h.reshape(-1)), _LOG_FLOOR))
-    raise InputError(f"feature kind must be one of {', '.join(FEATURE_KINDS)}, not {kind!r}")
-
-
-def image_features(image: np.ndarray, kind: str, threshold: float = 0.5) -> np.ndarray:
-    """Analyse a beam image (background auto) and return its feature vector (7 or 21,)."""
-    ts = MULTI_THRESHOLDS if kind == "multi-hu" else (threshold,)
-    return hu_features(hu_stack(image, ts), kind)
 
 
 AUGMENT_ANGLES_DEG = (20.0, 65.0, 110.0, 155.0)
@@ -325,7 +317,7 @@ def build_library(images: Sequence[np.ndarray], labels: Sequence[str], *, kind: 
     if n == 0 or len(labels) != n:
         raise InputError(f"a library needs one label per image and at least one image ({n} images, "
                          f"{len(labels)} labels)")
-    whitened = kind == "multi-hu" if whiten is None else whiten
+    whitened = kind not in ("hu", "log-hu") if whiten is None else whiten
     entries = []
     deviations, owner = [], []
     for i, (image, label) in enumerate(zip(images, labels, strict=True)):

@@ -7,7 +7,8 @@ from __future__ import annotations
 import numpy as np
 
 from controller.errors import InputError
-from controller.recognition.library import FEATURE_KINDS, LIBRARY_VERSION, MULTI_THRESHOLDS, Entry, Library
+from controller.recognition.features import FEATURE_KINDS, kind_thresholds, library_width
+from controller.recognition.library import LIBRARY_VERSION, Entry, Library
 
 
 def library_to_dict(lib: Library) -> dict:
@@ -26,7 +27,7 @@ def library_to_dict(lib: Library) -> dict:
     if lib.whiten is not None:
         norm["whiten"] = [[float(v) for v in row] for row in lib.whiten]
     doc = {"version": lib.version, "features": lib.features, "threshold": lib.threshold}
-    if lib.features == "multi-hu":
+    if lib.features not in ("hu", "log-hu"):
         doc["thresholds"] = list(lib.thresholds)
     return doc | {
         "normalisation": norm,
@@ -68,9 +69,10 @@ def library_from_dict(data: object, p: str) -> Library:
     kind = data.get("features")
     if kind not in FEATURE_KINDS:
         raise InputError(f"{p}: features: must be one of {', '.join(FEATURE_KINDS)}, got {kind!r}")
-    if kind == "multi-hu" and data.get("thresholds", list(MULTI_THRESHOLDS)) != list(MULTI_THRESHOLDS):
-        raise InputError(f"{p}: thresholds: a multi-hu library uses {list(MULTI_THRESHOLDS)}")
-    k = 7 * len(MULTI_THRESHOLDS) if kind == "multi-hu" else 7
+    rows = list(kind_thresholds(kind, 0.5))
+    if kind not in ("hu", "log-hu") and data.get("thresholds", rows) != rows:
+        raise InputError(f"{p}: thresholds: a {kind} library uses {rows}")
+    k = library_width(kind)
     norm = data.get("normalisation") or {}
     scale = _vec(norm.get("scale", [1.0] * k), f"{p}: normalisation.scale", k)
     if np.any(scale <= 0):

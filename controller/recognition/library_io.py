@@ -179,7 +179,7 @@ def add_reference(library_path: str | Path, label: str, hdr, hu, *, source: str,
     img = lib_path.parent / "references" / f"{source}-{label}-{n:02d}.npy"
     write_float_image(img, hdr)
     # A multi-threshold library describes the frame itself; the others take the given Hu moments.
-    feats = hu_features(lib.describe(hdr) if lib.features == "multi-hu" else hu, lib.features)
+    feats = hu_features(lib.describe(hdr) if lib.features not in ("hu", "log-hu") else hu, lib.features)
     entry = Entry(label=label, features=feats, sha256=sha256_file(img), image=str(img))
     lib.entries.append(entry)
     save_library(lib, lib_path)
