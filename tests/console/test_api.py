@@ -22,6 +22,10 @@ from simplant.settings import SimulationSettings
 from tests.conftest import scaled_s
 from tests.console.conftest import small_config_file
 
+# The tests share one console (module fixture) and read what the earlier ones did (campaigns
+# api-pause and api-abort): one worker runs them all, in order (make test: --dist loadgroup).
+pytestmark = pytest.mark.xdist_group("console-api")
+
 TOKEN = "s3cret-token-for-tests"
 JSON = {"Content-Type": "application/json"}
 
@@ -205,6 +209,9 @@ def test_pages_and_reading_endpoints(plant_console):
     assert client.get("/static/console.js").status_code == 200
     plant = client.get("/api/plant").json()
     assert plant["token_required"] and [h["id"] for h in plant["heliostats"]] == ["H02", "H14"]
+    # This fixture runs no background poller (Console.start): read the drive once, as the poller
+    # would, so the test does not depend on an earlier test having moved H02.
+    assert console.poll("H02") is not None
     h = client.get("/api/heliostats/H02").json()
     assert h["limits"]["az"][0] < h["limits"]["az"][1] and h["status"]["faults"] == []
     assert client.get("/api/heliostats/H99").status_code == 400
