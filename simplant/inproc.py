@@ -22,8 +22,9 @@ from simplant.firmware.physics import SimController
 class InProcDrive(Drive):
     """A :class:`Drive` over one :class:`SimController` (module docstring)."""
 
-    def __init__(self, controller: SimController, limits: DriveLimits) -> None:
+    def __init__(self, controller: SimController, limits: DriveLimits, frozen=None) -> None:
         self.ctl = controller
+        self._frozen = frozen
         self.unit = controller.unit
         self.limits = limits
         self.retries_used = 0
@@ -34,7 +35,11 @@ class InProcDrive(Drive):
             raise nak_error(self.unit, command, int(result))
 
     def status(self) -> DriveStatus:
-        s = self.ctl.status()
+        if self._frozen is not None:
+            with self._frozen():
+                s = self.ctl.status()
+        else:
+            s = self.ctl.status()
         return DriveStatus(self.unit, s["az_steps"], s["el_steps"], s["az_target"], s["el_target"],
                            s["moving"], s["in_position"], s["limit_az"], s["limit_el"],
                            tuple(fault_names(s["faults"])) if s["faults"] else ())
@@ -80,10 +85,16 @@ class InProcDrive(Drive):
 
 class InProcPool:
     """``drive(link, limits)`` as :class:`LinkPool` has it, over ``controllers`` keyed by the
-    link's bus and station (``(*link.bus_key, link.station)``, see :meth:`key`)."""
+    link's bus and station (``(*link.bus_key, link.station)``, see :meth:`key`).
 
-    def __init__(self, controllers: dict[tuple, SimController]) -> None:
+    ``frozen``: a context manager that stops the plant clock (``PlantClock.frozen``) around
+    each status reading. With a large clock speedup the simulator's own cost of integrating
+    the motion (tens of µs of wall time per poll) would otherwise cost the plant a sizeable
+    fraction of every poll interval; a real status poll takes milliseconds."""
+
+    def __init__(self, controllers: dict[tuple, SimController], frozen=None) -> None:
         self._ctl = dict(controllers)
+        self._frozen = frozen
 
     @staticmethod
     def key(link) -> tuple:
@@ -94,14 +105,15 @@ class InProcPool:
         """The drives of every hidden heliostat of a :class:`simplant.plant.SimulatedPlant`
         (not started: its links stay as configured)."""
         cfg = plant.cfg
-        return cls({cls.key(cfg.heliostat(hid).link): hh.controller for hid, hh in plant.hidden.items()})
+        return cls({cls.key(cfg.heliostat(hid).link): hh.controller for hid, hh in plant.hidden.items()},
+                   plant.clock.frozen)
 
     def drive(self, link, limits: DriveLimits) -> InProcDrive:
         try:
             ctl = self._ctl[self.key(link)]
         except KeyError:
             raise nak_error(link.station, Command.GET_STATUS, int(Reject.BAD_ADDRESS)) from None
-        return InProcDrive(ctl, limits)
+        return InProcDrive(ctl, limits, self._frozen)
 
     def close(self) -> None:
         """Nothing to release."""
