@@ -43,7 +43,8 @@ CAMERA_PX = (128, 96)  # width, height: the cheap camera's rectified view
 def field_data(base: dict, n: int, targets: int, geometries: int = 3) -> dict:
     """A field of ``n`` heliostats (config mapping) from ``base`` (a plant config mapping whose
     first heliostat is the prototype): staggered half rings north of the tower from 40 m, 7 m
-    apart, heliostats 6 m apart on a ring, 30 per serial bus; ``targets`` targets on the
+    apart, heliostats 6 m apart on a ring, each focused at its range to the tower, 30 per
+    serial bus; ``targets`` targets on the
     tower (``calibration.targets``, 2 × 2 aim grid), six lamps, the planner at ``geometries``
     per heliostat, standby points 12 m off the aim; a ``CAMERA_PX`` camera without
     registration (cheap optics)."""
@@ -72,6 +73,9 @@ def field_data(base: dict, n: int, targets: int, geometries: int = 3) -> dict:
             h = copy.deepcopy(proto)
             h["id"] = f"F{len(hs) + 1:04d}"
             h["position_enu_m"] = [round(r * math.sin(az), 2), round(r * math.cos(az), 2), 2.0]
+            # Focused at its slant range to the middle of the tower's targets, as a field's
+            # heliostats are (the prototype's focus would blur the far rows over the whole view).
+            h["mirror"] = {**proto["mirror"], "focal_length_m": round(math.hypot(r, 30.0 - 2.0), 1)}
             h["link"] = {"kind": "serial", "device": f"/dev/heliocal-bus{len(hs) // 30}",
                          "address": 1 + len(hs) % 30}
             hs.append(h)
