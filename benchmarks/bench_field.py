@@ -136,12 +136,17 @@ def runner_night(data: dict, plans: dict[str, list], targets: int, night_s: floa
         r = f.run_night([it for p in plans.values() for it in p], "n1", night_s)
     hours = r.plant_s / 3600.0
     several = {t: sum(1 for b in v if len(b) > 1) for t, v in r.beams_in_view.items()}
+    failed: dict[str, int] = {}  # runs not measured, by the exception that ended them
+    for run in (run for res in r.results for run in res.runs if run.status != "measured"):
+        kind = (run.fault_cause or run.status).split(":")[0]
+        failed[kind] = failed.get(kind, 0) + 1
     return {"targets": targets, "planned_measurements": r.planned, "measurements": len(r.measured),
             "coverage": len(r.measured) / r.planned if r.planned else float("nan"),
             "heliostats_covered": len(r.heliostats), "plant_time_h": hours, "wall_s": r.wall_s,
             "ended_by_night_budget": r.stopped_by_budget, "measurements_per_target": r.per_target,
             "captures": {t: len(v) for t, v in r.beams_in_view.items()},
-            "captures_with_several_beams_in_view": several,
+            "captures_with_several_beams_in_view": several, "runs_not_measured": failed,
+            "passes": {res.status: sum(1 for x in r.results if x.status == res.status) for res in r.results},
             "heliostats_per_hour_per_target": len(r.heliostats) / hours / targets if hours else 0.0}
 
 
