@@ -1,0 +1,182 @@
+"""Cheap optics for large simulated fields: analytic beam spots instead of ray tracing.
+
+:class:`BeamField` follows where every hidden heliostat's true beam goes (the reflection of
+the lit lamp about the heliostat's true normal at its rods' true positions, as
+:meth:`simplant.plant.SimulatedPlant.scene` finds it, with the canting shift of
+:meth:`HiddenHeliostat.beam_normal`), recomputing a heliostat only when its rods moved.
+:class:`CheapCamera` is a :class:`controller.devices.camera.DoubleCcdCamera` per target that
+renders each beam landing in its view as an elliptical Gaussian (:func:`spot_covariance`) on
+a small rectified grid (the config's ``camera.width_px`` × ``height_px``, e.g. 128 × 96),
+through the simulated sensors of :class:`simplant.camera.SimulatedCamera` (linear responses:
+no CRF file needed; no fiducials, so no ``camera.registration``). The plant clock stands
+still while a scene is drawn and advances by the HIGH exposure, as with the plant's camera.
+"""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+
+from controller.config import PlantConfig
+from controller.devices.camera import DoubleCcdCamera, FramePair
+from controller.geometry.vectors import unit
+from simplant.grids import camera_grid
+
+# The lamp's brightness: a reference spot (REF_SIGMA_M round, from a REF_AREA_M2 mirror facing
+# the lamp) peaks at this fraction of the HIGH sensor's range. Every lamp gives the field the
+# same irradiance (a far lamp is a stronger one).
+PEAK_FRACTION = 0.7
+REF_SIGMA_M = 0.3
+REF_AREA_M2 = 8.0
+# Stray light on the target, as a fraction of a spot's peak (the plant camera's pedestal).
+AMBIENT_FRACTION = 0.0025
+# A spot ends at this Mahalanobis radius (a finite mirror's spot has a compact footprint; a
+# Gaussian's far tail would reach into the view from beams parked beside it).
+SPOT_EXTENT_SIGMA = 3.0
+# A beam that meets the target plane farther than this (nearly parallel to it) is not drawn.
+MAX_THROW_M = 1000.0
+
+
+def spot_covariance(distance_m: float, lamp_angle_rad: float, slope_error_rad: float,
+                    mirror_w_m: float, mirror_h_m: float, focal_m: float, beam: np.ndarray,
+                    normal: np.ndarray, u_axis: np.ndarray, v_axis: np.ndarray) -> np.ndarray:
+    """2 × 2 covariance (m², target axes u, v) of a heliostat's spot on a target plane.
+
+    Across the beam, per mirror axis, independent blurs add in quadrature:
+    σ² = (αL/4)² + (2σ_s L)² + (w |1 − L/f|)² / 12 — the lamp disc of angular diameter α
+    imaged at distance L (a uniform disc of radius r has σ = r/2), the slope error σ_s
+    doubled on reflection, and the mirror of width w focused at f (a uniform band of width
+    w|1 − L/f|). The mirror's width axis is taken along u, its height along v. An oblique
+    beam (cos θ = |b·n|) stretches the footprint by 1/cos θ along the beam's in-plane
+    direction d: Σ' = S Σ Sᵀ, S = I + (1/cos θ − 1) d dᵀ."""
+    common = (lamp_angle_rad * distance_m / 4.0) ** 2 + (2.0 * slope_error_rad * distance_m) ** 2
+    defocus = abs(1.0 - distance_m / focal_m)
+    cov = np.diag([common + (mirror_w_m * defocus) ** 2 / 12.0, common + (mirror_h_m * defocus) ** 2 / 12.0])
+    cos_t = max(abs(float(beam @ normal)), 0.05)
+    d = np.array([beam @ u_axis, beam @ v_axis], float)
+    if np.linalg.norm(d) > 1e-9:
+        d /= np.linalg.norm(d)
+        s = np.eye(2) + (1.0 / cos_t - 1.0) * np.outer(d, d)
+        cov = s @ cov @ s.T
+    return cov
+
+
+def spot_peak(area_m2: float, cos_incidence: float, cov: np.ndarray) -> float:
+    """Peak of a spot relative to the reference spot's (the constants above). Its power is the
+    lamp irradiance on the mirror, ∝ A cos i, spread over the Gaussian of covariance Σ, whose
+    peak is power / (2π √det Σ)."""
+    power = area_m2 * max(cos_incidence, 0.0)
+    return power / REF_AREA_M2 * REF_SIGMA_M ** 2 / float(np.sqrt(np.linalg.det(cov)))
+
+
+class BeamField:
+    """Every hidden heliostat's beam now (module docstring), shared by the targets' cameras.
+
+    :meth:`beams` returns arrays over the heliostats: mirror centre (N, 3) m ENU, unit beam
+    direction (N, 3), the lamp's distance (N,) m and the cosine of the lamp's incidence on the
+    mirror (N,)."""
+
+    def __init__(self, plant) -> None:
+        self.plant = plant
+        self.ids = list(plant.hidden)
+        n = len(self.ids)
+        self.pos = np.zeros((n, 3))
+        self.dir = np.zeros((n, 3))
+        self.lamp_m = np.ones(n)
+        self.cos_i = np.zeros(n)
+        self._key: list[tuple | None] = [None] * n
+        self._lock = threading.Lock()
+
+    def beams(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        p = self.plant
+        lamp_cfg = p.lamp()
+        lamp = np.asarray(lamp_cfg.position_enu_m, float)
+        with self._lock:
+            for i, hid in enumerate(self.ids):
+                hh = p.hidden[hid]
+                steps = hh.controller.output_steps()
+                key = (steps, p.night, p.lit)
+                if key == self._key[i]:
+                    continue  # rods, night and lamp unchanged: so is the beam
+                n = hh.beam_normal(p.true_normal(hid))
+                pos = hh.truth.mirror_center(*steps, night=p.night)
+                s = unit(lamp - pos)
+                self.pos[i] = pos
+                self.dir[i] = 2.0 * (s @ n) * n - s
+                self.lamp_m[i] = float(np.linalg.norm(lamp - pos))
+                self.cos_i[i] = float(s @ n)
+                self._key[i] = key
+            return self.pos.copy(), self.dir.copy(), self.lamp_m.copy(), self.cos_i.copy()
+
+
+class CheapCamera(DoubleCcdCamera):
+    """The double-CCD camera of one target over :class:`BeamField` (module docstring).
+    ``beams_in_view`` lists, per capture, the heliostats whose beam was drawn (the truth of
+    "one beam per target")."""
+
+    def __init__(self, plant, field: BeamField, cfg: PlantConfig, seed: int = 0) -> None:
+        from simplant.camera import SimulatedCamera
+
+        cam = cfg.camera
+        self.plant = plant
+        self.field = field
+        self.cfg = cfg
+        self.grid = camera_grid(cfg)
+        span = (1 << cam.bit_depth) - 1 - cam.dark_offset_counts
+        self.peak = PEAK_FRACTION * span / cam.sensors[1].exposure_s  # counts/s
+        rows, cols = self.grid.shape
+        self._yy, self._xx = np.mgrid[0:rows, 0:cols].astype(float)
+        self.sim = SimulatedCamera(cam, self._scene, seed=seed, clock=plant.clock, knees=(0.0, 0.0))
+        self.beams_in_view: list[tuple[str, ...]] = []
+        self.hits: list[dict[str, tuple[float, float, float]]] = []  # per capture: hid -> true ENU hit
+
+    def _scene(self) -> np.ndarray:
+        g = self.grid
+        pos, beam, lamp_m, cos_i = self.field.beams()
+        lamp_d = float(self.plant.lamp().diameter_m)
+        denom = beam @ g.normal
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = ((g.center - pos) @ g.normal) / denom
+        ok = np.isfinite(t) & (t > 0) & (t < MAX_THROW_M)
+        hit = pos + t[:, None] * beam
+        du, dv = g.pixel_size_m
+        img = np.full(g.shape, AMBIENT_FRACTION * self.peak)
+        seen, hits = [], {}
+        for i in np.flatnonzero(ok):
+            hid = self.field.ids[i]
+            h = self.cfg.heliostat(hid).mirror
+            cov = spot_covariance(float(t[i]), lamp_d / float(lamp_m[i]), 1e-3 * h.slope_error_mrad,
+                                  h.width_m, h.height_m, h.focal_length_m, beam[i], g.normal, g.u_axis,
+                                  g.v_axis)
+            x, y = g.enu_to_pixel(hit[i])
+            sx, sy = np.sqrt(cov[0, 0]) / du, np.sqrt(cov[1, 1]) / dv
+            rows, cols = g.shape
+            if not (-SPOT_EXTENT_SIGMA * sx < x + 0.5 < cols + SPOT_EXTENT_SIGMA * sx
+                    and -SPOT_EXTENT_SIGMA * sy < y + 0.5 < rows + SPOT_EXTENT_SIGMA * sy):
+                continue
+            # Elliptical Gaussian in pixels: exp(-½ rᵀ C⁻¹ r), C the covariance in px².
+            c = cov / np.array([[du * du, du * dv], [du * dv, dv * dv]])
+            ci = np.linalg.inv(c)
+            rx, ry = self._xx - float(x), self._yy - float(y)
+            m2 = ci[0, 0] * rx * rx + 2 * ci[0, 1] * rx * ry + ci[1, 1] * ry * ry
+            if not (m2 <= SPOT_EXTENT_SIGMA ** 2).any():
+                continue
+            peak = self.peak * spot_peak(h.width_m * h.height_m, float(cos_i[i]), cov)
+            img += peak * np.where(m2 <= SPOT_EXTENT_SIGMA ** 2, np.exp(-0.5 * m2), 0.0)
+            seen.append(hid)
+            hits[hid] = tuple(float(v) for v in hit[i])
+        self.beams_in_view.append(tuple(seen))
+        self.hits.append(hits)
+        return img
+
+    @property
+    def exposures(self) -> tuple[float, float]:
+        return self.sim.exposures
+
+    def set_exposures(self, t_low: float, t_high: float) -> None:
+        self.sim.set_exposures(t_low, t_high)
+
+    def capture(self) -> FramePair:
+        with self.plant.clock.frozen(advance_s=self.sim.exposures[1]):
+            return self.sim.capture()
