@@ -113,33 +113,3 @@ def test_night_epochs_count_nights_back_from_the_newest():
     assert epochs == [2, 2, 1, 0, 0]
     assert days == {2: 3, 1: 2, 0: 0.0}
     assert night_epochs([]) == ([], {0: 0.0})
-
-
-def _designed_rms(cfg, hid: str, lamps: list[str], n: int) -> float:
-    """Predicted daytime RMS (mrad, Eq. 2 of design.py) of ``hid`` after ``n`` greedy picks from
-    the prior over ``lamps`` × both targets' aim grids: the model's own figure, no truth."""
-    from controller.calibration.daytime import model_covariance
-    from controller.geometry.design import beam_jacobians, greedy_design, normal_jacobian
-    from controller.geometry.kinematics import HeliostatKinematics
-
-    model, cov = model_covariance(None, cfg.calibration.model.prior_sigma)
-    kin = HeliostatKinematics.from_config(cfg.heliostat(hid))
-    a = beam_jacobians(kin, model, planner_sun(cfg), np.asarray(cfg.target().center_enu_m, float))
-    geos = [g for g in candidates(cfg, hid, model) if g.lamp in lamps]
-    hs = [normal_jacobian(kin, model, *g.steps, None, np.asarray(g.aim_enu),
-                          np.asarray(cfg.light_source(g.lamp).position_enu_m, float)) for g in geos]
-    _, post = greedy_design(cov, hs, a, cfg.calibration.model.noise_mrad * 1e-3, n)
-    return 1e3 * float(np.sqrt(daytime_variance(a, post)))
-
-
-def test_lamps_behind_the_field_lower_the_predicted_daytime_error(cfg):
-    """The demo's layout rationale (docs/campaigns.md, "Lamp layout"): masts north of the field
-    tilt the normals towards the zenith, beyond the daytime poses, and separate terms that
-    lamps south of the field (tower, tower foot, far east/west masts) leave mixed."""
-    south = ["lamp", "lamp-low", "lamp-far-west", "lamp-far-east"]
-    behind = ["lamp-west", "lamp-east", "lamp-north"]
-    for lamp in behind:  # they are behind the field: north of every heliostat
-        y = cfg.light_source(lamp).position_enu_m[1]
-        assert all(y > h.position_enu_m[1] for h in cfg.heliostats)
-    for hid in ("H02", "H15"):
-        assert _designed_rms(cfg, hid, south + behind, 12) < 0.9 * _designed_rms(cfg, hid, south, 12)
