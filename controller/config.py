@@ -316,19 +316,10 @@ class PlantConfig(_Model):
         return self
 
     def heliostat(self, hid: str) -> Heliostat:
-        for h in self.heliostats:
-            if h.id == hid:
-                return h
-        raise ConfigError(f"no heliostat {hid!r} in the configuration "
-                          f"(known: {', '.join(h.id for h in self.heliostats)})")
+        return _by_id(self.heliostats, hid, "heliostat")
 
     def target(self, tid: str | None = None) -> Target:
-        tid = tid or self.calibration.target
-        for t in self.targets:
-            if t.id == tid:
-                return t
-        raise ConfigError(f"no target {tid!r} in the configuration "
-                          f"(known: {', '.join(t.id for t in self.targets)})")
+        return _by_id(self.targets, tid or self.calibration.target, "target")
 
     def camera_of(self, tid: str | None = None) -> Camera:
         """The camera looking at target ``tid`` (default: the calibration target): its own, else
@@ -344,6 +335,15 @@ class PlantConfig(_Model):
     def light_source(self, sid: str | None = None) -> SunSource | LampSource:
         sid = sid or self.calibration.light_source
         return next(s for s in self.light_sources if s.id == sid)
+
+
+def _by_id(items, item_id: str, what: str):
+    """The entry of ``items`` whose ``id`` is ``item_id``; ConfigError naming the known ids."""
+    for it in items:
+        if it.id == item_id:
+            return it
+    raise ConfigError(f"no {what} {item_id!r} in the configuration "
+                      f"(known: {', '.join(it.id for it in items)})")
 
 
 def parse_config(data: object, source: str = "<config>") -> PlantConfig:

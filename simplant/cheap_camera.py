@@ -19,9 +19,9 @@ import threading
 import numpy as np
 
 from controller.config import PlantConfig
-from controller.devices.camera import DoubleCcdCamera, FramePair
 from controller.geometry.vectors import unit
 from simplant.grids import camera_grid
+from simplant.plant_camera import PlantClockCamera
 
 # The lamp's brightness: a reference spot (REF_SIGMA_M round, from a REF_AREA_M2 mirror facing
 # the lamp) peaks at this fraction of the HIGH sensor's range. Every lamp gives the field the
@@ -110,7 +110,7 @@ class BeamField:
             return self.pos.copy(), self.dir.copy(), self.lamp_m.copy(), self.cos_i.copy()
 
 
-class CheapCamera(DoubleCcdCamera):
+class CheapCamera(PlantClockCamera):
     """The double-CCD camera of one target over :class:`BeamField` (module docstring).
     ``beams_in_view`` lists, per capture, the heliostats whose beam was drawn (the truth of
     "one beam per target")."""
@@ -169,14 +169,3 @@ class CheapCamera(DoubleCcdCamera):
         self.beams_in_view.append(tuple(seen))
         self.hits.append(hits)
         return img
-
-    @property
-    def exposures(self) -> tuple[float, float]:
-        return self.sim.exposures
-
-    def set_exposures(self, t_low: float, t_high: float) -> None:
-        self.sim.set_exposures(t_low, t_high)
-
-    def capture(self) -> FramePair:
-        with self.plant.clock.frozen(advance_s=self.sim.exposures[1]):
-            return self.sim.capture()

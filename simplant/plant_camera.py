@@ -13,7 +13,27 @@ from simplant.optics import MirrorSurface, render_spot
 RENDER_RAYS = 80_000
 
 
-class PlantCamera(DoubleCcdCamera):
+class PlantClockCamera(DoubleCcdCamera):
+    """A simulated double-CCD camera (``self.sim``, a :class:`simplant.camera.SimulatedCamera`)
+    of the plant (``self.plant``): a capture stops the plant clock while it is simulated and
+    advances it by the HIGH exposure."""
+
+    plant: object
+    sim: object
+
+    @property
+    def exposures(self) -> tuple[float, float]:
+        return self.sim.exposures
+
+    def set_exposures(self, t_low: float, t_high: float) -> None:
+        self.sim.set_exposures(t_low, t_high)
+
+    def capture(self) -> FramePair:
+        with self.plant.clock.frozen(advance_s=self.sim.exposures[1]):
+            return self.sim.capture()
+
+
+class PlantCamera(PlantClockCamera):
     """The plant's double-CCD camera (``plant``: a :class:`simplant.plant.SimulatedPlant`):
     :class:`simplant.camera.SimulatedCamera` (two sensors with their own non-linear responses
     and gains) over :meth:`SimulatedPlant.scene`.
@@ -83,15 +103,7 @@ class PlantCamera(DoubleCcdCamera):
     def inject_failure(self, count: int = 1) -> None:
         self.sim.inject_failure(count)
 
-    @property
-    def exposures(self) -> tuple[float, float]:
-        return self.sim.exposures
-
-    def set_exposures(self, t_low: float, t_high: float) -> None:
-        self.sim.set_exposures(t_low, t_high)
-
     def capture(self) -> FramePair:
-        with self.plant.clock.frozen(advance_s=self.sim.exposures[1]):
-            frame = self.sim.capture()
+        frame = super().capture()
         self.captures += 1
         return frame
