@@ -41,17 +41,20 @@ class SimulatedCamera(DoubleCcdCamera):
     clock : timestamp source in seconds (default ``time.monotonic``), injectable.
     irradiance_scale : multiplies the scene (e.g. counts/s per W/m² of ``render_spot``).
     knees : response knees of the two sensors (0 = linear).
+    shot : shot-noise law of both sensors, ``"poisson"`` or its faster normal approximation
+        ``"gauss"`` (:mod:`simplant.sensor`).
     """
 
     def __init__(self, config_camera, scene_fn: Callable[[], np.ndarray],
                  rng: np.random.Generator | None = None, seed: int = 0, *,
                  clock: Callable[[], float] = time.monotonic,
-                 irradiance_scale: float = 1.0, knees: tuple[float, float] = DEFAULT_KNEES) -> None:
+                 irradiance_scale: float = 1.0, knees: tuple[float, float] = DEFAULT_KNEES,
+                 shot: str = "poisson") -> None:
         cam = config_camera
         self.sensors = tuple(
             SensorModel(bit_depth=cam.bit_depth, dark_offset=cam.dark_offset_counts,
                         read_noise=cam.read_noise_counts, full_well=cam.full_well_electrons,
-                        gain=s.gain, response=knee_response(k))
+                        gain=s.gain, response=knee_response(k), shot=shot)
             for s, k in zip(cam.sensors, knees, strict=True))
         self.names = tuple(s.name for s in cam.sensors)
         self._scene_fn = scene_fn

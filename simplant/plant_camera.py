@@ -9,6 +9,7 @@ from controller.devices.camera import DoubleCcdCamera, FramePair
 from controller.geometry.vectors import unit
 from simplant.grids import camera_grid, coarse_grid
 from simplant.optics import MirrorSurface, render_spot
+from simplant.sensor import shot_law
 
 RENDER_RAYS = 80_000
 
@@ -64,7 +65,10 @@ class PlantCamera(PlantClockCamera):
         yy, xx = np.mgrid[0:rows, 0:cols]
         # Stray light on the target: a dim pedestal (0.25 % of the nominal peak) with a gradient.
         self._ambient = (0.0025 + 0.0012 * xx / cols) * 1.6 * span / t_high
-        self.sim = SimulatedCamera(cam, self._scene, seed=seed, clock=plant.clock)
+        # Gaussian shot noise where it is indistinguishable from Poisson behind the camera's read
+        # noise: the sensors' Poisson draws were the plant's largest cost (simplant.sensor).
+        shot = shot_law(cam.read_noise_counts, cam.full_well_electrons, cam.bit_depth, cam.dark_offset_counts)
+        self.sim = SimulatedCamera(cam, self._scene, seed=seed, clock=plant.clock, shot=shot)
         self.captures = 0
         self.fiducials_lit = False
         self.view = None

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from simplant.sensor import SensorModel, knee_response
+from simplant.sensor import SensorModel, knee_response, shot_law
 
 
 def test_mean_and_variance_follow_photon_transfer():
@@ -44,3 +44,38 @@ def test_knee_response_and_its_inverse():
     # expected_value(I / t, t) must return z: the table is the exact inverse.
     for z in (20, 100, 200, 254):
         assert s.expected_value(inv[z] / 0.01, 0.01) == pytest.approx(z, abs=1e-3)
+
+
+def _exact_counts(s: SensorModel, electrons_mean: float, n: int, rng: np.random.Generator) -> np.ndarray:
+    """The sensor pipeline of simplant.sensor's docstring written out with Poisson shot noise
+    (an independent reference for the Gaussian approximation)."""
+    e = np.minimum(rng.poisson(electrons_mean, n), s.full_well)
+    z = s.dark_offset + s.span * s.response(e / s.full_well) + rng.normal(0.0, s.read_noise, n)
+    z = np.clip(np.rint(z), 0, s.z_max)
+    z[e >= s.full_well] = s.z_max
+    return z.astype(int)
+
+
+@pytest.mark.parametrize("electrons", [0.0, 0.5, 5.0, 50.0, 500.0, 5000.0, 19000.0, 19800.0, 20000.0,
+                                       30000.0])
+def test_gaussian_shot_noise_matches_poisson_in_output_counts(electrons):
+    # The demo camera's sensor (8-bit, 0.8 counts read noise = 65 e-): whatever the signal,
+    # the counts it outputs have the distribution of the exact Poisson pipeline.
+    s = SensorModel(read_noise=0.8, response=knee_response(0.25), gain=1.03, shot="gauss")
+    n, t = 200_000, 0.01
+    irradiance = np.full((400, n // 400), electrons / (t * s.gain * s.electrons_per_count))
+    fast = s.expose(irradiance, t, np.random.default_rng(1)).astype(int).ravel()
+    exact = _exact_counts(s, electrons, n, np.random.default_rng(2))
+    p, q = np.bincount(fast, minlength=256) / n, np.bincount(exact, minlength=256) / n
+    assert 0.5 * np.abs(p - q).sum() < 0.01  # total variation; sampling alone gives ~0.003
+    se = np.sqrt((fast.var() + exact.var()) / n)
+    assert abs(fast.mean() - exact.mean()) <= 5 * se + 1e-9
+    assert fast.std() == pytest.approx(exact.std(), rel=0.01, abs=1e-3)
+
+
+def test_shot_law_uses_gauss_only_behind_enough_read_noise():
+    assert shot_law(0.8, 20000.0, 8, 8.0) == "gauss"  # the demo camera: 65 e- read noise
+    assert shot_law(0.8, 20000.0, 12, 32.0) == "poisson"  # 12-bit: 4 e-, Poisson shows
+    assert shot_law(0.0, 20000.0, 8, 8.0) == "poisson"
+    with pytest.raises(ValueError, match="shot"):
+        SensorModel(shot="uniform")
