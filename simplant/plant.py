@@ -34,6 +34,7 @@ from __future__ import annotations
 import copy
 from dataclasses import dataclass, replace
 from datetime import UTC, datetime, timedelta
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -70,6 +71,7 @@ class HiddenHeliostat:
     rng: np.random.Generator
     moved_to: tuple[float, float] | None = None
     jitter: tuple[float, float] = (0.0, 0.0)
+    pose_cache: tuple | None = None  # (steps, jitter, night), normal, mirror centre: see true_pose
 
     @property
     def position(self) -> np.ndarray:
@@ -79,11 +81,16 @@ class HiddenHeliostat:
         """The normal whose specular reflection carries the beam's energy centroid: the central
         normal ``n`` tilted by the mirror's area-mean extra slope (non-zero for a canted facet;
         zero for symmetric shapes: sag, twist, split, focus)."""
-        mx, my = mean_slope(self.mirror)
+        mx, my = self.mean_slope
         if mx == 0.0 and my == 0.0:
             return n
         e_w, e_h = mirror_frame(n)
         return unit(n - mx * e_w - my * e_h)
+
+    @cached_property
+    def mean_slope(self) -> tuple[float, float]:
+        """:func:`mean_slope` of the (fixed) mirror, computed once."""
+        return mean_slope(self.mirror)
 
     def settle(self, steps: tuple[float, float]) -> tuple[float, float]:
         """The repeatability error of the present pose: a new draw whenever the rods moved."""
@@ -281,6 +288,22 @@ class SimulatedPlant:
         steps = hh.controller.output_steps()
         return hh.truth.normal(*steps, night=self.night, jitter=hh.settle(tuple(steps)))
 
+    def true_pose(self, hid: str) -> tuple[np.ndarray, np.ndarray]:
+        """(:meth:`true_normal`, mirror centre) of ``hid`` at the same read of its rods, kept
+        while the rods, their repeatability draw and the night stay the same: the beam-safety
+        monitor and every scene ask for all heliostats, and most of them stand still."""
+        hh = self.hidden[hid]
+        steps = tuple(hh.controller.output_steps())
+        jitter = hh.settle(steps)
+        key = (steps, jitter, self.night)
+        cached = hh.pose_cache
+        if cached is not None and cached[0] == key:
+            return cached[1], cached[2]
+        n = hh.truth.normal(*steps, night=self.night, jitter=jitter)
+        c = hh.truth.mirror_center(*steps, night=self.night)
+        hh.pose_cache = (key, n, c)
+        return n, c
+
     def true_normal_at(self, heliostat_id: str, az_steps: float, el_steps: float) -> np.ndarray:
         """Unit ENU mirror normal of the hidden heliostat at the given motor steps (tonight's
         drift, no repeatability error), as its beam sees it (:meth:`HiddenHeliostat.beam_normal`:
@@ -359,8 +382,7 @@ class SimulatedPlant:
         img = np.zeros(coarse.shape)
         half = np.array([grid.width_m, grid.height_m]) / 2 + 1.5  # margin for the spot size
         for hid, hh in self.hidden.items():
-            n = self.true_normal(hid)
-            pos = hh.truth.mirror_center(*hh.controller.output_steps(), night=self.night)
+            n, pos = self.true_pose(hid)
             s = unit(lamp - pos)
             beam = 2.0 * (s @ n) * n - s
             denom = float(grid.normal @ beam)

@@ -31,23 +31,18 @@ class BeamSafetyMonitor:
         self.offenders: set[tuple[str, ...]] = set()
         self.intervals: dict[str, list[tuple[float, float, str]]] = {}
         self._open: dict[str, tuple[float, str]] = {}
+        self._frames: dict[str, tuple] = {}  # target id -> centre, normal, u, v (_target_frame)
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
-    def on_target(self, target: str | None = None) -> list[str]:
+    def on_target(self, target: str | None = None, beams: dict | None = None) -> list[str]:
         """The heliostats whose true reflected central ray lands on ``target`` (default: the
-        calibration target) now."""
+        calibration target) now; ``beams`` (:meth:`beams`) when the caller has them."""
         p = self.plant
         tgt = p.cfg.target(target)
-        c, nrm = np.asarray(tgt.center_enu_m, float), unit(np.asarray(tgt.normal, float))
-        base = camera_grid(p.cfg.for_target(tgt.id))
-        lamp = np.asarray(p.lamp().position_enu_m, float)
+        c, nrm, u_axis, v_axis = self._target_frame(tgt.id)
         out = []
-        for hid, hh in p.hidden.items():
-            n = p.true_normal(hid)
-            pos = hh.truth.mirror_center(*hh.controller.output_steps(), night=p.night)
-            s = unit(lamp - pos)
-            beam = 2.0 * (s @ n) * n - s
+        for hid, (pos, beam) in (self.beams() if beams is None else beams).items():
             den = float(nrm @ beam)
             if abs(den) < 1e-9:
                 continue
@@ -55,16 +50,41 @@ class BeamSafetyMonitor:
             if t <= 0:
                 continue
             rel = pos + t * beam - c
-            if abs(rel @ base.u_axis) <= tgt.width_m / 2 and abs(rel @ base.v_axis) <= tgt.height_m / 2:
+            if abs(rel @ u_axis) <= tgt.width_m / 2 and abs(rel @ v_axis) <= tgt.height_m / 2:
                 out.append(hid)
         return out
+
+    def beams(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """Per heliostat: its true mirror centre and the reflection r = 2 (s·n) n − s of the lit
+        lamp's direction s about its true normal n (one read of the rods for every target)."""
+        p = self.plant
+        lamp = np.asarray(p.lamp().position_enu_m, float)
+        out = {}
+        for hid in p.hidden:
+            n, pos = p.true_pose(hid)
+            s = unit(lamp - pos)
+            out[hid] = (pos, 2.0 * (s @ n) * n - s)
+        return out
+
+    def _target_frame(self, target_id: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Centre, unit normal and the camera grid's u, v axes of a target (fixed: kept)."""
+        frame = self._frames.get(target_id)
+        if frame is None:
+            p = self.plant
+            tgt = p.cfg.target(target_id)
+            base = camera_grid(p.cfg.for_target(target_id))
+            frame = (np.asarray(tgt.center_enu_m, float), unit(np.asarray(tgt.normal, float)),
+                     base.u_axis, base.v_axis)
+            self._frames[target_id] = frame
+        return frame
 
     def sample(self) -> None:
         """One look at every target (the monitor's thread calls this every ``period_s``)."""
         now = self.plant.clock()
         self.samples += 1
+        beams = self.beams()
         for t in self.plant.cfg.targets:
-            on = self.on_target(t.id)
+            on = self.on_target(t.id, beams)
             self.max_on_target = max(self.max_on_target, len(on))
             if len(on) > 1:
                 self.violations += 1

@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -100,13 +101,21 @@ class HeliostatTruth:
         alpha = self.azimuth.angle(az_steps) + d_az
         if jitter is not None:
             eps, alpha = eps + float(jitter[0]), alpha + float(jitter[1])
-        joint_up = rodrigues(NORTH, self.non_orthogonality) @ UP
-        return self.pedestal @ rodrigues(EAST, eps - math.pi / 2.0) @ rodrigues(joint_up, alpha)
+        return self.pedestal @ rodrigues(EAST, eps - math.pi / 2.0) @ rodrigues(self._joint_up, alpha)
+
+    # The two constant rotations are computed once (the same products, so the same bits):
+    # the plant asks for normals thousands of times a second.
+    @cached_property
+    def _joint_up(self) -> np.ndarray:
+        return rodrigues(NORTH, self.non_orthogonality) @ UP
+
+    @cached_property
+    def _cant(self) -> np.ndarray:
+        return rodrigues(EAST, self.canting[0]) @ rodrigues(UP, self.canting[1])
 
     def normal(self, az_steps: float, el_steps: float, night: int = 0, jitter=None) -> np.ndarray:
         """Unit ENU mirror normal at the given motor steps on ``night`` (0: the first)."""
-        cant = rodrigues(EAST, self.canting[0]) @ rodrigues(UP, self.canting[1])
-        n = self._frame(az_steps, el_steps, night, jitter) @ cant @ FACING_SOUTH
+        n = self._frame(az_steps, el_steps, night, jitter) @ self._cant @ FACING_SOUTH
         return n / np.linalg.norm(n)
 
     def mirror_center(self, az_steps: float, el_steps: float, night: int = 0) -> np.ndarray:
