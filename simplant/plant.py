@@ -48,6 +48,7 @@ from simplant.firmware.physics import SimController, axis_params_from_config
 from simplant.grids import camera_grid, coarse_grid
 from simplant.optics import MirrorSurface, TargetGrid, mirror_frame, render_spot
 from simplant.plant_camera import RENDER_RAYS, PlantCamera
+from simplant.poses import true_pose
 from simplant.safety import BeamSafetyMonitor
 from simplant.settings import SimulationSettings
 from simplant.truth import REPEATABILITY_RAD, HeliostatTruth, hidden_truth
@@ -71,7 +72,7 @@ class HiddenHeliostat:
     rng: np.random.Generator
     moved_to: tuple[float, float] | None = None
     jitter: tuple[float, float] = (0.0, 0.0)
-    pose_cache: tuple | None = None  # (steps, jitter, night), normal, mirror centre: see true_pose
+    pose_cache: tuple | None = None  # (steps, jitter, night), normal, mirror centre (simplant.poses)
 
     @property
     def position(self) -> np.ndarray:
@@ -288,22 +289,6 @@ class SimulatedPlant:
         steps = hh.controller.output_steps()
         return hh.truth.normal(*steps, night=self.night, jitter=hh.settle(tuple(steps)))
 
-    def true_pose(self, hid: str) -> tuple[np.ndarray, np.ndarray]:
-        """(:meth:`true_normal`, mirror centre) of ``hid`` at the same read of its rods, kept
-        while the rods, their repeatability draw and the night stay the same: the beam-safety
-        monitor and every scene ask for all heliostats, and most of them stand still."""
-        hh = self.hidden[hid]
-        steps = tuple(hh.controller.output_steps())
-        jitter = hh.settle(steps)
-        key = (steps, jitter, self.night)
-        cached = hh.pose_cache
-        if cached is not None and cached[0] == key:
-            return cached[1], cached[2]
-        n = hh.truth.normal(*steps, night=self.night, jitter=jitter)
-        c = hh.truth.mirror_center(*steps, night=self.night)
-        hh.pose_cache = (key, n, c)
-        return n, c
-
     def true_normal_at(self, heliostat_id: str, az_steps: float, el_steps: float) -> np.ndarray:
         """Unit ENU mirror normal of the hidden heliostat at the given motor steps (tonight's
         drift, no repeatability error), as its beam sees it (:meth:`HiddenHeliostat.beam_normal`:
@@ -382,7 +367,7 @@ class SimulatedPlant:
         img = np.zeros(coarse.shape)
         half = np.array([grid.width_m, grid.height_m]) / 2 + 1.5  # margin for the spot size
         for hid, hh in self.hidden.items():
-            n, pos = self.true_pose(hid)
+            n, pos = true_pose(self, hid)
             s = unit(lamp - pos)
             beam = 2.0 * (s @ n) * n - s
             denom = float(grid.normal @ beam)

@@ -9,6 +9,7 @@ import numpy as np
 
 from controller.geometry.vectors import unit
 from simplant.grids import camera_grid
+from simplant.poses import true_pose
 
 if TYPE_CHECKING:  # the plant owns its monitor: a runtime import would be circular
     from simplant.plant import SimulatedPlant
@@ -61,7 +62,7 @@ class BeamSafetyMonitor:
         lamp = np.asarray(p.lamp().position_enu_m, float)
         out = {}
         for hid in p.hidden:
-            n, pos = p.true_pose(hid)
+            n, pos = true_pose(p, hid)
             s = unit(lamp - pos)
             out[hid] = (pos, 2.0 * (s @ n) * n - s)
         return out
