@@ -265,9 +265,13 @@ class SimulatedPlant:
             raise ValueError(f"the simulated plant lights lamps only, not {source_id!r}")
         self.lit = source_id
 
+    def lights_out(self) -> None:
+        """Switch every lamp off (a night's lamp change: heliostats are moved in the dark)."""
+        self.lit = None
+
     def lamp(self):
-        """The lamp lit now (config entry)."""
-        return self.cfg.light_source(self.lit)
+        """The lamp lit now (config entry); None while every lamp is dark."""
+        return None if self.lit is None else self.cfg.light_source(self.lit)
 
     def utc(self) -> str:
         """Plant time as an ISO 8601 UTC stamp: night k starts at 20:00 on day k of the plant's
@@ -353,6 +357,8 @@ class SimulatedPlant:
         import cv2
 
         src = self.lamp()
+        if src is None:
+            return np.zeros(grid.shape)  # every lamp dark (a lamp change)
         lamp = np.asarray(src.position_enu_m, float)
         rows, cols = grid.shape
         coarse = coarse_grid(grid)

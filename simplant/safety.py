@@ -41,6 +41,8 @@ class BeamSafetyMonitor:
         tgt = p.cfg.target(target)
         c, nrm = np.asarray(tgt.center_enu_m, float), unit(np.asarray(tgt.normal, float))
         base = camera_grid(p.cfg.for_target(tgt.id))
+        if p.lamp() is None:
+            return []  # dark: no beam anywhere
         lamp = np.asarray(p.lamp().position_enu_m, float)
         out = []
         for hid, hh in p.hidden.items():
