@@ -27,6 +27,7 @@ from controller.camera_config import Camera, Gige, Sensor  # noqa: F401 - the ca
 from controller.errors import ConfigError, InputError
 from controller.io.config_keys import did_you_mean, key_path
 from controller.io.yaml_files import parse_yaml, read_text
+from controller.link_config import Link, ModbusRtuLink, ModbusTcpLink, SerialLink  # noqa: F401 - the links section
 
 Vec3 = tuple[float, float, float]
 
@@ -62,6 +63,24 @@ class Target(_Model):
                                   "top-level camera); None: the top-level camera")
 
     _check_normal = field_validator("normal")(classmethod(lambda cls, v: _unit(v)))
+
+
+class PersonZone(_Model):
+    """A box where people may be (a stair landing, a road, the control room roof): axis-aligned
+    in ENU metres, grown by ``margin_m`` on every side (the beam's own radius and the pointing
+    error). No reflected beam may enter it — at a pose, on a slew or on the approach."""
+
+    id: str
+    min_enu_m: Vec3
+    max_enu_m: Vec3
+    margin_m: float = Field(default=2.0, ge=0, le=50)
+
+    @model_validator(mode="after")
+    def _ordered(self) -> PersonZone:
+        for axis, lo, hi in zip("ENU", self.min_enu_m, self.max_enu_m, strict=True):
+            if not lo < hi:
+                raise ValueError(f"min_enu_m must lie below max_enu_m on every axis ({axis}: {lo} >= {hi})")
+        return self
 
 
 class SunSource(_Model):
@@ -132,58 +151,6 @@ class Mirror(_Model):
     focal_length_m: float = Field(gt=0, description="on-axis focal length, m")
     slope_error_mrad: float = Field(default=1.5, ge=0, le=20)
     reflectivity: float = Field(default=0.93, gt=0, le=1)
-
-
-class SerialLink(_Model):
-    kind: Literal["serial"]
-    device: str
-    address: int = Field(ge=1, le=247)
-    baud: int = Field(default=115200, gt=0)
-
-    @property
-    def bus_key(self) -> tuple:
-        """The physical link several heliostats share (opened once): the serial bus."""
-        return ("serial", self.device)
-
-    @property
-    def station(self) -> int:
-        """This heliostat's address on its bus."""
-        return self.address
-
-
-class ModbusTcpLink(_Model):
-    kind: Literal["modbus-tcp"]
-    host: str
-    port: int = Field(ge=1, le=65535)
-    unit: int = Field(ge=1, le=247)
-
-    @property
-    def bus_key(self) -> tuple:
-        """The physical link several heliostats share: the gateway's TCP connection."""
-        return ("modbus-tcp", self.host, self.port)
-
-    @property
-    def station(self) -> int:
-        return self.unit
-
-
-class ModbusRtuLink(_Model):
-    kind: Literal["modbus-rtu"]
-    device: str
-    unit: int = Field(ge=1, le=247)
-    baud: int = Field(default=115200, gt=0)
-
-    @property
-    def bus_key(self) -> tuple:
-        """The physical link several heliostats share: the RS-485 bus."""
-        return ("modbus-rtu", self.device)
-
-    @property
-    def station(self) -> int:
-        return self.unit
-
-
-Link = Annotated[SerialLink | ModbusTcpLink | ModbusRtuLink, Field(discriminator="kind")]
 
 
 class Heliostat(_Model):
@@ -278,12 +245,13 @@ class PlantConfig(_Model):
     heliostats: tuple[Heliostat, ...] = Field(min_length=1)
     camera: Camera
     calibration: Calibration
+    person_zones: tuple[PersonZone, ...] = ()
 
     @model_validator(mode="after")
     def _references(self) -> PlantConfig:
         # Messages start with the key path: pydantic reports model-level errors at the top level.
         for kind, items in (("targets", self.targets), ("light_sources", self.light_sources),
-                            ("heliostats", self.heliostats)):
+                            ("heliostats", self.heliostats), ("person_zones", self.person_zones)):
             ids = [i.id for i in items]
             for index, item_id in enumerate(ids):
                 if item_id in ids[:index]:

@@ -201,7 +201,7 @@ class CheapField:
         watcher.start()
         try:
             changer = LampChanger(cfg, night_drives(cfg, self.pool), store.latest_model, plant.lights_out,
-                                  clock=plant.clock, sleep=plant.clock.sleep)
+                                  clock=plant.clock, sleep=plant.clock.sleep, compute=plant.clock.realtime)
             results = run_night(plan, night, run_pass, stop_all, changer if change_lamp else None)
         finally:
             done.set()

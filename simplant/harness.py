@@ -305,7 +305,8 @@ def run_simulated(cfg: PlantConfig, config_path: str, out: Path, db_path: Path, 
                 result = campaign(opts, ids, observers)
                 # A night's lamp changes: lamps off, heliostats safe for the next lamp, then light it.
                 changer = LampChanger(plant_cfg, night_drives(plant_cfg, pool), store.latest_model,
-                                      plant.lights_out, clock=plant.clock, sleep=plant.clock.sleep)
+                                      plant.lights_out, clock=plant.clock, sleep=plant.clock.sleep,
+                                      compute=plant.clock.realtime)
                 reports = []
                 for k in range(nights if result.status in ("finished", "partial") else 0):
                     plant.set_night(k)

@@ -7,10 +7,11 @@ heliostat is being measured. So before a lamp is lit, with every lamp dark:
 * each heliostat of the new lamp's passes goes to its standby for that lamp beside its first
   aim point (its cycle then starts with a short, checked slew);
 * every other heliostat of the night stays where it is when its beam under the new lamp is
-  off every target (the same nominal-ray check with margin that standby poses and slews pass),
-  and otherwise goes to its standby beside the calibration target for the new lamp;
-* a standby that is out of reach or would itself light a target is replaced by the stow pose,
-  which must pass the same check.
+  off every target and out of every person zone (the same nominal-ray checks with margin that
+  standby poses and slews pass), and otherwise goes to its standby beside the calibration
+  target for the new lamp;
+* a standby that is out of reach or would itself light a target or a person zone is replaced
+  by the stow pose, which must pass the same check.
 
 The moves are made in the dark, all heliostats at once, and waited for. Only then may the lamp
 be lit. A heliostat that does not answer, cannot be moved or ends on an unsafe pose stops the
@@ -21,9 +22,10 @@ off the targets, so the lamp must stay dark.
 from __future__ import annotations
 
 from collections.abc import Callable
+from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass
 
-from controller.calibration.pointing import GeometryPointing
+from controller.calibration.pointing import GeometryPointing, UnsafePath
 from controller.calibration.records import ModelRecord
 from controller.config import PlantConfig
 from controller.devices.drive import Drive, DriveError, DriveLimits
@@ -66,13 +68,17 @@ class LampChanger:
 
     ``drive_of(hid)``: the heliostat's drive; ``model_of(hid)``: its latest fitted model (aims
     with it, as the cycles do); ``lights_out()``: switches every lamp off (a lamp controller, an
-    operator, a simulated plant); ``clock``/``sleep``: the plant clock for the moves."""
+    operator, a simulated plant); ``clock``/``sleep``: the plant clock for the moves;
+    ``compute``: a context manager around the controller's own computing, as for a campaign (a
+    simulated plant lets its clock run at 1x there)."""
 
     def __init__(self, cfg: PlantConfig, drive_of: Callable[[str], Drive],
                  model_of: Callable[[str], ModelRecord | None], lights_out: Callable[[], None], *,
                  clock: Callable[[], float], sleep: Callable[[float], None],
-                 move_timeout_s: float = 120.0, poll_s: float = 0.1) -> None:
+                 move_timeout_s: float = 120.0, poll_s: float = 0.1,
+                 compute: Callable[[], AbstractContextManager] = nullcontext) -> None:
         self.cfg = cfg
+        self.compute = compute
         self.drive_of = drive_of
         self.model_of = model_of
         self.lights_out = lights_out
@@ -87,7 +93,7 @@ class LampChanger:
         frame = TargetFrame.from_config(cfg.target(), (cam.height_px, cam.width_px))
         return GeometryPointing(cfg.heliostat(hid), cfg.target(), cfg.light_source(lamp), frame,
                                 cal.standby_offset_m, current, cal.model, where.aim_enu,
-                                others=self.cfg.targets)
+                                others=self.cfg.targets, zones=self.cfg.person_zones)
 
     def __call__(self, lamp: str, standby: dict[str, Standby]) -> LampChange:
         """Switch the lamps off and leave every heliostat of ``standby`` on a pose whose beam
@@ -98,23 +104,26 @@ class LampChanger:
         for hid, where in standby.items():
             drive = self._ask(hid, lamp, lambda h=hid: self.drive_of(h))
             st = self._ask(hid, lamp, drive.status)
-            p = self.pointing(hid, lamp, where, (st.az_steps, st.el_steps))
-            if not where.required and _safe(p, st.az_steps, st.el_steps):
-                continue
+            with self.compute():
+                p = self.pointing(hid, lamp, where, (st.az_steps, st.el_steps))
+                if not where.required and _safe(p, st.az_steps, st.el_steps):
+                    continue
+                pose = _safe_standby(p, self.model_of(hid))
             try:
-                pose = p.standby_steps(self.model_of(hid))
-                if not _safe(p, *pose):
-                    raise LimitError(f"its standby {pose} would light a target")
+                if pose is None:
+                    raise LimitError("no safe standby for it")
                 drive.move_abs(*pose)
                 moving[hid] = (drive, p, pose)
-            except (LimitError, ValueError, DriveError):
+            except (LimitError, DriveError):
                 self._ask(hid, lamp, drive.stow)
                 moving[hid] = (drive, p, None)
                 stowed.append(hid)
         for hid, (drive, p, pose) in moving.items():
             st = self._ask(hid, lamp, lambda d=drive, e=pose: d.wait_in_position(
                 self.move_timeout_s, self.poll_s, self.sleep, self.clock, expect=e))
-            if not _safe(p, st.az_steps, st.el_steps):
+            with self.compute():
+                safe = _safe(p, st.az_steps, st.el_steps)
+            if not safe:
                 raise LampChangeError(f"lamp {lamp} not lit: {hid} at ({st.az_steps}, {st.el_steps}) "
                                       f"would reflect it onto a target")
         return LampChange(lamp, len(standby), tuple(h for h in moving if h not in stowed), tuple(stowed))
@@ -128,9 +137,21 @@ class LampChanger:
                 from exc
 
 
+def _safe_standby(p: GeometryPointing, model: ModelRecord | None) -> tuple[int, int] | None:
+    """The standby steps of ``p`` under its source, or None when they are out of reach or the
+    beam there would light a target or enter a person zone."""
+    try:
+        pose = p.standby_steps(model)
+    except (LimitError, ValueError, UnsafePath):
+        return None
+    return pose if _safe(p, *pose) else None
+
+
 def _safe(p: GeometryPointing, az_steps: float, el_steps: float) -> bool:
-    """Whether the beam at this pose is off the pointing's target and every other target."""
-    return not (p.beam_on_target(az_steps, el_steps) or p.beam_on_other_target(az_steps, el_steps))
+    """Whether the beam at this pose is off the pointing's target, every other target and every
+    person zone."""
+    return not (p.beam_on_target(az_steps, el_steps) or p.beam_on_other_target(az_steps, el_steps)
+                or p.beam_in_zone(az_steps, el_steps) is not None)
 
 
 def clear_targets(pointing: dict[str, GeometryPointing], current: dict[str, tuple[int, int]],
