@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from controller.calibration.daytime import PredictedDaytime, predicted_daytime, sun_path
-from controller.calibration.lamp_change import LampChanger, Standby, night_drives
+from controller.calibration.lamp_change import LampChange, LampChanger, Standby, night_drives
 from controller.calibration.nights import Pass, run_night
 from controller.calibration.planner import plan_night
 from controller.calibration.records import MeasurementRecord, RunRecord
@@ -228,11 +228,13 @@ class NightReport:
     measured: int
     daytime: DaytimeError
     predicted: PredictedDaytime
+    lamp_changes: list[LampChange] = field(default_factory=list)  # in the dark, before each lamp
 
     def to_json(self) -> dict:
         return {"night": self.night, "name": self.name, "planned": self.planned, "measured": self.measured,
                 "daytime_error_mrad": self.daytime.to_json(),
-                "daytime_error_predicted_mrad": self.predicted.to_json()}
+                "daytime_error_predicted_mrad": self.predicted.to_json(),
+                "lamp_changes": [c.to_json() for c in self.lamp_changes]}
 
 
 @dataclass
@@ -372,8 +374,11 @@ def _planned_night(cfg: PlantConfig, store: CampaignStore, plant: SimulatedPlant
                          f"field predicted daytime RMS {now.rms:.2f} mrad")
         return r
 
+    changes: list[LampChange] = []
+
     def change_lamp(lamp: str, standbys: dict[str, Standby]):
         done = changer(lamp, standbys)
+        changes.append(done)
         if progress is not None:
             progress(f"{night}: {lamp} lit after moving {len(done.parked)} heliostat(s) to its standby "
                      f"and stowing {len(done.stowed)}, in the dark")
@@ -383,7 +388,7 @@ def _planned_night(cfg: PlantConfig, store: CampaignStore, plant: SimulatedPlant
     models = {hid: store.latest_model(hid) for hid in ids}
     measured = sum(1 for r in results for run in r.runs if run.status == "measured")
     report = NightReport(k + 1, night, len(plan), measured, daytime_error(plant, cfg, models, path),
-                         predicted_daytime(cfg, models, path))
+                         predicted_daytime(cfg, models, path), changes)
     if progress is not None:
         progress(f"{night}: {measured}/{len(plan)} geometries measured; field daytime error now "
                  f"{report.predicted.rms:.2f} mrad RMS predicted, {report.daytime.rms:.2f} true "
