@@ -6,10 +6,10 @@ heliostat is being measured. So before a lamp is lit, with every lamp dark:
 
 * each heliostat of the new lamp's passes goes to its standby for that lamp beside its first
   aim point (its cycle then starts with a short, checked slew);
-* every other heliostat of the night stays where it is when its beam under the new lamp is
-  off every target and out of every person zone (the same nominal-ray checks with margin that
-  standby poses and slews pass), and otherwise goes to its standby beside the calibration
-  target for the new lamp;
+* every other heliostat of the night stays where it is when its beam under the new lamp
+  lands as far from every target as a standby beam does (``standby_offset_m`` from the centre,
+  so its spot stays out of the cameras' views) and out of every person zone, and otherwise
+  goes to its standby beside the calibration target for the new lamp;
 * a standby that is out of reach or would itself light a target or a person zone is replaced
   by the stow pose, which must pass the same check.
 
@@ -99,6 +99,12 @@ class LampChanger:
         """Switch the lamps off and leave every heliostat of ``standby`` on a pose whose beam
         under ``lamp`` is off every target (module docstring); LampChangeError otherwise."""
         self.lights_out()
+        # A heliostat stays put only when its beam lands as far from every target as a standby
+        # beam does: closer, its spot's tails would fall into a camera's view and spoil others'
+        # measurements, though it is off the target.
+        cal = self.cfg.calibration
+        half = max(max(t.width_m, t.height_m) for t in self.cfg.targets) / 2
+        stay_margin = max(2.0, cal.standby_offset_m - half)
         moving: dict[str, tuple[Drive, GeometryPointing, tuple[int, int] | None]] = {}
         stowed: list[str] = []
         for hid, where in standby.items():
@@ -106,7 +112,7 @@ class LampChanger:
             st = self._ask(hid, lamp, drive.status)
             with self.compute():
                 p = self.pointing(hid, lamp, where, (st.az_steps, st.el_steps))
-                if not where.required and _safe(p, st.az_steps, st.el_steps):
+                if not where.required and _safe(p, st.az_steps, st.el_steps, stay_margin):
                     continue
                 pose = _safe_standby(p, self.model_of(hid))
             try:
@@ -147,10 +153,11 @@ def _safe_standby(p: GeometryPointing, model: ModelRecord | None) -> tuple[int, 
     return pose if _safe(p, *pose) else None
 
 
-def _safe(p: GeometryPointing, az_steps: float, el_steps: float) -> bool:
-    """Whether the beam at this pose is off the pointing's target, every other target and every
-    person zone."""
-    return not (p.beam_on_target(az_steps, el_steps) or p.beam_on_other_target(az_steps, el_steps)
+def _safe(p: GeometryPointing, az_steps: float, el_steps: float, margin_m: float = 2.0) -> bool:
+    """Whether the beam at this pose is off the pointing's target and every other target, each
+    grown by ``margin_m``, and out of every person zone."""
+    return not (p.beam_on_target(az_steps, el_steps, margin_m)
+                or p.beam_on_other_target(az_steps, el_steps, margin_m)
                 or p.beam_in_zone(az_steps, el_steps) is not None)
 
 
