@@ -1,25 +1,26 @@
 """Where the centre of a beam spot clipped by the camera view's edge lies, from its visible part.
 
 The energy centroid of a clipped spot is biased towards the inside of the view: the part beyond
-the edge is missing. A move on that centroid falls short, the next look is clipped again, and
-after ``CLIPPED_LOOKS`` such looks the cycle gives up (``BeamNotFound``). A spot is (about)
-symmetric about its centre along each axis, so its centre is read from its half-maximum
-contour instead of its energy:
+the edge is missing. A move on that centroid falls short, and the next look is clipped again or
+far off the aim. A spot is (about) symmetric about its centre, so its centre is read from its
+half-maximum contour instead of its energy (σ-smoothed image, level = half its visible maximum):
 
-* per axis, the spot's profile p (the above-threshold signal summed over the other axis) and its
-  half-maximum crossings lo < hi (linear interpolation between pixel centres);
-* both crossings in view (only the faint tails are clipped): centre = (lo + hi) / 2, exact for a
-  symmetric profile, confidence 1;
-* the crossing on the clipped side beyond the edge (the spot's core is cut): centre =
-  far crossing − h, with h the half width at half maximum along the *other* axis (a round
-  spot's), confidence 0.5; if even the profile's maximum is at the edge (the centre itself is
-  cut off), its half maximum is underestimated, so the far crossing and the centre fall short:
-  a lower bound on the distance beyond the edge, confidence 0.25;
-* otherwise (clipped on both sides of an axis, or no half width to borrow): no estimate.
+* only the faint tails clipped (the half-maximum contour is in view along every clipped axis:
+  both crossings of the axis profile, the above-threshold signal summed over the other axis):
+  the midpoint of the two crossings on each clipped axis, exact for a symmetric profile,
+  confidence 1;
+* the spot's core clipped: an ellipse fitted (least squares, ``cv2.fitEllipse``) to the
+  contour's points away from the clipped edges gives the centre on the clipped axes; confidence
+  0.5, or 0.25 when even the maximum lies on the edge (the centre itself beyond it: the visible
+  maximum underestimates the peak, so the contour is too wide and the centre a rough guess);
+* clipped on both sides of an axis, or fewer than ``MIN_POINTS`` contour points in view: no
+  estimate.
 
-The estimate never lies further inside than the visible centroid (the bias is inward only) and
-at most one view size beyond the edge. Image convention: x = column, y = row, pixel centres at
-integer coordinates; the result is in pixels and may lie outside the view.
+Bounds (the estimate is moved to, never trusted further): on a clipped axis the centre lies
+between the visible centroid (the bias is outward only) and the visible spot's extent along the
+edge beyond it (no spot here is more than that elongated); an axis not clipped keeps the
+centroid. Image convention: x = column, y = row, pixel centres at integer coordinates; the
+result is in pixels and may lie outside the view.
 """
 
 from __future__ import annotations
@@ -27,8 +28,11 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-EXTRAPOLATED = 0.5  # confidence of a centre whose clipped half width is borrowed from the other axis
-BEYOND = 0.25  # ... and whose profile peaks at the edge: a lower bound
+CORE_CUT = 0.5  # confidence of an ellipse-fitted centre whose maximum is in view
+BEYOND = 0.25  # ... whose maximum lies on the clipped edge
+MIN_POINTS = 8  # contour points in view that an ellipse is fitted to
+SMOOTH_PX = 2.0  # σ of the smoothing before the half-maximum contour (noise, not shape)
+_AXES = (("left", "right"), ("top", "bottom"))  # x (columns), y (rows)
 
 
 def _crossings(p: np.ndarray) -> tuple[float | None, float | None]:
@@ -46,39 +50,61 @@ def _crossings(p: np.ndarray) -> tuple[float | None, float | None]:
     return lo, hi
 
 
+def _ellipse_centre(smooth: np.ndarray, clipped: tuple[str, ...]) -> tuple[float, float] | None:
+    """Centre of the ellipse fitted to the half-maximum contour's points off the clipped edges."""
+    core = (smooth > 0.5 * float(smooth.max())).astype(np.uint8)
+    contours, _ = cv2.findContours(core, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    if not contours:
+        return None
+    pts = max(contours, key=cv2.contourArea)[:, 0, :]
+    rows, cols = smooth.shape
+    keep = np.ones(len(pts), bool)
+    for edge, axis, limit in (("left", 0, 0), ("right", 0, cols - 1), ("top", 1, 0), ("bottom", 1, rows - 1)):
+        if edge in clipped:  # a contour point on the edge is where the view ends, not the spot
+            keep &= np.abs(pts[:, axis] - limit) > 1
+    if keep.sum() < MIN_POINTS:
+        return None
+    (cx, cy), _, _ = cv2.fitEllipse(pts[keep].astype(np.float32))
+    return (float(cx), float(cy)) if np.isfinite(cx) and np.isfinite(cy) else None
+
+
 def clipped_centre(signal: np.ndarray, rel_threshold: float, clipped: tuple[str, ...],
-                   centroid_xy: tuple[float, float],
-                   smooth_sigma_px: float = 1.0) -> tuple[tuple[float, float] | None, float]:
+                   centroid_xy: tuple[float, float]) -> tuple[tuple[float, float] | None, float]:
     """((x, y) px, confidence) of the centre of a spot clipped at the view's ``clipped`` edges
     ("top", "bottom", "left", "right"); (None, 0.0) when it cannot be told (see module doc).
 
-    ``signal``: background-free image; the spot is where its σ-smoothed copy exceeds
+    ``signal``: background-free image; the spot is where its smoothed copy exceeds
     ``rel_threshold`` × the maximum (the mask of the energy centroid ``centroid_xy``)."""
     s = np.asarray(signal, dtype=np.float32)
-    smooth = cv2.GaussianBlur(s, (0, 0), smooth_sigma_px)
-    w = np.where(smooth > rel_threshold * float(smooth.max()), s, 0.0).astype(np.float64)
-    if not w.sum() > 0:
+    smooth = cv2.GaussianBlur(s, (0, 0), SMOOTH_PX)
+    mask = smooth > rel_threshold * float(smooth.max())
+    if not mask.any() or not float(np.where(mask, s, 0.0).sum()) > 0:
         return None, 0.0
-    axes = (("left", "right", w.sum(axis=0)), ("top", "bottom", w.sum(axis=1)))
-    cross = [_crossings(p) for _, _, p in axes]
-    half = [None if lo is None or hi is None else 0.5 * (hi - lo) for lo, hi in cross]
-    centre, conf = list(centroid_xy), 1.0
-    for k, (low_edge, high_edge, p) in enumerate(axes):
-        low, high = low_edge in clipped, high_edge in clipped
-        if not (low or high):
-            continue
-        if low and high:
+    cut = [k for k, (lo, hi) in enumerate(_AXES) if lo in clipped or hi in clipped]
+    if any(lo in clipped and hi in clipped for lo, hi in _AXES):
+        return None, 0.0
+    w = np.where(mask, s, 0.0).astype(np.float64)
+    profiles = (w.sum(axis=0), w.sum(axis=1))
+    tails = [_crossings(profiles[k]) for k in cut]
+    if all(lo is not None and hi is not None for lo, hi in tails):
+        centre, conf = list(centroid_xy), 1.0
+        for k, (lo, hi) in zip(cut, tails, strict=True):
+            centre[k] = 0.5 * (lo + hi)
+    else:
+        fit = _ellipse_centre(smooth, clipped)
+        if fit is None:
             return None, 0.0
-        lo, hi = cross[k]
-        if lo is not None and hi is not None:
-            c = 0.5 * (lo + hi)
-        elif half[1 - k] is not None and (hi if low else lo) is not None:
-            c = hi - half[1 - k] if low else lo + half[1 - k]
-            at_edge = int(np.argmax(p)) == (0 if low else p.size - 1)
-            conf = min(conf, BEYOND if at_edge else EXTRAPOLATED)
-        else:
-            return None, 0.0
-        n = p.size
-        # Inward bias only: the centre lies between the visible centroid and one view beyond the edge.
-        centre[k] = float(np.clip(c, -n, centroid_xy[k]) if low else np.clip(c, centroid_xy[k], 2 * n - 1))
-    return (centre[0], centre[1]), conf
+        centre = list(centroid_xy)
+        for k in cut:
+            centre[k] = fit[k]
+        iy, ix = np.unravel_index(int(np.argmax(smooth)), smooth.shape)
+        on_edge = any((lo in clipped and pos <= 1) or (hi in clipped and pos >= n - 2)
+                      for (lo, hi), pos, n in zip(_AXES, (ix, iy), (s.shape[1], s.shape[0]), strict=True))
+        conf = BEYOND if on_edge else CORE_CUT
+    ys, xs = np.nonzero(mask)
+    along_edge = (np.ptp(ys) + 1.0, np.ptp(xs) + 1.0)  # for x: the extent in rows; for y: in columns
+    for k in cut:
+        outward = 1.0 if _AXES[k][1] in clipped else -1.0
+        beyond = outward * (centre[k] - centroid_xy[k])
+        centre[k] = float(centroid_xy[k] + outward * np.clip(beyond, 0.0, along_edge[k]))
+    return (float(centre[0]), float(centre[1])), conf
