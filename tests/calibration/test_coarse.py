@@ -130,7 +130,8 @@ def test_demo_coarse_summary_counts_runs_with_a_coarse_first_move():
     from controller.calibration.records import CorrectionRecord
     from controller.commands.demo import coarse_summary
 
-    runs = [NS(id=1, iterations=3), NS(id=2, iterations=1), NS(id=3, iterations=2)]
+    runs = [NS(id=1, heliostat_id="H01", iterations=3), NS(id=2, heliostat_id="H02", iterations=1),
+            NS(id=3, heliostat_id="H03", iterations=2)]
     moves = {1: [CorrectionRecord(0, "coarse", 0, 0, 0, 0), CorrectionRecord(1, "fine", 0, 0, 0, 0),
                  CorrectionRecord(2, "fine", 0, 0, 0, 0)],
              2: [], 3: [CorrectionRecord(1, "fine", 0, 0, 0, 0)]}
@@ -140,3 +141,43 @@ def test_demo_coarse_summary_counts_runs_with_a_coarse_first_move():
     assert (s["iterations_mean_runs_with_coarse"], s["iterations_mean_runs_without_coarse"]) == (3.0, 1.5)
     # 4 moves over 3 heliostats; one first look was clipped (a move before any measurement).
     assert (s["corrections_mean"], s["clipped_first_looks"]) == (round(4 / 3, 3), 1)
+    assert s["applied_heliostats"] == ["H01"]
+
+
+def test_demo_recalibrates_only_the_heliostats_with_a_coarse_move_centroid_only(tmp_path, monkeypatch):
+    from argparse import Namespace
+    from types import SimpleNamespace as NS
+
+    import controller.commands.demo as demo
+
+    from .conftest import REPO
+
+    def truth(err):
+        return NS(label="x", error_before_mrad=5.0, error_after_mrad=err)
+
+    sim = NS(result=NS(name="demo", runs=[NS(heliostat_id=h, iterations=i) for h, i in
+                                          (("H01", 2), ("H02", 2), ("H03", 3))]),
+             truth={"H01": truth(0.2), "H02": truth(0.3), "H03": truth(0.4)})
+    asked = []
+
+    def campaign(cfg, config_path, out, db, ids, settings, name, **kw):
+        asked.append((list(ids), settings.seed, cfg.calibration.coarse_correction))
+        again = NS(result=NS(runs=[NS(heliostat_id="H03", iterations=4)]), truth={"H03": truth(0.1)})
+        return {}, again
+
+    monkeypatch.setattr(demo, "simulated_campaign", campaign)
+    cfg = NS(calibration=NS(coarse_correction=0.5))
+    args = Namespace(seed=4, sequential=False)
+    coarse = {"iterations_mean": 2.333, "applied_heliostats": ["H03"]}
+    demo._centroid_only_twin(coarse, cfg, REPO / "configs" / "demo.yaml", tmp_path, sim, args)
+    # Only H03 (coarse move) again, same seed, centroid only; the others count as they ran.
+    assert asked == [(["H03"], 4, None)]
+    assert coarse["iterations_centroid_only_mean"] == round((2 + 2 + 4) / 3, 3)
+    assert coarse["centroid_only_rerun"] == ["H03"]
+    assert coarse["error_after_centroid_only_mrad"]["max"] == 0.3
+    # No coarse move: no second campaign, the run is its own centroid-only run.
+    asked.clear()
+    none = {"iterations_mean": 2.333, "applied_heliostats": []}
+    demo._centroid_only_twin(none, cfg, REPO / "configs" / "demo.yaml", tmp_path, sim, args)
+    assert asked == [] and none["centroid_only_rerun"] == []
+    assert none["iterations_centroid_only_mean"] == 2.333
