@@ -127,3 +127,24 @@ def test_an_unconfident_clipped_centre_is_not_applied(make_cycle):
     cyc.ctx.coarse_confidence = 0.9  # the estimate's confidence is 0.5: the centroid moves
     rec = cyc.run()
     assert [c.kind for c in rec.corrections] == ["fine"] * len(rec.corrections)
+
+
+def test_the_beam_chain_gives_a_clipped_spot_its_centre_on_the_target():
+    from controller.calibration.beam_chain import BeamChain
+    from controller.config import load_config
+
+    from .conftest import REPO
+
+    chain = BeamChain(load_config(REPO / "configs" / "demo.yaml"))
+    yy, xx = np.mgrid[0:768, 0:1024]
+    img = 20.0 + np.random.default_rng(2).normal(0.0, 1.0, xx.shape)
+    img += 800.0 * np.exp(-0.5 * (((xx - 1010.0) / 40.0) ** 2 + ((yy - 300.0) / 25.0) ** 2))
+    obs = chain.analyze(img, allow_clipped=True)
+    assert obs.clipped == ("right",) and obs.clipped_confidence == CORE_CUT
+    true_enu = chain.frame.pixel_to_enu(1010.0, 300.0)
+    err = np.linalg.norm(np.asarray(obs.clipped_centre_enu) - true_enu)
+    assert err < 0.2 * np.linalg.norm(np.asarray(obs.centroid_enu) - true_enu)
+    # A spot in full view carries no clipped centre.
+    full = 20.0 + 800.0 * np.exp(-0.5 * (((xx - 500.0) / 40.0) ** 2 + ((yy - 300.0) / 25.0) ** 2))
+    obs = chain.analyze(full)
+    assert obs.clipped == () and obs.clipped_centre_enu is None and obs.clipped_confidence == 0.0
