@@ -12,7 +12,9 @@ half-maximum contour instead of its energy (σ-smoothed image, level = half its 
 * the spot's core clipped: an ellipse fitted (least squares, ``cv2.fitEllipse``) to the
   contour's points away from the clipped edges gives the centre on the clipped axes; confidence
   0.5, or 0.25 when even the maximum lies on the edge (the centre itself beyond it: the visible
-  maximum underestimates the peak, so the contour is too wide and the centre a rough guess);
+  maximum underestimates the peak, so the contour is too wide and the centre a rough guess) or
+  when the fitted ellipse, cut by the view, does not cover the visible core (intersection over
+  union < ``MIN_COVER``: two lobes, an angular spot);
 * clipped on both sides of an axis, or fewer than ``MIN_POINTS`` contour points in view: no
   estimate.
 
@@ -31,6 +33,7 @@ import numpy as np
 CORE_CUT = 0.5  # confidence of an ellipse-fitted centre whose maximum is in view
 BEYOND = 0.25  # ... whose maximum lies on the clipped edge
 MIN_POINTS = 8  # contour points in view that an ellipse is fitted to
+MIN_COVER = 0.85  # intersection over union of the fitted ellipse (in view) and the visible core
 SMOOTH_PX = 2.0  # σ of the smoothing before the half-maximum contour (noise, not shape)
 _AXES = (("left", "right"), ("top", "bottom"))  # x (columns), y (rows)
 
@@ -50,8 +53,10 @@ def _crossings(p: np.ndarray) -> tuple[float | None, float | None]:
     return lo, hi
 
 
-def _ellipse_centre(smooth: np.ndarray, clipped: tuple[str, ...]) -> tuple[float, float] | None:
-    """Centre of the ellipse fitted to the half-maximum contour's points off the clipped edges."""
+def _ellipse_centre(smooth: np.ndarray, clipped: tuple[str, ...]) -> tuple[tuple[float, float], float] | None:
+    """Centre of the ellipse fitted to the half-maximum contour's points off the clipped edges,
+    and how well the fitted ellipse, cut by the view, covers the visible core (intersection over
+    union of the two masks: a two-lobed or angular core fits no ellipse)."""
     core = (smooth > 0.5 * float(smooth.max())).astype(np.uint8)
     contours, _ = cv2.findContours(core, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     if not contours:
@@ -64,8 +69,14 @@ def _ellipse_centre(smooth: np.ndarray, clipped: tuple[str, ...]) -> tuple[float
             keep &= np.abs(pts[:, axis] - limit) > 1
     if keep.sum() < MIN_POINTS:
         return None
-    (cx, cy), _, _ = cv2.fitEllipse(pts[keep].astype(np.float32))
-    return (float(cx), float(cy)) if np.isfinite(cx) and np.isfinite(cy) else None
+    box = cv2.fitEllipse(pts[keep].astype(np.float32))
+    (cx, cy), (da, db), _ = box
+    if not all(np.isfinite(v) for v in (cx, cy, da, db)) or max(da, db) > 4 * max(rows, cols):
+        return None
+    fitted = np.zeros_like(core)
+    cv2.ellipse(fitted, box, 1, thickness=-1)
+    union = int(np.count_nonzero(fitted | core))
+    return (float(cx), float(cy)), (int(np.count_nonzero(fitted & core)) / union if union else 0.0)
 
 
 def clipped_centre(signal: np.ndarray, rel_threshold: float, clipped: tuple[str, ...],
@@ -94,13 +105,14 @@ def clipped_centre(signal: np.ndarray, rel_threshold: float, clipped: tuple[str,
         fit = _ellipse_centre(smooth, clipped)
         if fit is None:
             return None, 0.0
+        (fx, fy), cover = fit
         centre = list(centroid_xy)
         for k in cut:
-            centre[k] = fit[k]
+            centre[k] = (fx, fy)[k]
         iy, ix = np.unravel_index(int(np.argmax(smooth)), smooth.shape)
         on_edge = any((lo in clipped and pos <= 1) or (hi in clipped and pos >= n - 2)
                       for (lo, hi), pos, n in zip(_AXES, (ix, iy), (s.shape[1], s.shape[0]), strict=True))
-        conf = BEYOND if on_edge else CORE_CUT
+        conf = BEYOND if on_edge or cover < MIN_COVER else CORE_CUT
     ys, xs = np.nonzero(mask)
     along_edge = (np.ptp(ys) + 1.0, np.ptp(xs) + 1.0)  # for x: the extent in rows; for y: in columns
     for k in cut:
