@@ -60,6 +60,13 @@ def test_an_elongated_spot_is_found_from_the_ellipse_of_its_visible_contour():
     assert conf == CORE_CUT and abs(c.x - 8.0) > 5.0 and abs(est[0] - 8.0) < 0.5 and est[1] == c.y
 
 
+def test_a_two_lobed_clipped_spot_fits_no_ellipse_and_is_not_trusted():
+    # Two lobes (a split facet) cut by the left edge: the ellipse fits one of them only.
+    img = spot(5.0, 40.0) + spot(5.0, 80.0)
+    c, (est, conf) = centre_of(img)
+    assert c.clipped == ("left",) and conf == BEYOND and est is not None
+
+
 def test_no_estimate_when_the_spot_overflows_both_sides_or_is_empty():
     wide = spot(80.0, 60.0, sx=200.0, sy=8.0)  # wider than the view
     c, (est, conf) = centre_of(wide)
