@@ -80,6 +80,7 @@ def one(tmp: Path, name: str, threshold: float | None, args: argparse.Namespace)
             "failed": s["failed"], "failed_causes": causes, "applied": c["applied"],
             "clipped_first_looks": c["clipped_first_looks"], "iterations_mean": c["iterations_mean"],
             "corrections_mean": c["corrections_mean"],
+            "iterations_by_heliostat": {r.heliostat_id: r.iterations for r in runs},
             "clipped_runs": {"heliostats": [r.heliostat_id for r in clipped],
                              "iterations": [r.iterations for r in clipped],
                              "first_measured_error_mrad": [_round(first.get(r.id)) for r in clipped]},
