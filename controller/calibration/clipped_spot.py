@@ -84,8 +84,9 @@ def clipped_centre(signal: np.ndarray, rel_threshold: float, clipped: tuple[str,
     """((x, y) px, confidence) of the centre of a spot clipped at the view's ``clipped`` edges
     ("top", "bottom", "left", "right"); (None, 0.0) when it cannot be told (see module doc).
 
-    ``signal``: background-free image; the spot is where its smoothed copy exceeds
-    ``rel_threshold`` × the maximum (the mask of the energy centroid ``centroid_xy``)."""
+    ``signal``: background-free image; the spot is where its copy smoothed with σ = ``SMOOTH_PX``
+    exceeds ``rel_threshold`` × its maximum (the energy centroid ``centroid_xy`` used the same
+    threshold)."""
     s = np.asarray(signal, dtype=np.float32)
     smooth = cv2.GaussianBlur(s, (0, 0), SMOOTH_PX)
     mask = smooth > rel_threshold * float(smooth.max())
