@@ -30,11 +30,11 @@ magnitudes, no blur views in the whitening, neither) and the default's rate spli
 effective magnitude m / spot (inside or outside the library's 0.5-1.5; see docs/recognition.md).
 
 ``--campaign [--threshold T] [--heliostats N]``: instead, the coarse correction in the closed
-loop. Runs ``heliocal demo --nights 0 --json`` (embedded simulated plant, demo config, seed
-``--seed``) with ``calibration.coarse_correction: T``; the demo then runs the same heliostats
-again centroid only and reports both: iterations per heliostat with and without the coarse
-correction (``iterations_mean`` vs ``iterations_centroid_only_mean``), how many runs applied
-it, and the truth's final pointing error of each.
+loop on the demo plant as it is. Runs ``heliocal demo --nights 0 --json`` (embedded simulated
+plant, demo config, seed ``--seed``) with ``calibration.coarse_correction: T`` and reports its
+``coarse_correction`` block (the demo calibrates the heliostats that made a coarse move again,
+centroid only). The with/without comparison where first spots are clipped, and the estimator
+on shifted spots, is ``benchmarks/bench_coarse.py``.
 """
 
 from __future__ import annotations

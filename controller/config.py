@@ -223,8 +223,8 @@ class Calibration(_Model):
     standby_offset_m: float = Field(default=15.0, gt=0, le=200,
                                     description="standby aim point distance beside the target")
     library: str | None = Field(default=None, description="error library YAML; None: built")
-    coarse_correction: float | None = Field(default=None, ge=0, le=1, description="min. match confidence "
-                                            "for the first move's coarse correction; null: centroid only")
+    coarse_correction: float | None = Field(default=None, ge=0, le=1, description="min. confidence of "
+                                            "a clipped spot's centre estimate to move on; null: centroid")
     model: ModelSettings = Field(default_factory=ModelSettings)
     lamps: tuple[str, ...] = Field(default=(), description="ids of the lamps planned nights may light "
                                    "(default: light_source only)")
