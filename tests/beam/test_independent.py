@@ -72,7 +72,8 @@ def test_lobes_hu_ignores_a_hot_pixel_and_the_rotation():
     np.testing.assert_allclose(lobes_hu(np.rot90(img).copy(), 0.1)[:4], lobes_hu(img, 0.1)[:4], rtol=1e-6)
     # A 35 deg turn resamples the image (bilinear): phi_1 and the elongation sqrt(phi_2) within 2 %.
     turned, straight = lobes_hu(_two_lobes(35.0), 0.1), lobes_hu(img, 0.1)
-    np.testing.assert_allclose([turned[0], np.sqrt(turned[1])], [straight[0], np.sqrt(straight[1])], rtol=0.02)
+    np.testing.assert_allclose([turned[0], np.sqrt(turned[1])], [straight[0], np.sqrt(straight[1])],
+                               rtol=0.02)
 
 
 def test_lobes_hu_rejects_an_empty_frame():
