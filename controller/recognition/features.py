@@ -66,8 +66,7 @@ def describe(image: np.ndarray, kind: str, threshold: float = 0.5) -> np.ndarray
 
 def hu_features(hu: np.ndarray, kind: str) -> np.ndarray:
     """Feature vector from a descriptor stack: raw (``hu``: 7, ``multi-hu``/``multi-lobe-hu``: the
-    stack flattened),
-    signed log (``log-hu``), or with the blur row turned into scale-free blur invariants
+    stack flattened), signed log (``log-hu``), or with the blur row turned into scale-free blur invariants
     (``blur-hu``, ``multi-blur-hu``: :func:`controller.recognition.blur_features.blur_features`)."""
     h = np.asarray(hu, dtype=np.float64)
     if kind in ("hu", "multi-hu", "multi-lobe-hu"):

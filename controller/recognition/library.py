@@ -252,7 +252,7 @@ def whitening(x: np.ndarray, spread: Spread, floor: float = 1e-6) -> np.ndarray:
     hardly move (where the cases differ) keep their weight, directions they move a lot (spot
     size, noise of phi_5..phi_7) are shrunk. Adding the covariance of the entries themselves
     (how the cases differ) shrank exactly the directions that separate them: on the independent
-    sets of docs/recognition.md that cost 7-10 points. Without deviations, C = covariance of
+    sets of docs/recognition.md that cost 3-13 points. Without deviations, C = covariance of
     the entries ``x`` (n, k). Eigenvalues are floored at ``floor`` x the largest, so a direction
     in which nothing varies is not blown up beyond 1/sqrt(floor). The distance is still the
     Euclidean distance of Eq. 14, on W f.
