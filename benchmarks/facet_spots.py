@@ -8,8 +8,10 @@ one renderer, this one makes different physics choices (written from first princ
 * **Facets.** A 3 x 3 array of rigid flat-canted facets, 1.2 x 1.0 m each with 5 cm gaps
   (3.7 x 3.1 m), at slant range D = 80 m, nearly focused: a ray from mirror point p lands at
   (1 − D/f)·p = −0.12·p (the image of the aperture, inverted, 12 % of its size) plus 2·D·s for a
-  normal tilt s (rad): reflection doubles a tilt. Error cases are tilts of *whole facets*
-  (piecewise constant over the aperture), not smooth slope fields.
+  normal tilt s (rad): reflection doubles a tilt. Most error cases are tilts of *whole facets*
+  (piecewise constant over the aperture, detached lobes): the lower-left facet mis-canted
+  (8, 6) mrad, the outer columns canted apart ±8 mrad or drooping 8 mrad; wind-load is a
+  torsion of the whole structure (vertical tilt 4 mrad per m of x, continuous).
 * **Spot size is a convolution.** Each ray gets a source direction drawn from a limb-darkened sun
   disc, I(r) ∝ 1 − u(1 − √(1 − (r/R)²)), u = 0.6, R = 4.65 mrad (rejection sampling), and a
   Gaussian mirror slope error of σ = 1.0 mrad per axis (beam: 2σ). ``spot`` multiplies R and σ
