@@ -67,9 +67,8 @@ class HiddenHeliostat:
     case: ErrorCase
     mirror: MirrorSurface
     controller: SimController
-    rng: np.random.Generator
-    moved_to: tuple[float, float] | None = None
-    jitter: tuple[float, float] = (0.0, 0.0)
+    noise_key: tuple[int, ...]  # (seed, stream, heliostat index): seeds the repeatability draws
+    _settled: tuple = ((), (0.0, 0.0))  # the last (night, pose) key and its draw
 
     @property
     def position(self) -> np.ndarray:
@@ -85,12 +84,18 @@ class HiddenHeliostat:
         e_w, e_h = mirror_frame(n)
         return unit(n - mx * e_w - my * e_h)
 
-    def settle(self, steps: tuple[float, float]) -> tuple[float, float]:
-        """The repeatability error of the present pose: a new draw whenever the rods moved."""
-        if steps != self.moved_to:
-            self.moved_to = steps
-            self.jitter = tuple(self.rng.normal(0.0, REPEATABILITY_RAD, 2))
-        return self.jitter
+    def settle(self, steps: tuple[float, float], night: int) -> tuple[float, float]:
+        """The repeatability error (rad, elevation and azimuth) of the rods at ``steps`` on
+        ``night``: a draw per pose, seeded by (seed, heliostat, night, pose). Drawing from a
+        shared stream whenever someone looked at a moved heliostat made the draws depend on
+        how often the safety monitor and the cameras sampled it during the slews (wall-clock
+        timing), so one seed gave different figures run to run."""
+        # Millisteps: the float noise of the motion integration does not make a new pose.
+        key = (night, *(int(round(v * 1000.0)) % (1 << 32) for v in steps))
+        if key != self._settled[0]:
+            rng = np.random.default_rng([*self.noise_key, *key])
+            self._settled = (key, tuple(rng.normal(0.0, REPEATABILITY_RAD, 2)))
+        return self._settled[1]
 
 
 def mean_slope(mirror: MirrorSurface, samples: int = 64) -> tuple[float, float]:
@@ -150,8 +155,7 @@ class SimulatedPlant:
             ctl = SimController(unit=h.link.station,
                                 az=axis_params_from_config(h.axes.azimuth),
                                 el=axis_params_from_config(h.axes.elevation), clock=self.clock)
-            self.hidden[hid] = HiddenHeliostat(hid, truth, case, mirror, ctl,
-                                               np.random.default_rng([self.seed, 13, index[hid]]))
+            self.hidden[hid] = HiddenHeliostat(hid, truth, case, mirror, ctl, (self.seed, 13, index[hid]))
         self.serial: dict[str, object] = {}
         self.modbus = None
         self.safety = BeamSafetyMonitor(self)
@@ -283,7 +287,7 @@ class SimulatedPlant:
         """True normal of ``hid`` at its rods' present positions (repeatability included)."""
         hh = self.hidden[hid]
         steps = hh.controller.output_steps()
-        return hh.truth.normal(*steps, night=self.night, jitter=hh.settle(tuple(steps)))
+        return hh.truth.normal(*steps, night=self.night, jitter=hh.settle(tuple(steps), self.night))
 
     def true_normal_at(self, heliostat_id: str, az_steps: float, el_steps: float) -> np.ndarray:
         """Unit ENU mirror normal of the hidden heliostat at the given motor steps (tonight's
@@ -303,7 +307,7 @@ class SimulatedPlant:
         if not hh.case.rock_az_rad:
             return [self.true_normal(hid)]
         steps = hh.controller.output_steps()
-        j_el, j_az = hh.settle(tuple(steps))
+        j_el, j_az = hh.settle(tuple(steps), self.night)
         band = hh.case.rock_az_rad * NIGHT_ROCK_FRACTION
         return [hh.truth.normal(*steps, night=self.night, jitter=(j_el, j_az + d))
                 for d in np.linspace(-0.5, 0.5, 5) * band]
