@@ -14,27 +14,30 @@ each test view with an error size drawn uniformly from 0.5..1.5 (so none equals 
 magnitude). Every library variant is built from a subset of those images (all twelve heliostats
 or six of them, H01, H06, H08, H11, H13, H18; all nine sizes or 0.5, 1, 1.5) and scored per split
 (:mod:`controller.recognition.splits`): recognition rate (%), unknown rate (%) and n.
-For the ``multi-hu`` variants it also reports the magnitude estimate: RMS error of the
+For the ``multi-lobe-hu`` / ``multi-hu`` variants it also reports the magnitude estimate: RMS error of the
 interpolated beam pointing error against the truth over correctly recognised views, and the
 share and precision of views with confidence >= 0.5 (where a coarse correction would be applied)
 with the RMS pointing error before and after applying it. ``--dir`` keeps the rendered set (and
 reuses it on the next run).
 
-``--independent [--seeds 1,2,3]``: instead, the independent error set of
-:mod:`independent_spots` (a paraxial renderer written apart from ``simplant.optics``; magnitude
-0.5-1.5 and spot size x0.7-1.4 vary in the test views, library = 3 magnitudes per case), scored
-through the CLI contract (``heliocal library build`` default, ``--features blur-hu``,
-``--features multi-blur-hu`` and ``--features hu --whiten no``, ``heliocal report confusion
---json``), plus ablations of the default through the Python API (no interpolation between
-magnitudes, no blur views in the whitening, neither) and the default's rate split by the view's
-effective magnitude m / spot (inside or outside the library's 0.5-1.5; see docs/recognition.md).
+``--independent [--seeds 1,2,3]``: instead, the two independent error sets, rendered apart from
+``simplant.optics`` and from each other: :mod:`independent_spots` (paraxial mirror, spot size =
+zoom of aperture image and source disc) and :mod:`facet_spots` (3 x 3 rigid facets, limb-darkened
+sun, slope errors, spot size = blur). In both, magnitude 0.5-1.5 and spot size x0.7-1.4 vary in
+the test views (24 per case) and the library holds 3 magnitudes per case. Scored through the CLI
+contract (``heliocal library build`` default and ``--features multi-hu``, ``blur-hu``,
+``multi-blur-hu``, ``hu --whiten no``; ``heliocal report confusion --json``), plus ablations of
+the default through the Python API (no interpolation between magnitudes, no blur views, the
+entries' covariance added to the whitening as before) and the default's rate by nuisance (m / spot
+inside or outside the library's 0.5-1.5 for the first renderer, spot size for the second).
+JSON: ``renderers.{independent_spots,facet_spots}.seeds.{seed}`` (and ``seeds`` = the first).
 
 ``--campaign [--threshold T] [--heliostats N]``: instead, the coarse correction in the closed
-loop. Runs ``heliocal demo --nights 0 --json`` (embedded simulated plant, demo config, seed
-``--seed``) with ``calibration.coarse_correction: T``; the demo then runs the same heliostats
-again centroid only and reports both: iterations per heliostat with and without the coarse
-correction (``iterations_mean`` vs ``iterations_centroid_only_mean``), how many runs applied
-it, and the truth's final pointing error of each.
+loop on the demo plant as it is. Runs ``heliocal demo --nights 0 --json`` (embedded simulated
+plant, demo config, seed ``--seed``) with ``calibration.coarse_correction: T`` and reports its
+``coarse_correction`` block (the demo calibrates the heliostats that made a coarse move again,
+centroid only). The with/without comparison where first spots are clipped, and the estimator
+on shifted spots, is ``benchmarks/bench_coarse.py``.
 """
 
 from __future__ import annotations
@@ -60,9 +63,11 @@ HELD_OUT = ("H02", "H04", "H09", "H10", "H15", "H17")
 SIZES = tuple(0.5 + 0.125 * i for i in range(9))
 THREE = (0.5, 1.0, 1.5)
 VARIANTS = {  # name: (features, whiten, library sizes, library heliostats)
-    "multi-hu whitened (default), 12 heliostats x 9 sizes": ("multi-hu", None, SIZES, LIBRARY),
-    "multi-hu whitened (default), 6 heliostats x 9 sizes": ("multi-hu", None, SIZES, SIX),
-    "multi-hu whitened (default), 6 heliostats x 3 sizes": ("multi-hu", None, THREE, SIX),
+    "multi-lobe-hu whitened (default), 12 heliostats x 9 sizes": ("multi-lobe-hu", None, SIZES, LIBRARY),
+    "multi-lobe-hu whitened (default), 6 heliostats x 9 sizes": ("multi-lobe-hu", None, SIZES, SIX),
+    "multi-lobe-hu whitened (default), 6 heliostats x 3 sizes": ("multi-lobe-hu", None, THREE, SIX),
+    "multi-hu whitened, 12 heliostats x 9 sizes": ("multi-hu", None, SIZES, LIBRARY),
+    "multi-hu whitened, 6 heliostats x 3 sizes": ("multi-hu", None, THREE, SIX),
     "hu raw (paper), 12 heliostats x 9 sizes": ("hu", False, SIZES, LIBRARY),
     "hu raw (paper), 6 heliostats x 3 sizes": ("hu", False, THREE, SIX),
     "hu whitened, 6 heliostats x 3 sizes": ("hu", True, THREE, SIX),
@@ -118,7 +123,7 @@ def score(out: Path, features: str, whiten: bool | None, sizes: tuple[float, ...
         if sel.any():
             res["splits"][name] = {"n": int(sel.sum()), "recognition_rate": _rate(ok[sel]),
                                    "unknown_rate": _rate(unknown[sel])}
-    if features == "multi-hu":
+    if features in ("multi-hu", "multi-lobe-hu"):
         res["estimate"] = estimate_quality(rows, matches, ok, split)
     return res
 
@@ -143,11 +148,12 @@ def estimate_quality(rows, matches, ok, split) -> dict:
 
 
 def independent(seeds: list[int], views: int) -> dict:
-    """Recognition on the independent error set: CLI default and paper variant, and ablations."""
+    """Recognition on the two independent error sets: CLI default and other kinds, and ablations."""
     import subprocess
     import sys
 
-    from independent_spots import write_set
+    import facet_spots
+    import independent_spots
 
     import controller.recognition.library as library
 
@@ -156,52 +162,80 @@ def independent(seeds: list[int], views: int) -> dict:
                            text=True, check=True)
         return json.loads(r.stdout)
 
-    def by_effective_magnitude(out: Path) -> dict:
-        # The renderer scales the aperture image and the source disc together with the spot size,
-        # so a view is its case at magnitude m / spot, zoomed: the rate inside/outside the library's range.
-        lib = build_library_from_manifest(out / "library.csv", "multi-hu")
+    def scored(out: Path, lib) -> tuple[list, np.ndarray]:
         rows = read_manifest(out / "test.csv")
         ms = [lib.match_image(read_image(r.image)) for r in rows]
-        ok = np.array([not m.unknown and m.label == r.label for m, r in zip(ms, rows, strict=True)])
-        eff = np.array([float(r.extra["magnitude"]) / float(r.extra["spot"]) for r in rows])
-        inside = (eff >= min(THREE)) & (eff <= max(THREE))
-        return {"inside": {"n": int(inside.sum()), "recognition_rate": _rate(ok[inside])},
-                "outside": {"n": int((~inside).sum()), "recognition_rate": _rate(ok[~inside])}}
+        return rows, np.array([not m.unknown and m.label == r.label for m, r in zip(ms, rows, strict=True)])
 
-    def api(out: Path, interpolate: bool, blur: bool) -> dict:
-        saved = library.AUGMENT_BLUR
-        library.AUGMENT_BLUR = saved if blur else ()
+    def by_nuisance(out: Path, effective: bool) -> dict:
+        # independent_spots scales the aperture image and the source disc together with the spot
+        # size, so a view is its case at magnitude m / spot, zoomed: the rate inside/outside the
+        # library's range. facet_spots blurs instead: the rate by spot size.
+        rows, ok = scored(out, build_library_from_manifest(out / "library.csv", "multi-lobe-hu"))
+        m = np.array([float(r.extra["magnitude"]) for r in rows])
+        spot = np.array([float(r.extra["spot"]) for r in rows])
+        if effective:
+            inside = (m / spot >= min(THREE)) & (m / spot <= max(THREE))
+            groups = {"m/spot inside 0.5-1.5": inside, "m/spot outside": ~inside}
+        else:
+            groups = {"spot < 1": spot < 1.0, "spot >= 1": spot >= 1.0}
+        return {k: {"n": int(sel.sum()), "recognition_rate": _rate(ok[sel])} for k, sel in groups.items()}
+
+    def entries_in_whitening(x, spread, floor=1e-6):
+        # The whitening before this work: covariance of the entries (how the cases differ) added
+        # to the within-case spread (the ablation "entries' covariance in the whitening").
+        k = x.shape[1]
+        dev = spread.deviations
+        c = np.cov(np.asarray(x, dtype=np.float64).T, bias=True).reshape(k, k) + dev.T @ dev / dev.shape[0]
+        w, v = np.linalg.eigh(c)
+        w = np.maximum(w, floor * w.max())
+        return (v / np.sqrt(w)) @ v.T
+
+    def api(out: Path, kind: str, interpolate: bool = True, blur: bool = True,
+            total_cov: bool = False) -> dict:
+        saved = library.AUGMENT_BLUR, library.whitening
+        library.AUGMENT_BLUR = saved[0] if blur else ()
+        library.whitening = entries_in_whitening if total_cov else saved[1]
         try:
-            lib = build_library_from_manifest(out / "library.csv", "multi-hu")
+            lib = build_library_from_manifest(out / "library.csv", kind)
         finally:
-            library.AUGMENT_BLUR = saved
+            library.AUGMENT_BLUR, library.whitening = saved
         lib.interpolate = interpolate
-        rows = read_manifest(out / "test.csv")
-        ms = [lib.match_image(read_image(r.image)) for r in rows]
-        ok = np.array([not m.unknown and m.label == r.label for m, r in zip(ms, rows, strict=True)])
-        return {"recognition_rate": _rate(ok), "unknown_rate": _rate(np.array([m.unknown for m in ms]))}
+        rows, ok = scored(out, lib)
+        return {"recognition_rate": _rate(ok)}
 
-    res: dict = {"views_per_case": views, "seeds": {}}
-    for seed in seeds:
-        with tempfile.TemporaryDirectory() as tmp:
-            out = Path(tmp)
-            write_set(out, seed=seed, views=views)
-            r: dict = {}
-            paper = ("--features", "hu", "--whiten", "no")
-            kinds = (("multi-hu (default)", ()), ("blur-hu", ("--features", "blur-hu")),
-                     ("multi-blur-hu", ("--features", "multi-blur-hu")), ("hu raw (paper)", paper))
-            for name, extra in kinds:
-                cli("library", "build", str(out / "library.csv"), "--out", str(out / "lib.yaml"), *extra)
-                c = cli("report", "confusion", "--library", str(out / "lib.yaml"),
-                        "--test", str(out / "test.csv"), "--out", str(out / "rep"))
-                r[name] = {"recognition_rate": round(c["recognition_rate"], 2),
-                           "unknown_rate": round(100 * c["unknown_rate"], 2),
-                           "recall": {k: v["recall"] for k, v in c["per_class"].items()}}
-            r["multi-hu, no interpolation"] = api(out, False, True)
-            r["multi-hu, no blur views"] = api(out, True, False)
-            r["multi-hu, neither (before #14 work)"] = api(out, False, False)
-            r["multi-hu by effective magnitude m/spot"] = by_effective_magnitude(out)
-            res["seeds"][seed] = r
+    paper = ("--features", "hu", "--whiten", "no")
+    kinds = (("multi-lobe-hu (default)", ()), ("multi-hu", ("--features", "multi-hu")),
+             ("blur-hu", ("--features", "blur-hu")), ("multi-blur-hu", ("--features", "multi-blur-hu")),
+             ("hu raw (paper)", paper))
+    renderers = {"independent_spots": (independent_spots, True), "facet_spots": (facet_spots, False)}
+    res: dict = {"views_per_case": views, "renderers": {}}
+    for rname, (module, effective) in renderers.items():
+        per_seed: dict = {}
+        for seed in seeds:
+            with tempfile.TemporaryDirectory() as tmp:
+                out = Path(tmp)
+                module.write_set(out, seed=seed, views=views)
+                r: dict = {}
+                for name, extra in kinds:
+                    cli("library", "build", str(out / "library.csv"), "--out", str(out / "lib.yaml"), *extra)
+                    c = cli("report", "confusion", "--library", str(out / "lib.yaml"),
+                            "--test", str(out / "test.csv"), "--out", str(out / "rep"))
+                    r[name] = {"recognition_rate": round(c["recognition_rate"], 2),
+                               "unknown_rate": round(100 * c["unknown_rate"], 2),
+                               "recall": {k: v["recall"] for k, v in c["per_class"].items()}}
+                r["default, no interpolation"] = api(out, "multi-lobe-hu", interpolate=False)
+                r["default, no blur views"] = api(out, "multi-lobe-hu", blur=False)
+                r["default, entries' covariance in the whitening"] = api(out, "multi-lobe-hu", total_cov=True)
+                r["multi-hu, entries' covariance in the whitening (before)"] = api(out, "multi-hu",
+                                                                                    total_cov=True)
+                r["default by nuisance"] = by_nuisance(out, effective)
+                per_seed[seed] = r
+        default = [v["multi-lobe-hu (default)"]["recognition_rate"] for v in per_seed.values()]
+        res["renderers"][rname] = {"seeds": per_seed,
+                                   "default_mean_recognition_rate": round(float(np.mean(default)), 2),
+                                   "default_min_recognition_rate": min(default)}
+    res["seeds"] = res["renderers"]["independent_spots"]["seeds"]  # the key of earlier runs: first renderer
     return res
 
 

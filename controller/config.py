@@ -27,6 +27,7 @@ from controller.camera_config import Camera, Gige, Sensor  # noqa: F401 - the ca
 from controller.errors import ConfigError, InputError
 from controller.io.config_keys import did_you_mean, key_path
 from controller.io.yaml_files import parse_yaml, read_text
+from controller.link_config import Link, ModbusRtuLink, ModbusTcpLink, SerialLink  # noqa: F401 - the links section
 
 Vec3 = tuple[float, float, float]
 
@@ -62,6 +63,24 @@ class Target(_Model):
                                   "top-level camera); None: the top-level camera")
 
     _check_normal = field_validator("normal")(classmethod(lambda cls, v: _unit(v)))
+
+
+class PersonZone(_Model):
+    """A box where people may be (a stair landing, a road, the control room roof): axis-aligned
+    in ENU metres, grown by ``margin_m`` on every side (the beam's own radius and the pointing
+    error). No reflected beam may enter it — at a pose, on a slew or on the approach."""
+
+    id: str
+    min_enu_m: Vec3
+    max_enu_m: Vec3
+    margin_m: float = Field(default=2.0, ge=0, le=50)
+
+    @model_validator(mode="after")
+    def _ordered(self) -> PersonZone:
+        for axis, lo, hi in zip("ENU", self.min_enu_m, self.max_enu_m, strict=True):
+            if not lo < hi:
+                raise ValueError(f"min_enu_m must lie below max_enu_m on every axis ({axis}: {lo} >= {hi})")
+        return self
 
 
 class SunSource(_Model):
@@ -134,58 +153,6 @@ class Mirror(_Model):
     reflectivity: float = Field(default=0.93, gt=0, le=1)
 
 
-class SerialLink(_Model):
-    kind: Literal["serial"]
-    device: str
-    address: int = Field(ge=1, le=247)
-    baud: int = Field(default=115200, gt=0)
-
-    @property
-    def bus_key(self) -> tuple:
-        """The physical link several heliostats share (opened once): the serial bus."""
-        return ("serial", self.device)
-
-    @property
-    def station(self) -> int:
-        """This heliostat's address on its bus."""
-        return self.address
-
-
-class ModbusTcpLink(_Model):
-    kind: Literal["modbus-tcp"]
-    host: str
-    port: int = Field(ge=1, le=65535)
-    unit: int = Field(ge=1, le=247)
-
-    @property
-    def bus_key(self) -> tuple:
-        """The physical link several heliostats share: the gateway's TCP connection."""
-        return ("modbus-tcp", self.host, self.port)
-
-    @property
-    def station(self) -> int:
-        return self.unit
-
-
-class ModbusRtuLink(_Model):
-    kind: Literal["modbus-rtu"]
-    device: str
-    unit: int = Field(ge=1, le=247)
-    baud: int = Field(default=115200, gt=0)
-
-    @property
-    def bus_key(self) -> tuple:
-        """The physical link several heliostats share: the RS-485 bus."""
-        return ("modbus-rtu", self.device)
-
-    @property
-    def station(self) -> int:
-        return self.unit
-
-
-Link = Annotated[SerialLink | ModbusTcpLink | ModbusRtuLink, Field(discriminator="kind")]
-
-
 class Heliostat(_Model):
     id: str
     position_enu_m: Vec3
@@ -256,8 +223,8 @@ class Calibration(_Model):
     standby_offset_m: float = Field(default=15.0, gt=0, le=200,
                                     description="standby aim point distance beside the target")
     library: str | None = Field(default=None, description="error library YAML; None: built")
-    coarse_correction: float | None = Field(default=None, ge=0, le=1, description="min. match confidence "
-                                            "for the first move's coarse correction; null: centroid only")
+    coarse_correction: float | None = Field(default=None, ge=0, le=1, description="min. confidence of "
+                                            "a clipped spot's centre estimate to move on; null: centroid")
     model: ModelSettings = Field(default_factory=ModelSettings)
     lamps: tuple[str, ...] = Field(default=(), description="ids of the lamps planned nights may light "
                                    "(default: light_source only)")
@@ -278,12 +245,13 @@ class PlantConfig(_Model):
     heliostats: tuple[Heliostat, ...] = Field(min_length=1)
     camera: Camera
     calibration: Calibration
+    person_zones: tuple[PersonZone, ...] = ()
 
     @model_validator(mode="after")
     def _references(self) -> PlantConfig:
         # Messages start with the key path: pydantic reports model-level errors at the top level.
         for kind, items in (("targets", self.targets), ("light_sources", self.light_sources),
-                            ("heliostats", self.heliostats)):
+                            ("heliostats", self.heliostats), ("person_zones", self.person_zones)):
             ids = [i.id for i in items]
             for index, item_id in enumerate(ids):
                 if item_id in ids[:index]:

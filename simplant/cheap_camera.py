@@ -133,6 +133,11 @@ class CheapCamera(PlantClockCamera):
 
     def _scene(self) -> np.ndarray:
         g = self.grid
+        img = np.full(g.shape, AMBIENT_FRACTION * self.peak)
+        if self.plant.lamp() is None:  # every lamp dark (a lamp change): no beam
+            self.beams_in_view.append(())
+            self.hits.append({})
+            return img
         pos, beam, lamp_m, cos_i = self.field.beams()
         lamp_d = float(self.plant.lamp().diameter_m)
         denom = beam @ g.normal
@@ -141,7 +146,6 @@ class CheapCamera(PlantClockCamera):
         ok = np.isfinite(t) & (t > 0) & (t < MAX_THROW_M)
         hit = pos + t[:, None] * beam
         du, dv = g.pixel_size_m
-        img = np.full(g.shape, AMBIENT_FRACTION * self.peak)
         seen, hits = [], {}
         for i in np.flatnonzero(ok):
             hid = self.field.ids[i]

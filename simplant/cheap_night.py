@@ -22,6 +22,7 @@ from pathlib import Path
 
 import yaml
 
+from controller.calibration.lamp_change import LampChanger, night_drives
 from controller.calibration.nights import Pass, night_passes, run_night
 from controller.calibration.planner import PlanItem
 from controller.calibration.runner import Campaign, CampaignObserver, CampaignOptions, CampaignResult
@@ -144,8 +145,11 @@ class CheapField:
         self.pool = InProcPool.for_plant(self.plant)
         self.db_path = out / "night.db"
 
-    def run_night(self, plan: list[PlanItem], night: str, budget_s: float) -> CheapNight:
-        """Run ``plan`` as night ``night`` (module docstring)."""
+    def run_night(self, plan: list[PlanItem], night: str, budget_s: float, *,
+                  change_lamp: bool = True) -> CheapNight:
+        """Run ``plan`` as night ``night`` (module docstring). ``change_lamp=False`` lights each
+        lamp without first making the heliostats safe for it (the defect the lamp change fixes,
+        kept for its regression test)."""
         cfg, plant = self.cfg, self.plant
         cal = cfg.calibration
         sha = config_sha256(self.config_path)
@@ -196,7 +200,9 @@ class CheapField:
         watcher = threading.Thread(target=watch, name="night-budget", daemon=True)
         watcher.start()
         try:
-            results = run_night(plan, night, run_pass, stop_all)
+            changer = LampChanger(cfg, night_drives(cfg, self.pool), store.latest_model, plant.lights_out,
+                                  clock=plant.clock, sleep=plant.clock.sleep, compute=plant.clock.realtime)
+            results = run_night(plan, night, run_pass, stop_all, changer if change_lamp else None)
         finally:
             done.set()
             watcher.join()

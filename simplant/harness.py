@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from controller.calibration.daytime import PredictedDaytime, predicted_daytime, sun_path
+from controller.calibration.lamp_change import LampChange, LampChanger, Standby, night_drives
 from controller.calibration.nights import Pass, run_night
 from controller.calibration.planner import plan_night
 from controller.calibration.records import MeasurementRecord, RunRecord
@@ -227,11 +228,13 @@ class NightReport:
     measured: int
     daytime: DaytimeError
     predicted: PredictedDaytime
+    lamp_changes: list[LampChange] = field(default_factory=list)  # in the dark, before each lamp
 
     def to_json(self) -> dict:
         return {"night": self.night, "name": self.name, "planned": self.planned, "measured": self.measured,
                 "daytime_error_mrad": self.daytime.to_json(),
-                "daytime_error_predicted_mrad": self.predicted.to_json()}
+                "daytime_error_predicted_mrad": self.predicted.to_json(),
+                "lamp_changes": [c.to_json() for c in self.lamp_changes]}
 
 
 @dataclass
@@ -302,12 +305,16 @@ def run_simulated(cfg: PlantConfig, config_path: str, out: Path, db_path: Path, 
                         c.request_stop()
 
                 result = campaign(opts, ids, observers)
+                # A night's lamp changes: lamps off, heliostats safe for the next lamp, then light it.
+                changer = LampChanger(plant_cfg, night_drives(plant_cfg, pool), store.latest_model,
+                                      plant.lights_out, clock=plant.clock, sleep=plant.clock.sleep,
+                                      compute=plant.clock.realtime)
                 reports = []
                 for k in range(nights if result.status in ("finished", "partial") else 0):
                     plant.set_night(k)
                     night = f"{name}/night-{k + 1}"
                     reports.append(_planned_night(cfg, store, plant, campaign, ids, k, night, strategy, path,
-                                                  progress, stop_all))
+                                                  progress, stop_all, changer))
                 plant.set_light(cfg.calibration.light_source)
             safety = plant.safety.report()
             on_target = plant.safety.intervals
@@ -329,7 +336,8 @@ def run_simulated(cfg: PlantConfig, config_path: str, out: Path, db_path: Path, 
 
 
 def _planned_night(cfg: PlantConfig, store: CampaignStore, plant: SimulatedPlant, campaign, ids: list[str],
-                   k: int, night: str, strategy: str, path, progress, stop_all=None) -> NightReport:
+                   k: int, night: str, strategy: str, path, progress, stop_all,
+                   changer: LampChanger) -> NightReport:
     """Plan (or reload the stored plan of) night ``k``, run its passes, score the field."""
     plan = load_plan(store, night)
     if not plan:
@@ -366,11 +374,21 @@ def _planned_night(cfg: PlantConfig, store: CampaignStore, plant: SimulatedPlant
                          f"field predicted daytime RMS {now.rms:.2f} mrad")
         return r
 
-    results = run_night(plan, night, run_pass, stop_all)
+    changes: list[LampChange] = []
+
+    def change_lamp(lamp: str, standbys: dict[str, Standby]):
+        done = changer(lamp, standbys)
+        changes.append(done)
+        if progress is not None:
+            progress(f"{night}: {lamp} lit after moving {len(done.parked)} heliostat(s) to its standby "
+                     f"and stowing {len(done.stowed)}, in the dark")
+        return done
+
+    results = run_night(plan, night, run_pass, stop_all, change_lamp)
     models = {hid: store.latest_model(hid) for hid in ids}
     measured = sum(1 for r in results for run in r.runs if run.status == "measured")
     report = NightReport(k + 1, night, len(plan), measured, daytime_error(plant, cfg, models, path),
-                         predicted_daytime(cfg, models, path))
+                         predicted_daytime(cfg, models, path), changes)
     if progress is not None:
         progress(f"{night}: {measured}/{len(plan)} geometries measured; field daytime error now "
                  f"{report.predicted.rms:.2f} mrad RMS predicted, {report.daytime.rms:.2f} true "

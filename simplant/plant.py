@@ -69,9 +69,8 @@ class HiddenHeliostat:
     case: ErrorCase
     mirror: MirrorSurface
     controller: SimController
-    rng: np.random.Generator
-    moved_to: tuple[float, float] | None = None
-    jitter: tuple[float, float] = (0.0, 0.0)
+    noise_key: tuple[int, ...]  # (seed, stream, heliostat index): seeds the repeatability draws
+    _settled: tuple = ((), (0.0, 0.0))  # the last (night, pose) key and its draw
     pose_cache: tuple | None = None  # (steps, jitter, night), normal, mirror centre (simplant.poses)
 
     @property
@@ -93,12 +92,18 @@ class HiddenHeliostat:
         """:func:`mean_slope` of the (fixed) mirror, computed once."""
         return mean_slope(self.mirror)
 
-    def settle(self, steps: tuple[float, float]) -> tuple[float, float]:
-        """The repeatability error of the present pose: a new draw whenever the rods moved."""
-        if steps != self.moved_to:
-            self.moved_to = steps
-            self.jitter = tuple(self.rng.normal(0.0, REPEATABILITY_RAD, 2))
-        return self.jitter
+    def settle(self, steps: tuple[float, float], night: int) -> tuple[float, float]:
+        """The repeatability error (rad, elevation and azimuth) of the rods at ``steps`` on
+        ``night``: a draw per pose, seeded by (seed, heliostat, night, pose). Drawing from a
+        shared stream whenever someone looked at a moved heliostat made the draws depend on
+        how often the safety monitor and the cameras sampled it during the slews (wall-clock
+        timing), so one seed gave different figures run to run."""
+        # Millisteps: the float noise of the motion integration does not make a new pose.
+        key = (night, *(int(round(v * 1000.0)) % (1 << 32) for v in steps))
+        if key != self._settled[0]:
+            rng = np.random.default_rng([*self.noise_key, *key])
+            self._settled = (key, tuple(rng.normal(0.0, REPEATABILITY_RAD, 2)))
+        return self._settled[1]
 
 
 def mean_slope(mirror: MirrorSurface, samples: int = 64) -> tuple[float, float]:
@@ -158,8 +163,7 @@ class SimulatedPlant:
             ctl = SimController(unit=h.link.station,
                                 az=axis_params_from_config(h.axes.azimuth),
                                 el=axis_params_from_config(h.axes.elevation), clock=self.clock)
-            self.hidden[hid] = HiddenHeliostat(hid, truth, case, mirror, ctl,
-                                               np.random.default_rng([self.seed, 13, index[hid]]))
+            self.hidden[hid] = HiddenHeliostat(hid, truth, case, mirror, ctl, (self.seed, 13, index[hid]))
         self.serial: dict[str, object] = {}
         self.modbus = None
         self.safety = BeamSafetyMonitor(self)
@@ -273,9 +277,13 @@ class SimulatedPlant:
             raise ValueError(f"the simulated plant lights lamps only, not {source_id!r}")
         self.lit = source_id
 
+    def lights_out(self) -> None:
+        """Switch every lamp off (a night's lamp change: heliostats are moved in the dark)."""
+        self.lit = None
+
     def lamp(self):
-        """The lamp lit now (config entry)."""
-        return self.cfg.light_source(self.lit)
+        """The lamp lit now (config entry); None while every lamp is dark."""
+        return None if self.lit is None else self.cfg.light_source(self.lit)
 
     def utc(self) -> str:
         """Plant time as an ISO 8601 UTC stamp: night k starts at 20:00 on day k of the plant's
@@ -287,7 +295,7 @@ class SimulatedPlant:
         """True normal of ``hid`` at its rods' present positions (repeatability included)."""
         hh = self.hidden[hid]
         steps = hh.controller.output_steps()
-        return hh.truth.normal(*steps, night=self.night, jitter=hh.settle(tuple(steps)))
+        return hh.truth.normal(*steps, night=self.night, jitter=hh.settle(tuple(steps), self.night))
 
     def true_normal_at(self, heliostat_id: str, az_steps: float, el_steps: float) -> np.ndarray:
         """Unit ENU mirror normal of the hidden heliostat at the given motor steps (tonight's
@@ -307,7 +315,7 @@ class SimulatedPlant:
         if not hh.case.rock_az_rad:
             return [self.true_normal(hid)]
         steps = hh.controller.output_steps()
-        j_el, j_az = hh.settle(tuple(steps))
+        j_el, j_az = hh.settle(tuple(steps), self.night)
         band = hh.case.rock_az_rad * NIGHT_ROCK_FRACTION
         return [hh.truth.normal(*steps, night=self.night, jitter=(j_el, j_az + d))
                 for d in np.linspace(-0.5, 0.5, 5) * band]
@@ -361,6 +369,8 @@ class SimulatedPlant:
         import cv2
 
         src = self.lamp()
+        if src is None:
+            return np.zeros(grid.shape)  # every lamp dark (a lamp change)
         lamp = np.asarray(src.position_enu_m, float)
         rows, cols = grid.shape
         coarse = coarse_grid(grid)

@@ -21,7 +21,7 @@ def true_pose(plant: SimulatedPlant, hid: str) -> tuple[np.ndarray, np.ndarray]:
     night stay the same (the same values as computing them anew: same calls, same order)."""
     hh = plant.hidden[hid]
     steps = tuple(hh.controller.output_steps())
-    jitter = hh.settle(steps)
+    jitter = hh.settle(steps, plant.night)
     key = (steps, jitter, plant.night)
     cached = hh.pose_cache
     if cached is not None and cached[0] == key:

@@ -41,6 +41,8 @@ class BeamSafetyMonitor:
         calibration target) now; ``beams`` (:meth:`beams`) when the caller has them."""
         p = self.plant
         tgt = p.cfg.target(target)
+        if p.lamp() is None:
+            return []  # dark: no beam anywhere
         c, nrm, u_axis, v_axis = self._target_frame(tgt.id)
         out = []
         for hid, (pos, beam) in (self.beams() if beams is None else beams).items():
@@ -59,6 +61,8 @@ class BeamSafetyMonitor:
         """Per heliostat: its true mirror centre and the reflection r = 2 (s·n) n − s of the lit
         lamp's direction s about its true normal n (one read of the rods for every target)."""
         p = self.plant
+        if p.lamp() is None:
+            return {}  # every lamp dark: no beam
         lamp = np.asarray(p.lamp().position_enu_m, float)
         out = {}
         for hid in p.hidden:
@@ -78,6 +82,36 @@ class BeamSafetyMonitor:
                      base.u_axis, base.v_axis)
             self._frames[target_id] = frame
         return frame
+
+    def in_person_zones(self, reach_m: float = 400.0, step_m: float = 0.05) -> list[tuple[str, str]]:
+        """(heliostat, zone id) pairs whose true reflected central ray passes through a person
+        zone (config ``person_zones``, the bare boxes without their margins) now: points every
+        ``step_m`` along the ray up to ``reach_m``, or up to a target it lands on."""
+        p = self.plant
+        lamp = p.lamp()
+        if lamp is None or not p.cfg.person_zones:
+            return []
+        out = []
+        for hid, hh in p.hidden.items():
+            n = p.true_normal(hid)
+            pos = hh.truth.mirror_center(*hh.controller.output_steps(), night=p.night)
+            s = unit(np.asarray(lamp.position_enu_m, float) - pos)
+            beam = 2.0 * (s @ n) * n - s
+            end = reach_m
+            for tgt in p.cfg.targets:
+                c, nrm = np.asarray(tgt.center_enu_m, float), unit(np.asarray(tgt.normal, float))
+                base = camera_grid(p.cfg.for_target(tgt.id))
+                den = float(nrm @ beam)
+                t = float(nrm @ (c - pos)) / den if abs(den) > 1e-9 else -1.0
+                rel = pos + t * beam - c
+                if 0 < t < end and abs(rel @ base.u_axis) <= tgt.width_m / 2 \
+                        and abs(rel @ base.v_axis) <= tgt.height_m / 2:
+                    end = t
+            pts = pos + np.arange(0.0, end, step_m)[:, None] * beam
+            for z in p.cfg.person_zones:
+                if np.all((pts >= z.min_enu_m) & (pts <= z.max_enu_m), axis=1).any():
+                    out.append((hid, z.id))
+        return out
 
     def sample(self) -> None:
         """One look at every target (the monitor's thread calls this every ``period_s``)."""

@@ -6,6 +6,7 @@ import threading
 
 import numpy as np
 
+from controller.calibration.clipped_spot import clipped_centre
 from controller.calibration.observations import BeamNotFound, Match, Observation
 from controller.config import PlantConfig
 from controller.errors import InputError
@@ -66,7 +67,8 @@ class BeamChain:
         # threshold (calibration.centroid_threshold), not only the main region analyze()
         # keeps for the shape. A detached or dim lobe (canting error) carries beam energy
         # and must pull the aim too (docs/campaigns.md).
-        c = energy_centroid(subtract_background(hdr, r.background), self.centroid_threshold)
+        signal = subtract_background(hdr, r.background)
+        c = energy_centroid(signal, self.centroid_threshold)
         noise = r.background.noise
         if not c.peak > MIN_PEAK_SNR * noise:
             raise BeamNotFound(f"no beam spot found (peak {c.peak:.4g} is within {MIN_PEAK_SNR:g}x the "
@@ -76,11 +78,15 @@ class BeamChain:
         if not c.total > 0:
             raise BeamNotFound("no beam energy above the threshold")
         enu = tuple(self.frame.pixel_to_enu(c.x, c.y))
+        centre, conf = None, 0.0
+        if c.clipped:  # where the spot's centre lies beyond the edge (the cycle's coarse correction)
+            px, conf = clipped_centre(signal, self.centroid_threshold, tuple(c.clipped), (c.x, c.y))
+            centre = tuple(float(v) for v in self.frame.pixel_to_enu(*px)) if px is not None else None
         # The shape features the library matches on: Hu moments at its own threshold(s) (a
         # multi-threshold library needs the whole stack), else the analysis' Hu moments.
         hu = (np.asarray(self.library.describe(hdr, self.threshold), float).reshape(-1)
               if self.library is not None else np.asarray(r.hu))
-        return Observation((c.x, c.y), enu, hu, float(r.peak), tuple(c.clipped))
+        return Observation((c.x, c.y), enu, hu, float(r.peak), tuple(c.clipped), centre, conf)
 
     def match(self, hu: np.ndarray) -> Match | None:
         if self.library is None:

@@ -68,7 +68,7 @@ class Commissioning:
         st = drive.status()
         self.pointing = GeometryPointing(self.h, cfg.target(), cfg.light_source(), self.chain.frame,
                                          cfg.calibration.standby_offset_m, (st.az_steps, st.el_steps),
-                                         cfg.calibration.model)
+                                         cfg.calibration.model, others=cfg.targets, zones=cfg.person_zones)
         self.model = model
         self.move_timeout_s = move_timeout_s
         self.last: Capture | None = None

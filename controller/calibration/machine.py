@@ -22,10 +22,10 @@ Beam safety:
   cycle ends; if that fails the heliostat is stowed, and if even that fails the cycle ends
   *aborted* with ``beam_maybe_on_target`` set, so the campaign stops using the target.
 
-Correction (docs/campaigns.md): on the first measurement a library entry's correction, or the
-match's interpolated correction when confident (``calibration.coarse_correction``), is applied
-once as the *coarse* correction (:mod:`controller.calibration.coarse`); the centroid offset
-gives the *fine* one (``Pointing.fine_correction``), until the error is within ``tolerance_mrad``
+Correction (docs/campaigns.md): a library entry's stored correction on the first measurement,
+or a clipped spot's estimated centre when confident (``calibration.coarse_correction``), gives
+the *coarse* correction (:mod:`controller.calibration.coarse`); the centroid offset gives the
+*fine* one (``Pointing.fine_correction``), until the error is within ``tolerance_mrad``
 or ``max_iterations`` measurements were taken (one on a planned night's observation); then
 ``Pointing.fit`` refits the heliostat's model. Measuring moves end moving up on both axes
 (:mod:`controller.calibration.approach`, backlash).

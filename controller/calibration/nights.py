@@ -9,6 +9,9 @@ lamp the targets run in parallel (:func:`controller.calibration.parallel.run_per
 each its passes in rank order. Each pass is a campaign named ``<night>/<lamp>/<k>`` (one
 target) or ``<night>/<lamp>/<k>@<target>`` (several), so a night stopped by ``kill -9``
 resumes pass by pass: recorded heliostats are skipped, finished passes are not repeated.
+Before each lamp is lit, every heliostat of the night is made safe for it in the dark
+(:mod:`controller.calibration.lamp_change`): a standby pose is safe only for the lamp it was
+computed under.
 Measurements accumulate in the database across nights and every run refits the heliostat's
 model on all of them, weighted by age (``calibration.model.age_halflife_days``).
 """
@@ -19,6 +22,7 @@ import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from controller.calibration.lamp_change import LampChange, Standby
 from controller.calibration.parallel import run_per_target
 from controller.calibration.planner import PlanItem
 from controller.calibration.runner import CampaignResult
@@ -55,18 +59,39 @@ def night_passes(plan: list[PlanItem], night: str) -> list[Pass]:
     return out
 
 
+def lamp_standbys(plan: list[PlanItem], passes: list[Pass], lamp: str) -> dict[str, Standby]:
+    """Where each heliostat of ``plan`` waits while ``lamp`` is lit: those in its ``passes``
+    beside the aim point of their first pass under it (required), the others beside the
+    calibration target if their present pose is unsafe (:class:`lamp_change.Standby`)."""
+    out = {it.heliostat_id: Standby() for it in plan}
+    for p in passes:
+        if p.lamp == lamp:
+            for hid, aim in p.aims.items():
+                if not out[hid].required:
+                    out[hid] = Standby(p.target, aim, required=True)
+    return out
+
+
 def run_night(plan: list[PlanItem], night: str, run_pass: Callable[[Pass], CampaignResult],
-              stop_all: Callable[[], None] | None = None) -> list[CampaignResult]:
+              stop_all: Callable[[], None] | None = None,
+              change_lamp: Callable[[str, dict[str, Standby]], LampChange] | None = None,
+              ) -> list[CampaignResult]:
     """Run every pass of the night with ``run_pass`` (which builds and runs one observing
     campaign: ``CampaignOptions(name=p.name, light_source=p.lamp, aims=p.aims, observe=True,
     target=p.target)``), the targets of a lamp in parallel. A target stops at its first pass
     that did not end ``finished``/``partial`` (aborted, interrupted), the other targets after
     their present pass, and no further lamp is lit. ``stop_all``: asks every running campaign
-    to stop (Ctrl-C, :func:`run_per_target`)."""
+    to stop (Ctrl-C, :func:`run_per_target`). ``change_lamp(lamp, standbys)``: before each
+    lamp's passes, switches every lamp off and makes the night's heliostats safe for ``lamp``
+    (a :class:`controller.calibration.lamp_change.LampChanger`); its LampChangeError ends the
+    night with the lamp dark. Without it the caller guarantees that no heliostat of the night
+    can reflect the next lamp onto a target (a single-lamp night)."""
     results: list[CampaignResult] = []
     halted = threading.Event()
     passes = night_passes(plan, night)
     for lamp in dict.fromkeys(p.lamp for p in passes):
+        if change_lamp is not None:
+            change_lamp(lamp, lamp_standbys(plan, passes, lamp))
         per_target: dict[str | None, list[Pass]] = {}
         for p in passes:
             if p.lamp == lamp:

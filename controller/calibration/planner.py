@@ -7,7 +7,9 @@ For every heliostat the planner
 
 1. lists the candidate geometries it can take: each lit lamp × each aim point of tonight's
    target(s), kept when the heliostat reaches the pose within its soft limits with its
-   present model and the lamp lights the mirror's front (incidence below :data:`MAX_INCIDENCE_DEG`);
+   present model and the lamp lights the mirror's front (incidence below :data:`MAX_INCIDENCE_DEG`),
+   and whose beam on its way to the aim point enters no person zone (``person_zones``; the
+   approach from standby is checked again by the cycle before anything moves);
 2. scores them by the expected reduction of its *daytime* pointing variance
    (:mod:`controller.geometry.design`, Eq. 1-2) from its present model covariance, over
    ``calibration.planner.sun_positions`` positions of the yearly sun path;
@@ -45,6 +47,7 @@ from controller.geometry.design import (
 from controller.geometry.kinematics import HeliostatKinematics
 from controller.geometry.target_frame import TargetFrame
 from controller.geometry.tracking_model import TrackingModel, model_aim, model_normal
+from controller.geometry.zones import zone_boxes, zone_entered
 
 MAX_INCIDENCE_DEG = 75.0  # beyond this the lamp grazes the mirror: a faint, smeared spot
 
@@ -98,6 +101,7 @@ def candidates(cfg: PlantConfig, heliostat_id: str, model: TrackingModel,
     h = cfg.heliostat(heliostat_id)
     kin = HeliostatKinematics.from_config(h)
     pos = np.asarray(h.position_enu_m, float)
+    zones = zone_boxes(cfg.person_zones)
     out = []
     for lamp_id in cfg.calibration.planned_lamps():
         lamp = cfg.light_source(lamp_id)
@@ -112,6 +116,9 @@ def candidates(cfg: PlantConfig, heliostat_id: str, model: TrackingModel,
                 continue
             n = model_normal(kin, model, *steps)
             if math.degrees(math.acos(min(1.0, float(s @ n)))) > MAX_INCIDENCE_DEG:
+                continue
+            # The beam runs from the mirror to the aim point, where the target stops it.
+            if len(zones) and zone_entered(pos, point - pos, zones, 1.0) is not None:
                 continue
             out.append(Geometry(lamp_id, tuple(float(v) for v in point), cell,
                                 (int(steps[0]), int(steps[1])), tid))

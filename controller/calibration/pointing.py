@@ -12,7 +12,7 @@ import numpy as np
 
 from controller.calibration.observations import Step
 from controller.calibration.records import MeasurementRecord, ModelRecord
-from controller.config import Heliostat, LampSource, ModelSettings, PlantConfig, Target
+from controller.config import Heliostat, LampSource, ModelSettings, PersonZone, PlantConfig, Target
 from controller.errors import HeliocalError, InputError, LimitError
 from controller.geometry.aiming import aim_normal, source_direction
 from controller.geometry.correction import correction_from_offset
@@ -21,6 +21,7 @@ from controller.geometry.model_fit import NotIdentifiable, Sample, fit_model
 from controller.geometry.target_frame import TargetFrame
 from controller.geometry.tracking_model import TrackingModel, drift_sigma, model_aim, prior_sigma
 from controller.geometry.vectors import vector_to_azel
+from controller.geometry.zones import zone_boxes, zone_entered
 
 
 class UnsafePath(HeliocalError):
@@ -34,13 +35,15 @@ class GeometryPointing:
     The aim point is the target centre; the standby point lies ``standby_offset_m`` beside it in
     the target plane, on the heliostat's own side, so the approach is a short horizontal slew.
     ``others``: the plant's other targets, which slews must never cross either (their beams
-    belong to other pipelines that run at the same time).
+    belong to other pipelines that run at the same time). ``zones``: the plant's person zones
+    (config ``person_zones``), which the beam must never enter — at standby, on a slew, on the
+    approach or at the aim point.
     """
 
     def __init__(self, heliostat: Heliostat, target: Target, source, frame: TargetFrame,
                  standby_offset_m: float, current_steps: tuple[int, int] | None = None,
                  model_settings: ModelSettings | None = None, aim_point=None,
-                 others: tuple[Target, ...] = ()) -> None:
+                 others: tuple[Target, ...] = (), zones: tuple[PersonZone, ...] = ()) -> None:
         self.model_settings = model_settings or ModelSettings()
         model_prior(self.model_settings)  # an unknown term is refused before anything moves
         self.kin = HeliostatKinematics.from_config(heliostat)
@@ -55,19 +58,26 @@ class GeometryPointing:
         self.frame = frame
         self.others = tuple((np.asarray(t.center_enu_m, float), TargetFrame.from_config(t, (1, 1)), t)
                             for t in others if t.id != target.id)
-        self.standby_point = self.aim_point + standby_offset_m * frame.side(self.heliostat_pos)
-        if current_steps is not None:
+        self.zones, self.zone_ids = zone_boxes(zones), [z.id for z in zones]
+        own = frame.side(self.heliostat_pos)
+        self.standby_point = self.aim_point + standby_offset_m * own
+        if current_steps is not None or self.zone_ids:
             # Park on the side the slew from the present pose reaches first (azimuth steps
-            # closer to the present ones), so the beam does not pass the target on its way.
+            # closer to the present ones), so the beam does not pass the target on its way;
+            # without a present pose, on the heliostat's own side. Never on a side whose
+            # standby beam would enter a person zone.
             best = None
-            for side in (frame.u, -frame.u):
+            for side in (own, -own):
                 point = self.aim_point + standby_offset_m * side
                 try:
-                    az, _ = self.kin.aim(self.source_dir, point)
+                    az, el = self.kin.aim(self.source_dir, point)
                 except (LimitError, ValueError):  # unreachable side
                     continue
-                if best is None or abs(az - current_steps[0]) < best[0]:
-                    best = (abs(az - current_steps[0]), point)
+                if self.beam_in_zone(az, el) is not None:
+                    continue
+                cost = abs(az - current_steps[0]) if current_steps is not None else float(side is not own)
+                if best is None or cost < best[0]:
+                    best = (cost, point)
             if best is not None:
                 self.standby_point = best[1]
 
@@ -81,6 +91,31 @@ class GeometryPointing:
         """Whether the nominal reflected central ray lands on one of the ``others`` targets
         grown by ``margin_m``."""
         return any(self._lands_on(az_steps, el_steps, c, f, t, margin_m) for c, f, t in self.others)
+
+    def beam_in_zone(self, az_steps: float, el_steps: float) -> str | None:
+        """The id of the person zone the nominal reflected central ray enters at this pose, or
+        None; a beam that lands on the target ends there."""
+        if not self.zone_ids:
+            return None
+        origin = self.kin.mirror_center(az_steps, el_steps)
+        beam = self.kin.beam(az_steps, el_steps, self.source_dir)
+        stop = np.inf
+        if self._lands_on(az_steps, el_steps, self.frame.center, self.frame, self.target, 0.0):
+            stop = float(self.frame.normal @ (self.frame.center - origin)) / float(self.frame.normal @ beam)
+        k = zone_entered(origin, beam, self.zones, stop)
+        return None if k is None else self.zone_ids[k]
+
+    def _sweep(self, a: tuple[float, float], b: tuple[float, float], samples: int = 120):
+        """Poses (az, el steps) along a slew from ``a`` to ``b``, each axis moving at its
+        configured speed (acceleration ignored)."""
+        ax = self.heliostat.axes
+        speed = np.array([ax.azimuth.speed_steps_per_s, ax.elevation.speed_steps_per_s])
+        a_, b_ = np.asarray(a, float), np.asarray(b, float)
+        dur = np.abs(b_ - a_) / speed
+        total = float(dur.max())
+        for t in np.linspace(0.0, total, samples if total > 0 else 1):
+            frac = np.where(dur > 0, np.minimum(1.0, t / np.where(dur > 0, dur, 1.0)), 1.0)
+            yield a_ + frac * (b_ - a_)
 
     def _lands_on(self, az_steps: float, el_steps: float, center: np.ndarray, frame: TargetFrame,
                   target: Target, margin_m: float) -> bool:
@@ -97,25 +132,23 @@ class GeometryPointing:
         never crosses the target nor any of the ``others``: both axes together, else elevation
         first, else azimuth first.
         The motion model moves each axis at its configured speed (acceleration ignored).
+        Nor does it enter a person zone (a beam that starts in one may leave it).
         Raises :class:`UnsafePath` when no such path exists."""
-        ax = self.heliostat.axes
-        speed = np.array([ax.azimuth.speed_steps_per_s, ax.elevation.speed_steps_per_s])
 
         def clear(plan: list[tuple[int, int]]) -> bool:
             # A beam that starts on a target may leave it; once off it must never enter one.
             inside = self.beam_on_target(*start)
             inside_other = self.beam_on_other_target(*start)
+            inside_zone = self.beam_in_zone(*start) is not None
             for a, b in zip([start] + plan[:-1], plan, strict=True):
-                a_, b_ = np.asarray(a, float), np.asarray(b, float)
-                dur = np.abs(b_ - a_) / speed
-                total = float(dur.max())
-                for t in np.linspace(0.0, total, 120 if total > 0 else 1):
-                    frac = np.where(dur > 0, np.minimum(1.0, t / np.where(dur > 0, dur, 1.0)), 1.0)
-                    pose = a_ + frac * (b_ - a_)
+                for pose in self._sweep(a, b):
                     on, on_other = self.beam_on_target(*pose), self.beam_on_other_target(*pose)
-                    if (on and not inside) or (on_other and not inside_other):
+                    in_zone = self.beam_in_zone(*pose) is not None
+                    if (on and not inside) or (on_other and not inside_other) \
+                            or (in_zone and not inside_zone):
                         return False
                     inside, inside_other = inside and on, inside_other and on_other
+                    inside_zone = inside_zone and in_zone
             return True
 
         plans = ([end], [(start[0], end[1]), end], [(end[0], start[1]), end])
@@ -129,10 +162,25 @@ class GeometryPointing:
         return steps_to_aim(self.kin, model, self.source_dir, point, self.source_pos)
 
     def aim_steps(self, model: ModelRecord | None) -> tuple[int, int]:
-        return self._steps(self.aim_point, model)
+        """Steps onto the aim point; UnsafePath when the beam there, or on the approach from
+        standby, would enter a person zone (nothing has moved yet)."""
+        aim = self._steps(self.aim_point, model)
+        if self.zone_ids:
+            for pose in self._sweep(self.standby_steps(model), aim):
+                zone = self.beam_in_zone(*pose)
+                if zone is not None:
+                    raise UnsafePath(f"{self.heliostat.id}: the approach to the aim point {aim} would send "
+                                     f"the beam into person zone {zone!r}")
+        return aim
 
     def standby_steps(self, model: ModelRecord | None) -> tuple[int, int]:
-        return self._steps(self.standby_point, model)
+        """Steps onto the standby point; UnsafePath when the beam there would enter a person zone."""
+        standby = self._steps(self.standby_point, model)
+        zone = self.beam_in_zone(*standby)
+        if zone is not None:
+            raise UnsafePath(f"{self.heliostat.id}: the standby pose {standby} would send the beam into "
+                             f"person zone {zone!r}")
+        return standby
 
     def fine_correction(self, az_steps: int, el_steps: int, offset_enu: np.ndarray) -> Step:
         c = correction_from_offset(self.kin, az_steps, el_steps, self.source_dir, None, self.target,

@@ -38,7 +38,9 @@ from controller.calibration.beam_chain import BeamChain
 from controller.calibration.context import CycleContext, CycleObserver
 from controller.calibration.exposure import capture_unsaturated
 from controller.calibration.gate import TargetGate
+from controller.calibration.lamp_change import clear_targets
 from controller.calibration.machine import CalibrationCycle
+from controller.calibration.outcome import CampaignResult, outcome
 from controller.calibration.planning import order_queue
 from controller.calibration.pointing import GeometryPointing
 from controller.calibration.records import (
@@ -132,25 +134,6 @@ class _Observers(CampaignObserver):
     def fiducial_lamps(self, on: bool) -> None:
         for o in self._all:
             o.fiducial_lamps(on)
-
-
-@dataclass
-class CampaignResult:
-    campaign_id: int
-    name: str
-    resumed: bool
-    runs: list[RunRecord]  # every heliostat run of the campaign (earlier sessions too)
-    makespan_s: float  # plant time of this session, first start to last end
-    sequential_estimate_s: float  # same work one after another (sum of slews + occupancy)
-    status: str = "finished"  # one of records.CAMPAIGN_STATUSES
-    cause: str | None = None  # why it ended so (None when every heliostat was calibrated)
-    session_runs: int = 0
-
-    @property
-    def exit_code(self) -> int:
-        """The CLI's exit status for this outcome (docs/campaigns.md): 0 every heliostat
-        calibrated, 3 some failed or did not converge, 1 aborted."""
-        return {"finished": 0, "partial": 3}.get(self.status, 1)
 
 
 @dataclass
@@ -258,7 +241,7 @@ class Campaign:
                 pass
         pointing = {hid: GeometryPointing(self.cfg.heliostat(hid), target, source, self.chain.frame,
                                           cal.standby_offset_m, current.get(hid), cal.model, aims.get(hid),
-                                          others=self.cfg.targets)
+                                          others=self.cfg.targets, zones=self.cfg.person_zones)
                     for hid in self.ids}
         existing = self.store.campaign_by_name(self.opt.name)
         queue = existing.queue if existing is not None else order_queue(self.cfg, self.ids, current, pointing)
@@ -271,8 +254,12 @@ class Campaign:
         cid, resumed = self.store.open_campaign(
             self.opt.name, config_path=self.config_path, config_sha256=self.config_sha256,
             light_source=source.id, target=target.id, queue=queue, meta=self.meta)
-        self.observer.light_source_needed(source.id)
         try:
+            # The queue waits where it stands while the source is lit: no beam may sit on a target.
+            clear_targets(pointing, current, self.drive, self.store.latest_model,
+                          timeout_s=self.opt.move_timeout_s, clock=self.clock, sleep=self.sleep,
+                          poll_s=self.opt.poll_s)
+            self.observer.light_source_needed(source.id)
             return self._session(cid, resumed, queue, pointing)
         except KeyboardInterrupt:
             self._finish(cid, "interrupted", f"{INTERRUPTED}; rerun the same command to resume")
@@ -333,7 +320,7 @@ class Campaign:
                 raise
         t1 = self.clock()
         runs = self.store.runs(cid)
-        status, cause = _outcome(runs, queue, gate.blocked)
+        status, cause = outcome(runs, queue, gate.blocked)
         if stop.is_set() and not gate.blocked:  # request_stop: parked, resumable
             status, cause = "interrupted", f"{INTERRUPTED}; start it again to resume"
         self._finish(cid, status, cause)
@@ -381,19 +368,3 @@ class _CameraView:
 
     def __init__(self, capture: Callable[[], Any]) -> None:
         self.capture = capture
-
-
-def _outcome(runs: list[RunRecord], queue: list[str], target_blocked: bool) -> tuple[str, str | None]:
-    """Status and cause of a campaign session that ran to its end (records.CAMPAIGN_STATUSES)."""
-    if target_blocked:
-        return "aborted", ("a beam may have been left on the target (a heliostat could not be parked); "
-                           "nobody else was sent onto it")
-    failed = [r for r in runs if r.status not in ("calibrated", "measured")]
-    missing = len(queue) - len(runs)
-    if not failed and not missing:
-        return "finished", None
-    parts = [f"{len(failed)} of {len(queue)} heliostats not calibrated"] if failed else []
-    if missing:
-        parts.append(f"{missing} not recorded")
-    detail = "; ".join(f"{r.heliostat_id}: {r.fault_cause or r.status.replace('_', ' ')}" for r in failed[:3])
-    return "partial", ", ".join(parts) + (f" ({detail}{'; …' if len(failed) > 3 else ''})" if detail else "")

@@ -70,16 +70,7 @@ def run(args: argparse.Namespace) -> int:
                                       SimulationSettings(seed=args.seed), name, sequential=args.sequential,
                                       quiet=quiet, library_dir=Path(args.out), nights=args.nights)
     coarse = summary["coarse_correction"]
-    coarse["iterations_centroid_only_mean"] = coarse["iterations_mean"]  # disabled: this run is it
-    if cfg.calibration.coarse_correction is not None:
-        # Before/after on the same heliostats and seed: the campaign again, centroid only.
-        plain = _centroid_only_config(Path(args.config), Path(args.out) / "centroid-only")
-        twin = plain.parent
-        other, _ = simulated_campaign(load_config(plain), str(plain), twin, twin / "campaign.db",
-                                      ids, SimulationSettings(seed=args.seed), name,
-                                      sequential=args.sequential, library_dir=Path(args.out))
-        coarse["iterations_centroid_only_mean"] = other["coarse_correction"]["iterations_mean"]
-        coarse["error_after_centroid_only_mrad"] = other["error_after_mrad"]
+    _centroid_only_twin(coarse, cfg, Path(args.config), Path(args.out), sim, args)
     if args.json:
         # The demo's --json keys are a contract (docs/campaigns.md); the outcome is the exit code.
         print_json({k: v for k, v in summary.items() if k not in ("status", "cause")})
@@ -117,6 +108,35 @@ def simulated_campaign(cfg, config_path: str, out: Path, db: Path, ids: list[str
     return summary, sim
 
 
+def _centroid_only_twin(coarse: dict, cfg, config: Path, out: Path, sim, args: argparse.Namespace) -> None:
+    """Adds ``iterations_centroid_only_mean`` (and ``centroid_only_rerun``) to ``coarse``.
+
+    A run without a coarse move made only centroid moves: it is its own centroid-only run. The
+    heliostats whose run made one are calibrated again, centroid only, on the same seed (each
+    heliostat's hidden errors and noise come from its own generator, whoever else is in the run)
+    into ``OUT/centroid-only/``; the mean is over both. No coarse move, no second campaign."""
+    from simplant.settings import SimulationSettings
+
+    coarse["iterations_centroid_only_mean"] = coarse["iterations_mean"]
+    coarse["centroid_only_rerun"] = []
+    redo = coarse["applied_heliostats"]
+    if cfg.calibration.coarse_correction is None or not redo:
+        return
+    plain = _centroid_only_config(config, out / "centroid-only")
+    twin = plain.parent
+    _, again = simulated_campaign(load_config(plain), str(plain), twin, twin / "campaign.db", list(redo),
+                                      SimulationSettings(seed=args.seed), f"{sim.result.name}-centroid-only",
+                                      sequential=args.sequential, library_dir=out)
+    its = {r.heliostat_id: r.iterations for r in sim.result.runs}
+    its.update({r.heliostat_id: r.iterations for r in again.result.runs})
+    truth = {**sim.truth, **again.truth}  # closed loop: the plant's true error after each run
+    after = [t.error_after_mrad for h, t in truth.items() if h in its and t.error_after_mrad is not None]
+    coarse["iterations_centroid_only_mean"] = round(sum(its.values()) / len(its), 3)
+    coarse["centroid_only_rerun"] = list(redo)
+    coarse["error_after_centroid_only_mrad"] = {"mean": sum(after) / len(after) if after else None,
+                                                "max": max(after) if after else None}
+
+
 def _centroid_only_config(config: Path, out: Path) -> Path:
     """A copy of the plant config in ``out`` with ``calibration.coarse_correction: null``."""
     import yaml
@@ -133,20 +153,27 @@ def _centroid_only_config(config: Path, out: Path) -> Path:
 
 def coarse_summary(store, campaign_id: int, threshold: float | None) -> dict:
     """The coarse correction in the campaign: ``threshold`` (config ``calibration.coarse_correction``),
-    ``applied`` (runs whose first move was a coarse correction), ``iterations_mean`` over all
-    runs, and over the runs with and without a coarse move (``..._runs_with_coarse`` /
-    ``..._runs_without_coarse``: different heliostats, not a before/after). The before/after
-    on the same heliostats is ``iterations_centroid_only_mean``, added by :func:`run` from a
-    second, centroid-only campaign when the coarse correction is enabled."""
+    ``applied`` (runs with a coarse move), ``iterations_mean`` (measurements per heliostat) over
+    all runs, and over the runs with and without a coarse move (``..._runs_with_coarse`` /
+    ``..._runs_without_coarse``: different heliostats, not a before/after);
+    ``corrections_mean`` (corrective moves per heliostat, each followed by one more capture:
+    it counts the looks at a clipped spot, which are not measurements) and ``clipped_first_looks``
+    (runs whose first capture showed a spot clipped by the view's edge: a correction before any
+    measurement); ``applied_heliostats`` names the runs with a coarse move. The before/after on
+    the same heliostats, ``iterations_centroid_only_mean``, is added by :func:`run`."""
     runs = store.runs(campaign_id)
-    coarse = {r.id for r in runs if any(c.kind == "coarse" for c in store.corrections(r.id))}
+    moves = {r.id: store.corrections(r.id) for r in runs}
+    coarse = {r.id for r in runs if any(c.kind == "coarse" for c in moves[r.id])}
 
     def mean(rs) -> float | None:
         return round(float(sum(r.iterations for r in rs) / len(rs)), 3) if rs else None
 
     return {"threshold": threshold, "applied": len(coarse), "iterations_mean": mean(runs),
             "iterations_mean_runs_with_coarse": mean([r for r in runs if r.id in coarse]),
-            "iterations_mean_runs_without_coarse": mean([r for r in runs if r.id not in coarse])}
+            "iterations_mean_runs_without_coarse": mean([r for r in runs if r.id not in coarse]),
+            "applied_heliostats": [r.heliostat_id for r in runs if r.id in coarse],
+            "corrections_mean": round(sum(len(m) for m in moves.values()) / len(runs), 3) if runs else None,
+            "clipped_first_looks": sum(1 for m in moves.values() if m and m[0].iteration == 0)}
 
 
 def _print_aim(rows: list[dict]) -> None:
@@ -203,6 +230,14 @@ def _print_summary(s: dict, sim) -> None:
     con.print(f"{_f(s['heliostats_per_hour'], 0)} heliostats/hour/target (plant time), mean target "
               f"occupancy {_f(s['target_occupancy_s_mean'], 1)} s, pipelined speedup "
               f"{_f(s['pipelined_speedup'], 2)}x")
+    c = s["coarse_correction"]
+    if c["threshold"] is not None:
+        rerun = (f"the {len(c['centroid_only_rerun'])} with a coarse move calibrated again centroid only"
+                 if c["centroid_only_rerun"] else "no coarse move: this run is its own centroid-only run")
+        con.print(f"coarse correction (confidence ≥ {c['threshold']:g}): applied on {c['applied']} of "
+                  f"{s['heliostats']} heliostats ({c['clipped_first_looks']} first looks clipped); "
+                  f"iterations per heliostat {_f(c['iterations_mean'], 2)}, centroid only "
+                  f"{_f(c['iterations_centroid_only_mean'], 2)} ({rerun})")
     con.print(f"database {s['db']}, report {s['report']}")
     con.print(f"beam safety (plant truth): {safety['violations']} of {safety['samples']} samples "
               f"with two beams on the target; at most {safety['max_beams_on_target']} beam(s) on it")

@@ -2,8 +2,9 @@
 
 MANIFEST is a CSV ``image,label,az_deg,el_deg`` (paths relative to it; further columns such as
 ``heliostat,source,slant_m,magnitude`` become each entry's ``params``). The library YAML holds
-the feature kind (``multi-hu`` by default: Hu moments at three thresholds, whitened by the
-library's own spread; ``hu`` raw as in the paper; ``log-hu``; ``blur-hu`` / ``multi-blur-hu``:
+the feature kind (``multi-lobe-hu`` by default: Hu moments at three thresholds and of all the
+spot's lobes, whitened by the library's own spread; ``multi-hu`` without the lobes; ``hu`` raw as
+in the paper; ``log-hu``; ``blur-hu`` / ``multi-blur-hu``:
 moment invariants to a symmetric blur of the whole spot, alone or beside multi-hu), the
 normalisation, the unknown threshold calibrated from the library's own spread, and one entry per image. See
 docs/recognition.md. ``--json`` prints ``{"library", "entries", "labels", "features",
@@ -49,8 +50,9 @@ def register(subparsers) -> None:
     b = sub.add_parser("build", help="analyse the manifest's images and write LIB.yaml")
     b.add_argument("manifest", metavar="MANIFEST", help="CSV image,label,az_deg,el_deg")
     b.add_argument("--out", required=True, metavar="LIB.yaml", help="library file to write")
-    b.add_argument("--features", choices=FEATURE_KINDS, default="multi-hu",
-                   help="multi-hu = raw Hu moments at thresholds 0.1, 0.3, 0.5 (default), hu = raw Hu "
+    b.add_argument("--features", choices=FEATURE_KINDS, default="multi-lobe-hu",
+                   help="multi-lobe-hu = multi-hu and the Hu moments of all lobes above 0.1 of the peak "
+                        "(default), multi-hu = raw Hu moments at thresholds 0.1, 0.3, 0.5, hu = raw Hu "
                         "moments at --threshold (the paper's), log-hu = -sign(h) log10|h|, blur-hu = "
                         "invariants to a symmetric blur (whole spot, no threshold), multi-blur-hu = both")
     b.add_argument("--whiten", choices=("auto", "yes", "no"), default="auto",

@@ -8,9 +8,10 @@ bus address / unit id. The caller never needs to know which link a heliostat has
 
 from __future__ import annotations
 
-from controller.config import Camera, Link, ModbusRtuLink, ModbusTcpLink, SerialLink
+from controller.config import Camera
 from controller.devices.camera import DoubleCcdCamera
 from controller.devices.drive import Drive, DriveLimits
+from controller.link_config import Link, ModbusRtuLink, ModbusTcpLink, SerialLink
 
 
 def open_camera(cfg: Camera, manifest: str | None = None) -> DoubleCcdCamera:

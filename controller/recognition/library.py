@@ -6,9 +6,10 @@ YAML files are handled by :mod:`controller.recognition.library_io`.
 Library document (YAML)::
 
     version: 1
-    features: hu | log-hu | multi-hu | blur-hu | multi-blur-hu   # see controller.recognition.features
+    features: multi-lobe-hu | multi-hu | hu | log-hu | blur-hu | multi-blur-hu   # recognition.features
     threshold: 0.5                 # beam segmentation threshold (hu, log-hu)
-    thresholds: [0.1, 0.3, 0.5]    # the descriptor rows: multi-hu k = 7 x 3; blur-hu [0.05] (the
+    thresholds: [0.1, 0.3, 0.5]    # the descriptor rows: multi-hu k = 7 x 3; multi-lobe-hu
+                                   # [0.1, 0.3, 0.5, 0.1] (last row: all lobes) k = 28; blur-hu [0.05] (the
                                    # whole-spot window) k = 6; multi-blur-hu [0.1, 0.3, 0.5, 0.05] k = 27
     normalisation: {intensity: unit-mean, scale: [k numbers], whiten: [[k x k]] (optional)}
     unknown_distance: <float>      # largest per-entry threshold (informative)
@@ -28,6 +29,9 @@ Feature kinds:
   wings (a small twist, a short backlash smear) still moves the features. By default the library
   is *whitened* (``normalisation.whiten``, W = C^-1/2 of its own spread, see
   :func:`whitening`), and the distance stays Euclidean in the whitened space.
+* ``multi-lobe-hu`` (default of ``heliocal library build``): the multi-hu stack and, as a fourth
+  row, Hu of all lobes above 0.1 of the peak (:mod:`controller.recognition.lobes`), so detached
+  lobes (a mis-canted facet, facets canted apart) count. Whitened by default.
 * ``blur-hu``: six features invariant to a circularly symmetric blur, to zoom and brightness,
   from Hu's phi_2..phi_7 of the whole (unthresholded) spot signal
   (:mod:`controller.imaging.blur_moments`, :mod:`controller.recognition.blur_features`);
@@ -240,20 +244,25 @@ def feature_scale(spread: Spread, kind: str) -> np.ndarray:
 
 
 def whitening(x: np.ndarray, spread: Spread, floor: float = 1e-6) -> np.ndarray:
-    """ZCA whitening W = C^(-1/2) (k, k) learned from the library's own spread.
+    """ZCA whitening W = C^(-1/2) (k, k) learned from the library's own *within-case* spread.
 
-    C = covariance of the entries (how the cases, magnitudes and geometries of the library
-    differ) + covariance of the augmented views about their entry (framing and noise), so a
-    direction in which nothing in the library varies is not blown up. Eigenvalues are floored
-    at ``floor`` x the largest. In the whitened space every direction the library spans has
-    unit spread, so the distance is not dominated by phi_1/phi_2 (raw Hu) nor by the noise of
-    phi_5..phi_7 (log Hu); it is still the Euclidean distance of Eq. 14, on W f.
+    C = second moment of the augmented views' deviations from their entry (framing, zoom, blur:
+    the nuisances a later view of the same case will have), i.e. a Mahalanobis distance whose
+    covariance is the nuisance alone, as in Fisher's discriminant: directions the nuisances
+    hardly move (where the cases differ) keep their weight, directions they move a lot (spot
+    size, noise of phi_5..phi_7) are shrunk. Adding the covariance of the entries themselves
+    (how the cases differ) shrank exactly the directions that separate them: on the independent
+    sets of docs/recognition.md that cost 3-13 points. Without deviations, C = covariance of
+    the entries ``x`` (n, k). Eigenvalues are floored at ``floor`` x the largest, so a direction
+    in which nothing varies is not blown up beyond 1/sqrt(floor). The distance is still the
+    Euclidean distance of Eq. 14, on W f.
     """
     x = np.asarray(x, dtype=np.float64)
     k = x.shape[1]
-    c = np.cov(x.T, bias=True).reshape(k, k) if x.shape[0] > 1 else np.zeros((k, k))
     if spread.deviations.size:
-        c = c + spread.deviations.T @ spread.deviations / spread.deviations.shape[0]
+        c = spread.deviations.T @ spread.deviations / spread.deviations.shape[0]
+    else:
+        c = np.cov(x.T, bias=True).reshape(k, k) if x.shape[0] > 1 else np.zeros((k, k))
     w, v = np.linalg.eigh(c)
     if not w.max() > 0:
         return np.eye(k)
@@ -307,7 +316,7 @@ def build_library(images: Sequence[np.ndarray], labels: Sequence[str], *, kind: 
     sets the feature scale and every entry's unknown threshold. ``az_deg``/``el_deg``,
     ``sha256`` and ``names`` (image file names) and ``params`` (the error state each image
     shows) are carried into the entries.
-    ``whiten`` (default: for ``multi-hu`` only) compares features after :func:`whitening`.
+    ``whiten`` (default: all kinds but ``hu`` and ``log-hu``) compares features after :func:`whitening`.
     Unknown thresholds: :func:`unknown_thresholds`, raised to :func:`neighbour_thresholds`.
     An image without a beam raises InputError naming its position (or name).
     """

@@ -63,10 +63,10 @@ def test_multi_errorset_library_splits_and_estimate(multi_set, tmp_path, capsys)
     code, out, err = cli(capsys, "library", "build", str(multi_set / "library.csv"), "--out", str(lib_path),
                          "--json")
     assert code == 0, err
-    assert json.loads(out)["features"] == "multi-hu"
+    assert json.loads(out)["features"] == "multi-lobe-hu"
     doc = yaml.safe_load(lib_path.read_text())
-    assert doc["thresholds"] == [0.1, 0.3, 0.5] and len(doc["normalisation"]["whiten"]) == 21
-    assert doc["entries"][0]["params"]["heliostat"] == "H03" and len(doc["entries"][0]["features"]) == 21
+    assert doc["thresholds"] == [0.1, 0.3, 0.5, 0.1] and len(doc["normalisation"]["whiten"]) == 28
+    assert doc["entries"][0]["params"]["heliostat"] == "H03" and len(doc["entries"][0]["features"]) == 28
 
     code, out, err = cli(capsys, "report", "confusion", "--library", str(lib_path), "--test",
                          str(multi_set / "test.csv"), "--out", str(tmp_path / "rep"), "--json")
@@ -117,13 +117,16 @@ def test_estimate_interpolates_between_neighbouring_entries():
     assert far.unknown and far.confidence == 0.0 and far.error_deg is None
 
 
-def test_whitening_makes_the_library_spread_isotropic():
+def test_whitening_makes_the_within_case_spread_isotropic():
     rng = np.random.default_rng(1)
     x = rng.normal(size=(200, 3)) * [1e-1, 1e-2, 1e-3]
-    dev = rng.normal(size=(50, 3)) * 1e-4
+    dev = rng.normal(size=(50, 3)) * [1e-4, 1e-3, 1e-5]
     w = whitening(x, Spread(dev, np.zeros(50, dtype=np.int64)))
-    c = np.cov(x.T, bias=True) + dev.T @ dev / 50
+    c = dev.T @ dev / 50
     np.testing.assert_allclose(w @ c @ w.T, np.eye(3), atol=1e-6)
+    # The entries' own spread (how the cases differ) is not shrunk: the direction in which the
+    # nuisance varies least weighs most.
+    assert np.linalg.norm(w @ [0, 0, 1.0]) > 10 * np.linalg.norm(w @ [0, 1.0, 0])
     # A direction in which the library does not vary (variance below 1e-6 of the largest) is
     # not blown up beyond 1/sqrt(1e-6 x largest).
     flat = np.c_[x[:, :2], np.full(200, 0.5)]

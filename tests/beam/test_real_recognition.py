@@ -3,7 +3,7 @@ maps). No labels exist for them, so this records what the chain says: the neares
 distance and confidence, against the library documented in docs/recognition.md ("Real spots"):
 
     heliocal sim errorset --out ES --heliostat H09 --sources lamp,sun --magnitudes 0.5,1,1.5 --views 1
-    heliocal library build ES/library.csv --out lib.yaml        (multi-hu, whitened)
+    heliocal library build ES/library.csv --out lib.yaml        (multi-lobe-hu, whitened)
     heliocal match IMAGE --library lib.yaml --json
 
 Asserted: every spot is analysed and matched (nearest case named, finite distance), the nearest
@@ -22,11 +22,11 @@ from beamkit import REAL, cli
 # Nearest case per image, as documented in docs/recognition.md.
 NEAREST = {
     "106293-cropped.png": "gravity-sag", "137608-cropped.png": "gear-backlash",
-    "213508-cropped.png": "facet-split", "216331-cropped.png": "gravity-sag",
-    "240796-cropped.png": "gear-backlash", "99927-cropped.png": "gravity-sag",
-    "106293-flux.png": "gravity-sag", "137608-flux.png": "wind-load", "213508-flux.png": "gravity-sag",
-    "216331-flux.png": "wind-load", "240796-flux.png": "gear-backlash", "99927-flux.png": "gravity-sag",
-    "AA39-flux_1.png": "facet-split", "AA39-flux_2.png": "facet-split", "AA39-flux_3.png": "gravity-sag",
+    "213508-cropped.png": "wind-load", "216331-cropped.png": "canting-error",
+    "240796-cropped.png": "gravity-sag", "99927-cropped.png": "gravity-sag",
+    "106293-flux.png": "gravity-sag", "137608-flux.png": "gear-backlash", "213508-flux.png": "wind-load",
+    "216331-flux.png": "canting-error", "240796-flux.png": "gear-backlash", "99927-flux.png": "gravity-sag",
+    "AA39-flux_1.png": "facet-split", "AA39-flux_2.png": "gravity-sag", "AA39-flux_3.png": "gravity-sag",
 }
 
 

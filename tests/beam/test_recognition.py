@@ -156,7 +156,7 @@ def test_library_build_bad_image_names_manifest_line(tmp_path, capsys):
     assert code == 2 and "m.csv:2" in err and not out.exists()
 
 
-@pytest.mark.parametrize("kind", ["hu", "log-hu", "multi-hu"])
+@pytest.mark.parametrize("kind", ["hu", "log-hu", "multi-hu", "multi-lobe-hu"])
 def test_recognition_rate_on_default_errorset(errorset, tmp_path, capsys, kind):
     lib = tmp_path / f"lib-{kind}.yaml"
     code, _, err = cli(capsys, "library", "build", str(errorset / "library.csv"), "--out", str(lib),

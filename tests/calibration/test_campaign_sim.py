@@ -248,6 +248,9 @@ def test_planned_night_measures_other_geometries_and_explains_them(small_config,
                            "WHERE c.name LIKE '%/night-1/%'").fetchall()
         measured = c.execute("SELECT DISTINCT m.source_e, m.source_n FROM measurements m").fetchall()
     assert len(plan) == night["planned"]
+    # Every lamp of the plan was preceded by a lamp change in the dark covering the night's heliostats.
+    assert sorted(c["lamp"] for c in night["lamp_changes"]) == sorted({lamp for _, _, lamp, *_ in plan})
+    assert all(c["checked"] == len({h for _, h, *_ in plan}) for c in night["lamp_changes"])
     assert all(gain > 0 and after < before for _, _, _, gain, before, after in plan)
     assert len(passes) == len(plan)
     assert all(status in ("measured", "failed") and it <= 1 for _, _, status, it in passes)

@@ -1,17 +1,15 @@
-"""The coarse correction of a confident match in the loop: when it applies, what it moves,
-and that its step goes through the same limits as every move."""
+"""The coarse correction in the loop: when it applies (a clipped spot with a confident centre
+estimate; a library entry's stored correction), what it moves, that a library match's
+interpolated estimate does not replace the centroid, and that every step goes through the same
+limits as every move."""
 
 from __future__ import annotations
-
-import math
 
 import numpy as np
 import pytest
 
-from controller.calibration.coarse import coarse_applies, correction_step, predicted_offset_enu
+from controller.calibration.coarse import clipped_applies, correction_step
 from controller.calibration.observations import Match, Observation
-
-from .conftest import AIM, HELIOSTAT, A
 
 
 class _Pointing:
@@ -32,70 +30,65 @@ class _Pointing:
         raise AssertionError("no entry correction in these matches")
 
 
-def test_predicted_offset_is_range_times_the_beam_angle():
-    p = _Pointing()
-    # Azimuth clockwise from north: +0.1 deg turns a north-going beam towards east (+x).
-    east = predicted_offset_enu(p, (0.1, 0.0))
-    assert east[0] == pytest.approx(100 * math.radians(0.1), rel=1e-4) and abs(east[2]) < 1e-6
-    up = predicted_offset_enu(p, (0.0, -0.2))
-    assert up[2] == pytest.approx(-100 * math.radians(0.2), rel=1e-4) and abs(up[0]) < 1e-6
-
-
 OBS = Observation((0.0, 0.0), (0.3, 100.0, -0.2), np.ones(7), 1.0)
 SURE = Match("wind-load", 0.1, "gravity-sag", 2.0, coarse_correction_deg=(-0.1, 0.05), confidence=0.8)
+CENTRE = (3.9, 100.0, -0.2)  # where the clipped spot's centre lies (beyond the visible centroid)
+CLIPPED = Observation((1020.0, 300.0), (3.5, 100.0, -0.2), np.ones(7), 1.0, ("right",), CENTRE, 0.5)
 
 
-def test_confident_match_gives_the_coarse_step_from_its_estimate():
+def test_a_confident_clipped_centre_gives_the_coarse_step():
     p = _Pointing()
-    kind, step = correction_step(p, 0, 0, OBS, SURE, first=True, min_confidence=0.5)
+    kind, step = correction_step(p, 0, 0, CLIPPED, None, first=True, min_confidence=0.5)
     assert kind == "coarse"
-    np.testing.assert_allclose(p.asked[0], predicted_offset_enu(p, (0.1, -0.05)))
+    np.testing.assert_allclose(p.asked[0], np.asarray(CENTRE) - p.aim_point)
     assert step.daz_steps == int(round(-1000 * p.asked[0][0]))
+    # On any clipped look, not only the first (a clipped look is not a measurement).
+    assert correction_step(_Pointing(), 0, 0, CLIPPED, SURE, first=False, min_confidence=0.5)[0] == "coarse"
+
+
+def _clipped(centre, conf) -> Observation:
+    return Observation((1020.0, 300.0), (3.5, 100.0, -0.2), np.ones(7), 1.0, ("right",), centre, conf)
 
 
 @pytest.mark.parametrize("match, first, threshold, obs", [
-    (SURE, True, None, OBS),  # disabled in the config
-    (SURE, True, 0.9, OBS),  # not confident enough
-    (SURE, False, 0.5, OBS),  # only on the first measurement
-    (Match("wind-load", 0.1, unknown=True, coarse_correction_deg=(-0.1, 0.05), confidence=0.8),
-     True, 0.5, OBS),
-    (SURE, True, 0.5, Observation((0.0, 0.0), (0.3, 100.0, -0.2), np.ones(7), 1.0, ("left",))),  # clipped
-    (None, True, 0.5, OBS),  # no library
+    (SURE, True, 0.5, OBS),  # a confident match on a spot in full view: the centroid measures it all
+    (SURE, True, None, CLIPPED),  # disabled in the config
+    (None, True, 0.6, CLIPPED),  # the centre's confidence is below the threshold
+    (None, True, 0.5, _clipped(None, 0.0)),  # no centre estimate
+    (None, True, 0.2, _clipped((float("nan"), 100.0, 0.0), 0.5)),  # not a number: never moved on
+    (None, True, 0.5, OBS),  # no library, not clipped
 ])
 def test_otherwise_the_centroid_gives_the_fine_step(match, first, threshold, obs):
     p = _Pointing()
     kind, _ = correction_step(p, 0, 0, obs, match, first=first, min_confidence=threshold)
     assert kind == "fine"
     np.testing.assert_allclose(p.asked[0], np.asarray(obs.centroid_enu) - p.aim_point)
-    assert not coarse_applies(match, threshold) or not first or obs.clipped
+    assert not clipped_applies(obs, threshold)
 
 
-def _true_error_deg(offset_m: np.ndarray) -> tuple[float, float]:
-    """Beam error (Δaz, Δel) in degrees that moves the spot by ``offset_m`` (east, up) at AIM."""
-    from controller.geometry.vectors import vector_to_azel
-
-    (a0, e0), (a1, e1) = (vector_to_azel(p - HELIOSTAT) for p in (AIM, AIM + [offset_m[0], 0.0, offset_m[1]]))
-    return float(a1 - a0), float(e1 - e0)
-
-
-def test_machine_applies_a_confident_coarse_correction_once_then_refines(make_cycle):
+def test_a_confident_match_does_not_replace_the_centroid_in_the_machine(make_cycle):
     cyc, plant, _ = make_cycle()
-    err = _true_error_deg(A @ plant.hidden_steps)  # the beam's offset at the aim, from the hidden error
     cyc.ctx.match = lambda hu: Match("wind-load", 0.1, "gravity-sag", 2.0,
-                                     coarse_correction_deg=(-err[0], -err[1]), confidence=0.9)
+                                     coarse_correction_deg=(-0.3, 0.2), confidence=0.95)
     cyc.ctx.coarse_confidence = 0.5
     rec = cyc.run()
-    kinds = [c.kind for c in rec.corrections]
-    assert kinds[0] == "coarse" and set(kinds[1:]) <= {"fine"}
-    # The estimate is the true error here, so the coarse move alone nearly removes it.
-    assert plant.true_errors[1] < 0.2 * plant.true_errors[0]
+    assert [c.kind for c in rec.corrections] == ["fine"] * len(rec.corrections)
     assert rec.status == "calibrated"
 
 
 def test_a_wild_coarse_correction_is_clamped_to_the_drive_limits(make_cycle):
     cyc, _, drive = make_cycle(max_iterations=2)
-    cyc.ctx.match = lambda hu: Match("wind-load", 0.1, "gravity-sag", 2.0,
-                                     coarse_correction_deg=(-40.0, 30.0), confidence=0.99)
+    looks = []
+
+    def analyze(frame):  # the first look is clipped with a (wrong) centre a kilometre away
+        looks.append(frame)
+        if len(looks) == 1:
+            return Observation((0.0, 0.0), (0.0, 0.0, 30.0), np.ones(7), 1.0, ("left",),
+                               (1000.0, 0.0, 30.0), 1.0)
+        d = frame.metadata["offset"]
+        return Observation((0.0, 0.0), (float(d[0]), 0.0, 30.0 + float(d[1])), np.ones(7), 1.0)
+
+    cyc.ctx.analyze = analyze
     cyc.ctx.coarse_confidence = 0.5
     seen = []
     real_move = drive.move_and_wait
@@ -106,8 +99,9 @@ def test_a_wild_coarse_correction_is_clamped_to_the_drive_limits(make_cycle):
 
     drive.move_and_wait = move
     rec = cyc.run()
-    assert rec.corrections[0].kind == "coarse"
+    assert rec.corrections[0].kind == "coarse" and rec.corrections[0].iteration == 0
     lim = drive.limits
+    assert any(a in (lim.az.min_steps, lim.az.max_steps) for a, _ in seen)  # it was clamped
     assert all(lim.az.min_steps <= a <= lim.az.max_steps and lim.el.min_steps <= e <= lim.el.max_steps
                for a, e in seen)
 
@@ -136,10 +130,54 @@ def test_demo_coarse_summary_counts_runs_with_a_coarse_first_move():
     from controller.calibration.records import CorrectionRecord
     from controller.commands.demo import coarse_summary
 
-    runs = [NS(id=1, iterations=3), NS(id=2, iterations=1), NS(id=3, iterations=2)]
-    moves = {1: [CorrectionRecord(1, "coarse", 0, 0, 0, 0), CorrectionRecord(2, "fine", 0, 0, 0, 0)],
+    runs = [NS(id=1, heliostat_id="H01", iterations=3), NS(id=2, heliostat_id="H02", iterations=1),
+            NS(id=3, heliostat_id="H03", iterations=2)]
+    moves = {1: [CorrectionRecord(0, "coarse", 0, 0, 0, 0), CorrectionRecord(1, "fine", 0, 0, 0, 0),
+                 CorrectionRecord(2, "fine", 0, 0, 0, 0)],
              2: [], 3: [CorrectionRecord(1, "fine", 0, 0, 0, 0)]}
     store = NS(runs=lambda cid: runs, corrections=lambda rid: moves[rid])
     s = coarse_summary(store, 7, 0.5)
     assert (s["threshold"], s["applied"], s["iterations_mean"]) == (0.5, 1, 2.0)
     assert (s["iterations_mean_runs_with_coarse"], s["iterations_mean_runs_without_coarse"]) == (3.0, 1.5)
+    # 4 moves over 3 heliostats; one first look was clipped (a move before any measurement).
+    assert (s["corrections_mean"], s["clipped_first_looks"]) == (round(4 / 3, 3), 1)
+    assert s["applied_heliostats"] == ["H01"]
+
+
+def test_demo_recalibrates_only_the_heliostats_with_a_coarse_move_centroid_only(tmp_path, monkeypatch):
+    from argparse import Namespace
+    from types import SimpleNamespace as NS
+
+    import controller.commands.demo as demo
+
+    from .conftest import REPO
+
+    def truth(err):
+        return NS(label="x", error_before_mrad=5.0, error_after_mrad=err)
+
+    sim = NS(result=NS(name="demo", runs=[NS(heliostat_id=h, iterations=i) for h, i in
+                                          (("H01", 2), ("H02", 2), ("H03", 3))]),
+             truth={"H01": truth(0.2), "H02": truth(0.3), "H03": truth(0.4)})
+    asked = []
+
+    def campaign(cfg, config_path, out, db, ids, settings, name, **kw):
+        asked.append((list(ids), settings.seed, cfg.calibration.coarse_correction))
+        again = NS(result=NS(runs=[NS(heliostat_id="H03", iterations=4)]), truth={"H03": truth(0.1)})
+        return {}, again
+
+    monkeypatch.setattr(demo, "simulated_campaign", campaign)
+    cfg = NS(calibration=NS(coarse_correction=0.5))
+    args = Namespace(seed=4, sequential=False)
+    coarse = {"iterations_mean": 2.333, "applied_heliostats": ["H03"]}
+    demo._centroid_only_twin(coarse, cfg, REPO / "configs" / "demo.yaml", tmp_path, sim, args)
+    # Only H03 (coarse move) again, same seed, centroid only; the others count as they ran.
+    assert asked == [(["H03"], 4, None)]
+    assert coarse["iterations_centroid_only_mean"] == round((2 + 2 + 4) / 3, 3)
+    assert coarse["centroid_only_rerun"] == ["H03"]
+    assert coarse["error_after_centroid_only_mrad"]["max"] == 0.3
+    # No coarse move: no second campaign, the run is its own centroid-only run.
+    asked.clear()
+    none = {"iterations_mean": 2.333, "applied_heliostats": []}
+    demo._centroid_only_twin(none, cfg, REPO / "configs" / "demo.yaml", tmp_path, sim, args)
+    assert asked == [] and none["centroid_only_rerun"] == []
+    assert none["iterations_centroid_only_mean"] == 2.333

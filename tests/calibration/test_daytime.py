@@ -63,3 +63,19 @@ def test_aim_contract_scored_independently_matches_the_reported_daytime_error(sm
     independent = float(np.sqrt(np.mean(np.square(errs))))
     assert len(errs) > 20
     assert independent == pytest.approx(reported["rms"], rel=0.10)
+
+
+def test_repeatability_draw_depends_on_the_pose_not_on_who_looked_before(small_config, tmp_path):
+    """A seed gives one figure: the landing error at a pose is the same however often the
+    plant was sampled on the way there (the safety monitor samples by wall-clock time)."""
+    settings = SimulationSettings(clock_speedup=FAST.clock_speedup, seed=4)
+    plants = [SimulatedPlant(load_config_data(small_config), tmp_path / f"p{i}", heliostat_ids=IDS,
+                             settings=settings) for i in range(2)]
+    pose = (20000.0, 30000.0)
+    first = plants[0].hidden["H02"].settle(pose, 1)
+    for k in range(50):  # a slew seen by the monitor: many poses on the way
+        plants[1].hidden["H02"].settle((19000.0 + 20 * k, 29000.0 + 20 * k), 1)
+    assert plants[1].hidden["H02"].settle(pose, 1) == first
+    assert plants[0].hidden["H02"].settle(pose, 2) != first  # another night, another landing
+    assert plants[0].hidden["H02"].settle((20001.0, 30000.0), 1) != first
+    assert plants[0].hidden["H08"].settle(pose, 1) != first

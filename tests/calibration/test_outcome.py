@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
+from controller.calibration.outcome import CampaignResult, outcome
 from controller.calibration.records import RunRecord
-from controller.calibration.runner import CampaignResult, _outcome
 from controller.reports.campaign import write_report
 from controller.reports.summary import summarize
 from controller.storage.db import CampaignStore
@@ -34,7 +34,7 @@ def _run(hid: str, status: str, start: float, end: float, cause: str | None = No
 def test_outcome_and_exit_code(statuses, blocked, expected, code):
     runs = [_run(f"H{i}", s, 0.0, 1.0, "ActuatorFault: stall_az" if s == "failed" else None)
             for i, s in enumerate(statuses)]
-    status, cause = _outcome(runs, ["H0", "H1"], blocked)
+    status, cause = outcome(runs, ["H0", "H1"], blocked)
     assert status == expected and (cause is None) == (expected == "finished")
     if "failed" in statuses:
         assert "H1: ActuatorFault: stall_az" in cause

@@ -10,7 +10,6 @@ import time
 
 import pytest
 
-from controller.config import ModbusRtuLink, ModbusTcpLink
 from controller.devices.drive import (
     ActuatorFault,
     AxisLimits,
@@ -27,6 +26,7 @@ from controller.devices.modbus_drive import (
     ModbusLink,
 )
 from controller.errors import LimitError
+from controller.link_config import ModbusRtuLink, ModbusTcpLink
 from firmware_proto.faults import Reject
 from tests.conftest import scaled_s
 

@@ -1,0 +1,195 @@
+"""Changing the lamp of a night without a stray beam (docs/campaigns.md, "Lamp changes").
+
+A standby pose keeps the beam of the lamp it was computed for off every target. Under another
+lamp the same pose reflects that lamp somewhere else — possibly onto a target where another
+heliostat is being measured. So before a lamp is lit, with every lamp dark:
+
+* each heliostat of the new lamp's passes goes to its standby for that lamp beside its first
+  aim point (its cycle then starts with a short, checked slew);
+* every other heliostat of the night stays where it is when its beam under the new lamp
+  lands as far from every target as a standby beam does (``standby_offset_m`` from the centre,
+  so its spot stays out of the cameras' views) and out of every person zone, and otherwise
+  goes to its standby beside the calibration target for the new lamp;
+* a standby that is out of reach or would itself light a target or a person zone is replaced
+  by the stow pose, which must pass the same check.
+
+The moves are made in the dark, all heliostats at once, and waited for. Only then may the lamp
+be lit. A heliostat that does not answer, cannot be moved or ends on an unsafe pose stops the
+change with :class:`LampChangeError` naming it: its beam under the new lamp is not known to be
+off the targets, so the lamp must stay dark.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from contextlib import AbstractContextManager, nullcontext
+from dataclasses import dataclass
+
+from controller.calibration.pointing import GeometryPointing, UnsafePath
+from controller.calibration.records import ModelRecord
+from controller.config import PlantConfig
+from controller.devices.drive import Drive, DriveError, DriveLimits
+from controller.errors import HeliocalError, LimitError
+from controller.geometry.target_frame import TargetFrame
+
+
+class LampChangeError(HeliocalError):
+    """A heliostat could not be made safe for the next lamp: the lamp must not be lit."""
+
+
+@dataclass(frozen=True)
+class LampChange:
+    """What was done in the dark before ``lamp`` was lit: the heliostats checked, those moved to
+    their standby for it and those stowed."""
+
+    lamp: str
+    checked: int
+    parked: tuple[str, ...]
+    stowed: tuple[str, ...]
+
+    def to_json(self) -> dict:
+        return {"lamp": self.lamp, "checked": self.checked, "parked": list(self.parked),
+                "stowed": list(self.stowed)}
+
+
+@dataclass(frozen=True)
+class Standby:
+    """Where a heliostat waits under the new lamp: beside ``aim_enu`` (m ENU) on ``target``
+    (None: the calibration target and its centre); ``required``: it must go there (it is in
+    the lamp's passes), else only when its present pose is unsafe."""
+
+    target: str | None = None
+    aim_enu: tuple[float, float, float] | None = None
+    required: bool = False
+
+
+class LampChanger:
+    """Makes the heliostats of a night safe for a new lamp in the dark (module docstring).
+
+    ``drive_of(hid)``: the heliostat's drive; ``model_of(hid)``: its latest fitted model (aims
+    with it, as the cycles do); ``lights_out()``: switches every lamp off (a lamp controller, an
+    operator, a simulated plant); ``clock``/``sleep``: the plant clock for the moves;
+    ``compute``: a context manager around the controller's own computing, as for a campaign (a
+    simulated plant lets its clock run at 1x there)."""
+
+    def __init__(self, cfg: PlantConfig, drive_of: Callable[[str], Drive],
+                 model_of: Callable[[str], ModelRecord | None], lights_out: Callable[[], None], *,
+                 clock: Callable[[], float], sleep: Callable[[float], None],
+                 move_timeout_s: float = 120.0, poll_s: float = 0.1,
+                 compute: Callable[[], AbstractContextManager] = nullcontext) -> None:
+        self.cfg = cfg
+        self.compute = compute
+        self.drive_of = drive_of
+        self.model_of = model_of
+        self.lights_out = lights_out
+        self.clock = clock
+        self.sleep = sleep
+        self.move_timeout_s = move_timeout_s
+        self.poll_s = poll_s
+
+    def pointing(self, hid: str, lamp: str, where: Standby, current: tuple[int, int]) -> GeometryPointing:
+        cfg = self.cfg.for_target(where.target) if where.target else self.cfg
+        cal, cam = cfg.calibration, cfg.camera
+        frame = TargetFrame.from_config(cfg.target(), (cam.height_px, cam.width_px))
+        return GeometryPointing(cfg.heliostat(hid), cfg.target(), cfg.light_source(lamp), frame,
+                                cal.standby_offset_m, current, cal.model, where.aim_enu,
+                                others=self.cfg.targets, zones=self.cfg.person_zones)
+
+    def __call__(self, lamp: str, standby: dict[str, Standby]) -> LampChange:
+        """Switch the lamps off and leave every heliostat of ``standby`` on a pose whose beam
+        under ``lamp`` is off every target (module docstring); LampChangeError otherwise."""
+        self.lights_out()
+        # A heliostat stays put only when its beam lands as far from every target as a standby
+        # beam does: closer, its spot's tails would fall into a camera's view and spoil others'
+        # measurements, though it is off the target.
+        cal = self.cfg.calibration
+        half = max(max(t.width_m, t.height_m) for t in self.cfg.targets) / 2
+        stay_margin = max(2.0, cal.standby_offset_m - half)
+        moving: dict[str, tuple[Drive, GeometryPointing, tuple[int, int] | None]] = {}
+        stowed: list[str] = []
+        for hid, where in standby.items():
+            drive = self._ask(hid, lamp, lambda h=hid: self.drive_of(h))
+            st = self._ask(hid, lamp, drive.status)
+            with self.compute():
+                p = self.pointing(hid, lamp, where, (st.az_steps, st.el_steps))
+                if not where.required and _safe(p, st.az_steps, st.el_steps, stay_margin):
+                    continue
+                pose = _safe_standby(p, self.model_of(hid))
+            try:
+                if pose is None:
+                    raise LimitError("no safe standby for it")
+                drive.move_abs(*pose)
+                moving[hid] = (drive, p, pose)
+            except (LimitError, DriveError):
+                self._ask(hid, lamp, drive.stow)
+                moving[hid] = (drive, p, None)
+                stowed.append(hid)
+        for hid, (drive, p, pose) in moving.items():
+            st = self._ask(hid, lamp, lambda d=drive, e=pose: d.wait_in_position(
+                self.move_timeout_s, self.poll_s, self.sleep, self.clock, expect=e))
+            with self.compute():
+                safe = _safe(p, st.az_steps, st.el_steps)
+            if not safe:
+                raise LampChangeError(f"lamp {lamp} not lit: {hid} at ({st.az_steps}, {st.el_steps}) "
+                                      f"would reflect it onto a target")
+        return LampChange(lamp, len(standby), tuple(h for h in moving if h not in stowed), tuple(stowed))
+
+    @staticmethod
+    def _ask(hid: str, lamp: str, call):
+        try:
+            return call()
+        except DriveError as exc:
+            raise LampChangeError(f"lamp {lamp} not lit: {hid} could not be made safe for it ({exc})") \
+                from exc
+
+
+def _safe_standby(p: GeometryPointing, model: ModelRecord | None) -> tuple[int, int] | None:
+    """The standby steps of ``p`` under its source, or None when they are out of reach or the
+    beam there would light a target or enter a person zone."""
+    try:
+        pose = p.standby_steps(model)
+    except (LimitError, ValueError, UnsafePath):
+        return None
+    return pose if _safe(p, *pose) else None
+
+
+def _safe(p: GeometryPointing, az_steps: float, el_steps: float, margin_m: float = 2.0) -> bool:
+    """Whether the beam at this pose is off the pointing's target and every other target, each
+    grown by ``margin_m``, and out of every person zone."""
+    return not (p.beam_on_target(az_steps, el_steps, margin_m)
+                or p.beam_on_other_target(az_steps, el_steps, margin_m)
+                or p.beam_in_zone(az_steps, el_steps) is not None)
+
+
+def clear_targets(pointing: dict[str, GeometryPointing], current: dict[str, tuple[int, int]],
+                  drive_of: Callable[[str], Drive], model_of: Callable[[str], ModelRecord | None], *,
+                  timeout_s: float, clock: Callable[[], float], sleep: Callable[[float], None],
+                  poll_s: float) -> list[str]:
+    """Before a campaign lights its source (which may already be lit): every heliostat of
+    ``pointing`` whose beam under that source lands on a target at its ``current`` pose goes to
+    its standby along a beam-safe path (:meth:`GeometryPointing.path_to`), one after another.
+    Its cycle would park it too, but only when its turn in the queue comes; until then its
+    beam would sit on a target. Heliostats without a ``current`` pose (unreachable) are left to
+    their cycles. The ids moved; UnsafePath or DriveError end the campaign before it starts."""
+    moved = []
+    for hid, p in pointing.items():
+        if hid not in current or _safe(p, *current[hid]):
+            continue
+        for waypoint in p.path_to(current[hid], p.standby_steps(model_of(hid))):
+            drive_of(hid).move_and_wait(*waypoint, timeout_s=timeout_s, clock=clock, sleep=sleep,
+                                        poll_s=poll_s)
+        moved.append(hid)
+    return moved
+
+
+def night_drives(cfg: PlantConfig, pool) -> Callable[[str], Drive]:
+    """Drives by heliostat id from ``pool`` (a link pool), opened once, with the config's limits."""
+    drives: dict[str, Drive] = {}
+
+    def drive_of(hid: str) -> Drive:
+        if hid not in drives:
+            h = cfg.heliostat(hid)
+            drives[hid] = pool.drive(h.link, DriveLimits.from_axes(h.axes))
+        return drives[hid]
+    return drive_of
+

@@ -1,0 +1,67 @@
+"""The links of the plant configuration (``heliostats[i].link``, docs/configuration.md): how
+the controller reaches each heliostat's drive — our serial frame protocol on an RS-485 bus,
+Modbus TCP through a gateway, or Modbus RTU. Re-exported by :mod:`controller.config`, whose
+:func:`load_config` validates it.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)  # as every configuration section
+
+
+class SerialLink(_Model):
+    kind: Literal["serial"]
+    device: str
+    address: int = Field(ge=1, le=247)
+    baud: int = Field(default=115200, gt=0)
+
+    @property
+    def bus_key(self) -> tuple:
+        """The physical link several heliostats share (opened once): the serial bus."""
+        return ("serial", self.device)
+
+    @property
+    def station(self) -> int:
+        """This heliostat's address on its bus."""
+        return self.address
+
+
+class ModbusTcpLink(_Model):
+    kind: Literal["modbus-tcp"]
+    host: str
+    port: int = Field(ge=1, le=65535)
+    unit: int = Field(ge=1, le=247)
+
+    @property
+    def bus_key(self) -> tuple:
+        """The physical link several heliostats share: the gateway's TCP connection."""
+        return ("modbus-tcp", self.host, self.port)
+
+    @property
+    def station(self) -> int:
+        return self.unit
+
+
+class ModbusRtuLink(_Model):
+    kind: Literal["modbus-rtu"]
+    device: str
+    unit: int = Field(ge=1, le=247)
+    baud: int = Field(default=115200, gt=0)
+
+    @property
+    def bus_key(self) -> tuple:
+        """The physical link several heliostats share: the RS-485 bus."""
+        return ("modbus-rtu", self.device)
+
+    @property
+    def station(self) -> int:
+        return self.unit
+
+
+Link = Annotated[SerialLink | ModbusTcpLink | ModbusRtuLink, Field(discriminator="kind")]
