@@ -3,7 +3,7 @@
 :class:`BeamField` follows where every hidden heliostat's true beam goes (the reflection of
 the lit lamp about the heliostat's true normal at its rods' true positions, as
 :meth:`simplant.plant.SimulatedPlant.scene` finds it, with the canting shift of
-:meth:`HiddenHeliostat.beam_normal`), recomputing a heliostat only when its rods moved.
+:meth:`simplant.hidden.HiddenHeliostat.beam_normal`), recomputing a heliostat only when its rods moved.
 :class:`CheapCamera` is a :class:`controller.devices.camera.DoubleCcdCamera` per target that
 renders each beam landing in its view as an elliptical Gaussian (:func:`spot_covariance`) on
 a small rectified grid (the config's ``camera.width_px`` × ``height_px``, e.g. 128 × 96),

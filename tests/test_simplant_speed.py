@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 import controller
-from simplant.plant import SimulatedPlant, load_config_data, mean_slope
+from simplant.hidden import mean_slope
+from simplant.plant import SimulatedPlant, load_config_data
 from simplant.poses import true_pose
 from simplant.truth import EAST, FACING_SOUTH, NORTH, UP, draw_truth, rodrigues
 
