@@ -26,10 +26,10 @@ and noise random): the manifests of ``heliocal library build`` / ``heliocal repo
 
 from __future__ import annotations
 
-import csv
 from pathlib import Path
 
 import numpy as np
+from errorset_manifest import write_manifest_set
 
 PX = 160
 MIRROR_M = (3.0, 2.4)  # w, h of the mirror (m); not the demo heliostat's 3.2 x 2.56
@@ -118,28 +118,5 @@ def _blur(img: np.ndarray, sigma: float) -> np.ndarray:
 def write_set(out: str | Path, seed: int = 0, views: int = 12,
               magnitudes=(0.5, 1.0, 1.5), spot_range=(0.7, 1.4)) -> tuple[Path, Path]:
     """Write ``out/library.csv`` and ``out/test.csv`` (``image,label,az_deg,el_deg,magnitude,spot``)."""
-    out = Path(out)
-    (out / "images").mkdir(parents=True, exist_ok=True)
-    lib_rows, test_rows = [], []
-    for ci, case in enumerate(CASES):
-        for mi, m in enumerate(magnitudes):
-            rng = np.random.default_rng([seed, ci, mi, 1])
-            name = f"images/lib-{case}-{mi}.npy"
-            np.save(out / name, render(case, m, rng))
-            lib_rows.append([name, case, "", "", f"{m:.4f}", "1.0"])
-        rng = np.random.default_rng([seed, ci, 2])
-        for k in range(views):
-            m = float(rng.uniform(0.5, 1.5))
-            spot = float(np.exp(rng.uniform(np.log(spot_range[0]), np.log(spot_range[1]))))
-            img = render(case, m, rng, spot=spot, rotation_rad=float(rng.uniform(0, 2 * np.pi)),
-                         zoom=float(np.exp(rng.uniform(np.log(0.8), np.log(1.25)))),
-                         shift_px=(float(rng.uniform(-8, 8)), float(rng.uniform(-8, 8))),
-                         exposure=float(np.exp(rng.uniform(np.log(0.6), np.log(1.5)))))
-            name = f"images/test-{case}-{k:02d}.npy"
-            np.save(out / name, img)
-            test_rows.append([name, case, "", "", f"{m:.4f}", f"{spot:.3f}"])
-    header = ["image", "label", "az_deg", "el_deg", "magnitude", "spot"]
-    for fname, rows in (("library.csv", lib_rows), ("test.csv", test_rows)):
-        with open(out / fname, "w", newline="", encoding="utf-8") as f:
-            csv.writer(f, lineterminator="\n").writerows([header, *rows])
-    return out / "library.csv", out / "test.csv"
+    return write_manifest_set(out, render, CASES, seed=seed, views=views, magnitudes=magnitudes,
+                              spot_range=spot_range, stream=1, shift_px=8.0, exposure_range=(0.6, 1.5))
