@@ -88,7 +88,7 @@ def previous_sample(plant: SimulatedPlant) -> dict[str, list[str]]:
         on = []
         for hid, hh in plant.hidden.items():
             steps = hh.controller.output_steps()
-            n, _ = previous_normal(hh.truth, *steps, plant.night, hh.settle(tuple(steps)))
+            n, _ = previous_normal(hh.truth, *steps, plant.night, hh.settle(tuple(steps), plant.night))
             _, pos = previous_normal(hh.truth, *hh.controller.output_steps(), plant.night, None)
             s = unit(lamp - pos)
             beam = 2.0 * (s @ n) * n - s

@@ -1,9 +1,10 @@
 """The simulated plant's speed-ups leave its truth unchanged: the same numbers, to the bit,
-as the formulas they replaced (written out here), and the same beams on the same targets."""
+as the formulas they replaced (kept as the peer of ``benchmarks/bench_sim_speed.py``), and the
+same beams on the same targets."""
 
 from __future__ import annotations
 
-import math
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -13,29 +14,15 @@ import controller
 from simplant.hidden import mean_slope
 from simplant.plant import SimulatedPlant, load_config_data
 from simplant.poses import true_pose
-from simplant.truth import EAST, FACING_SOUTH, NORTH, UP, draw_truth, rodrigues
+from simplant.truth import draw_truth
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+
+from bench_sim_speed import previous_normal, previous_sample  # noqa: E402
 
 DEMO = Path(controller.__file__).parent / "data" / "demo.yaml"
 AXIS = {"increment": 154166.6667, "initial_stroke_length": 0.0775, "offset": 0.3408, "pivot_radius": 0.3191,
         "initial_angle": 0.9439, "clockwise_axis_movement": True}
-
-
-def reference_frame(t, az: float, el: float, night: int, jitter) -> np.ndarray:
-    """HeliostatTruth's joint frame as first written: every rotation rebuilt on every call."""
-    d_el, d_az = t._drift(night)
-    eps = t.elevation.angle(el) + d_el
-    eps += t.droop * math.sin(eps)
-    alpha = t.azimuth.angle(az) + d_az
-    if jitter is not None:
-        eps, alpha = eps + float(jitter[0]), alpha + float(jitter[1])
-    joint_up = rodrigues(NORTH, t.non_orthogonality) @ UP
-    return t.pedestal @ rodrigues(EAST, eps - math.pi / 2.0) @ rodrigues(joint_up, alpha)
-
-
-def reference_normal(t, az: float, el: float, night: int, jitter) -> np.ndarray:
-    cant = rodrigues(EAST, t.canting[0]) @ rodrigues(UP, t.canting[1])
-    n = reference_frame(t, az, el, night, jitter) @ cant @ FACING_SOUTH
-    return n / np.linalg.norm(n)
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
@@ -47,10 +34,10 @@ def test_truth_normal_and_centre_are_bitwise_the_original_formulas(seed):
         az, el = rng.uniform(500, 70000, 2)
         night = int(rng.integers(0, 5))
         jitter = tuple(rng.normal(0.0, 1e-4, 2)) if rng.random() < 0.5 else None
-        assert np.array_equal(t.normal(az, el, night=night, jitter=jitter),
-                              reference_normal(t, az, el, night, jitter))
-        assert np.array_equal(t.mirror_center(az, el, night=night),
-                              t.position + reference_frame(t, az, el, night, None) @ t.concentrator)
+        n, _ = previous_normal(t, az, el, night, jitter)
+        _, centre = previous_normal(t, az, el, night, None)
+        assert np.array_equal(t.normal(az, el, night=night, jitter=jitter), n)
+        assert np.array_equal(t.mirror_center(az, el, night=night), centre)
 
 
 @pytest.fixture
@@ -64,32 +51,6 @@ def settle_all(plant: SimulatedPlant, rng: np.random.Generator) -> None:
         hh.controller.move_abs(int(rng.integers(20000, 50000)), int(rng.integers(20000, 50000)))
     with plant.clock.frozen(advance_s=1000.0):
         pass
-
-
-def reference_on_target(plant: SimulatedPlant, target: str) -> list[str]:
-    """BeamSafetyMonitor.on_target as first written (one target, every normal recomputed)."""
-    from controller.geometry.vectors import unit
-    from simplant.grids import camera_grid
-
-    tgt = plant.cfg.target(target)
-    c, nrm = np.asarray(tgt.center_enu_m, float), unit(np.asarray(tgt.normal, float))
-    base = camera_grid(plant.cfg.for_target(tgt.id))
-    lamp = np.asarray(plant.lamp().position_enu_m, float)
-    out = []
-    for hid, hh in plant.hidden.items():
-        n = plant.true_normal(hid)
-        pos = hh.truth.mirror_center(*hh.controller.output_steps(), night=plant.night)
-        s = unit(lamp - pos)
-        beam = 2.0 * (s @ n) * n - s
-        den = float(nrm @ beam)
-        if abs(den) < 1e-9:
-            continue
-        t = float(nrm @ (c - pos)) / den
-        if t > 0:
-            rel = pos + t * beam - c
-            if abs(rel @ base.u_axis) <= tgt.width_m / 2 and abs(rel @ base.v_axis) <= tgt.height_m / 2:
-                out.append(hid)
-    return out
 
 
 def test_true_pose_is_true_normal_and_centre_and_follows_moves_and_nights(plant):
@@ -118,9 +79,9 @@ def test_safety_monitor_sees_the_same_beams_on_every_target(plant):
             aimed += 1
         with plant.clock.frozen(advance_s=1000.0):
             pass
-        beams = plant.safety.beams()
+        beams, previous = plant.safety.beams(), previous_sample(plant)
         for t in plant.cfg.targets:
-            assert plant.safety.on_target(t.id, beams) == reference_on_target(plant, t.id)
+            assert plant.safety.on_target(t.id, beams) == previous[t.id]
     assert any(plant.safety.on_target(t.id) for t in plant.cfg.targets)
 
 
