@@ -84,13 +84,14 @@ class BeamChain:
             centre = tuple(float(v) for v in self.frame.pixel_to_enu(*px)) if px is not None else None
         # The shape features the library matches on: Hu moments at its own threshold(s) (a
         # multi-threshold library needs the whole stack), else the analysis' Hu moments.
-        hu = (np.asarray(self.library.describe(hdr, self.threshold), float).reshape(-1)
-              if self.library is not None else np.asarray(r.hu))
-        return Observation((c.x, c.y), enu, hu, float(r.peak), tuple(c.clipped), centre, conf)
+        stacks = ([np.asarray(s, float).reshape(-1) for s in self.library.descriptors(hdr, self.threshold)]
+                  if self.library is not None else [np.asarray(r.hu)])
+        return Observation((c.x, c.y), enu, stacks[0], float(r.peak), tuple(c.clipped), centre, conf,
+                           tuple(stacks[1:]))
 
-    def match(self, hu: np.ndarray) -> Match | None:
+    def match(self, obs: Observation) -> Match | None:
         if self.library is None:
             return None
-        m = self.library.match_hu(hu)
+        m = self.library.match_stacks([obs.hu, *obs.hu_widened])
         return Match(m.label, m.distance, m.runner_up, m.runner_up_distance, m.unknown, m.correction_deg,
                      m.coarse_correction_deg, m.confidence)

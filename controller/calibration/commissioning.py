@@ -153,6 +153,6 @@ class Commissioning:
         out["tolerance_mrad"] = tol
         out["ok"] = bool(out.get("beam")) and out["error_mrad"] <= tol
         if cap.observation is not None and self.chain.library is not None:
-            m = self.chain.match(cap.observation.hu)
+            m = self.chain.match(cap.observation)
             out["match"] = {"label": "unknown" if m.unknown else m.label, "distance": m.distance}
         return out

@@ -46,7 +46,7 @@ class CycleContext:
     pointing: Pointing
     merge: Callable[[Any], np.ndarray]  # FramePair -> HDR float image
     analyze: Callable[[np.ndarray], Observation]  # raises BeamNotFound
-    match: Callable[[np.ndarray], Match | None]  # Hu (7,) -> Match, None without a library
+    match: Callable[[Observation], Match | None]  # its shape -> the library's Match, None without one
     gate: TargetGate
     model: ModelRecord | None = None  # fitted tracking-error parameters from earlier runs
     history: list[MeasurementRecord] = field(default_factory=list)  # earlier measurements

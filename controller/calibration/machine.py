@@ -294,7 +294,7 @@ class CalibrationCycle:
         return "analysed"
 
     def do_matching(self) -> str:
-        self.match = self.ctx.match(self.obs.hu)
+        self.match = self.ctx.match(self.obs)
         return "matched"
 
     def do_verifying(self) -> str:

@@ -21,6 +21,9 @@ class Observation:
     # m ENU, and its confidence in [0, 1]; None / 0 when not clipped or not estimable.
     clipped_centre_enu: tuple[float, float, float] | None = None
     clipped_confidence: float = 0.0
+    # Descriptor stacks (flat) of widened copies of the frame, when the library claims no case
+    # for ``hu`` (controller.recognition.widen): tried in order by the match.
+    hu_widened: tuple[np.ndarray, ...] = ()
 
 
 @dataclass(frozen=True)

@@ -22,6 +22,7 @@ from pathlib import Path
 from controller.commands._common import add_json_option, existing_file, output_file, print_json
 from controller.commands.beam import add_threshold_option
 from controller.recognition.library import FEATURE_KINDS
+from controller.recognition.library_doc import MAX_WIDEN
 from controller.recognition.library_io import build_library_from_manifest, save_library
 
 
@@ -58,10 +59,28 @@ def register(subparsers) -> None:
     b.add_argument("--whiten", choices=("auto", "yes", "no"), default="auto",
                    help="compare features after whitening by the library's own spread "
                         "(auto: all but hu and log-hu; 'no' with --features hu is the paper's raw distance)")
+    b.add_argument("--widen", default="auto", type=_widen, metavar="auto|no|F[,F...]",
+                   help="widened copies (Gaussian σ as a fraction of the spot's d90) tried on a view no "
+                        "case claims (auto: 0.1,0.2 for a whitened library, none otherwise)")
     add_threshold_option(b)
     add_json_option(b)
     b.set_defaults(func=run_build)
     p.set_defaults(func=lambda args: p.print_help() or 2)
+
+
+def _widen(text: str) -> tuple[float, ...] | None:
+    """``--widen``: auto -> None (the library's default), no -> none, else σ/d90 fractions in (0, 1]."""
+    if text == "auto":
+        return None
+    if text == "no":
+        return ()
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected auto, no or numbers like 0.1,0.2, not {text!r}") from None
+    if not values or len(values) > MAX_WIDEN or not all(0.0 < v <= 1.0 for v in values):
+        raise argparse.ArgumentTypeError(f"expected 1-{MAX_WIDEN} numbers in (0, 1], not {text!r}")
+    return values
 
 
 def run_build(args: argparse.Namespace) -> int:
@@ -69,7 +88,8 @@ def run_build(args: argparse.Namespace) -> int:
     manifest = existing_file(args.manifest, "manifest")
     with progress("building library", not args.json) as update:
         lib = build_library_from_manifest(manifest, args.features, args.threshold, progress=update,
-                                          whiten={"auto": None, "yes": True, "no": False}[args.whiten])
+                                          whiten={"auto": None, "yes": True, "no": False}[args.whiten],
+                                          widen=args.widen)
     save_library(lib, Path(args.out))
     labels = sorted(set(lib.labels))
     if args.json:

@@ -47,6 +47,7 @@ def match_image(lib: Library, image) -> dict:
         "coarse_correction_deg": list(m.coarse_correction_deg) if m.coarse_correction_deg else None,
         "magnitude": m.magnitude,
         "confidence": m.confidence,
+        "widened": m.widened,
     }
     if entry.correction is not None:
         out["correction"] = None if m.unknown else entry.correction

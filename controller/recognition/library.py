@@ -12,6 +12,7 @@ Library document (YAML)::
                                    # [0.1, 0.3, 0.5, 0.1] (last row: all lobes) k = 28; blur-hu [0.05] (the
                                    # whole-spot window) k = 6; multi-blur-hu [0.1, 0.3, 0.5, 0.05] k = 27
     normalisation: {intensity: unit-mean, scale: [k numbers], whiten: [[k x k]] (optional)}
+    widen: [0.1, 0.2]              # σ/d90 of widened copies tried on an unknown view (optional)
     unknown_distance: <float>      # largest per-entry threshold (informative)
     entries:
       - {label, features: [k], az_deg, el_deg, correction: {az_deg, el_deg} (optional), sha256, image,
@@ -41,17 +42,15 @@ Feature kinds:
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
 
 from controller.errors import InputError
-from controller.imaging.beam import analyze
 from controller.recognition.estimate import estimate
 from controller.recognition.features import (
     FEATURE_KINDS,
-    MULTI_THRESHOLDS,
     describe,
     hu_features,
     hu_stack,
@@ -60,6 +59,14 @@ from controller.recognition.features import (
 )
 from controller.recognition.matching import Matcher
 from controller.recognition.segments import magnitude_segments
+from controller.recognition.spread import (
+    Spread,
+    feature_scale,
+    neighbour_thresholds,
+    unknown_thresholds,
+    whitening,
+)
+from controller.recognition.widen import WIDEN, spot_d90, widened
 
 LIBRARY_VERSION = 1
 
@@ -73,7 +80,12 @@ class LibraryMatch:
     error (Δaz, Δel) in degrees interpolated over the nearest entries of the matched case that
     carry ``az_deg``/``el_deg`` (None when unknown or none do); ``coarse_correction_deg`` =
     −``error_deg``, the move that undoes it; ``magnitude`` likewise from the entries'
-    ``params.magnitude``; ``confidence`` in [0, 1] (0 when unknown)."""
+    ``params.magnitude``; ``confidence`` in [0, 1] (0 when unknown).
+
+    ``widened``: 0 for a direct match; else the Gaussian σ (× the spot's d90) that widened a
+    view no case claimed before one did (:mod:`controller.recognition.widen`). Such a match
+    names the case but not its size (the widened spot shows a smaller relative magnitude):
+    ``error_deg``, ``coarse_correction_deg`` and ``magnitude`` are None, ``confidence`` 0."""
 
     label: str
     distance: float
@@ -86,6 +98,7 @@ class LibraryMatch:
     coarse_correction_deg: tuple[float, float] | None = None
     magnitude: float | None = None
     confidence: float = 0.0
+    widened: float = 0.0
 
 
 @dataclass
@@ -111,6 +124,7 @@ class Library:
     version: int = LIBRARY_VERSION
     whiten: np.ndarray | None = None  # (k, k): features are compared as W f (then scale is 1)
     interpolate: bool = True  # match along segments between neighbouring magnitudes of a case
+    widen: tuple[float, ...] = ()  # σ / d90 of the widened copies tried on an unknown view (widen.WIDEN)
     _cache: tuple[int, Matcher] | None = field(default=None, init=False, repr=False, compare=False)
 
     @property
@@ -166,12 +180,37 @@ class Library:
                             (float(corr["az_deg"]), float(corr["el_deg"])) if corr else None,
                             est.error_deg, est.coarse_correction_deg, est.magnitude, est.confidence)
 
+    def descriptors(self, hdr: np.ndarray, threshold: float | None = None) -> list[np.ndarray]:
+        """The descriptor stack of a beam image (:meth:`describe`) and, when no case claims it
+        and the library has ``widen``, the stacks of its widened copies in that order
+        (:func:`controller.recognition.widen.widened`); :meth:`match_stacks` takes the list."""
+        stacks = [self.describe(hdr, threshold)]
+        if self.widen and self.match_hu(stacks[0]).unknown:
+            d90 = spot_d90(hdr)
+            stacks += [self.describe(widened(hdr, f, d90), threshold) for f in self.widen]
+        return stacks
+
+    def match_stacks(self, stacks: Sequence[np.ndarray]) -> LibraryMatch:
+        """The direct match of ``stacks[0]`` unless it is unknown; then the first widened
+        stack (``stacks[i]`` widened by ``widen[i - 1]``) that a case claims, without a size
+        estimate (:class:`LibraryMatch`); if none does, the direct (unknown) match."""
+        direct = self.match_hu(stacks[0])
+        if not direct.unknown:
+            return direct
+        for fraction, stack in zip(self.widen, stacks[1:], strict=False):
+            m = self.match_hu(stack)
+            if not m.unknown:
+                return replace(m, error_deg=None, coarse_correction_deg=None, magnitude=None, confidence=0.0,
+                               widened=float(fraction))
+        return direct
+
     def match_image(self, hdr: np.ndarray, *, threshold: float | None = None) -> LibraryMatch:
-        """:meth:`match_hu` of a beam image (2-D HDR or grey, x = column, y = row), segmented at
-        the library's threshold(s) (``threshold``, a fraction of the peak, overrides a
+        """:meth:`match_stacks` of a beam image (2-D HDR or grey, x = column, y = row), segmented
+        at the library's threshold(s) (``threshold``, a fraction of the peak, overrides a
         single-threshold library's) with the background estimated
-        (:func:`controller.imaging.beam.analyze`). InputError when there is no beam."""
-        return self.match_hu(self.describe(hdr, threshold))
+        (:func:`controller.imaging.beam.analyze`), widened if no case claims it
+        (:meth:`descriptors`). InputError when there is no beam."""
+        return self.match_stacks(self.descriptors(hdr, threshold))
 
     def _matcher(self) -> Matcher:
         # Built once per library: the matcher precomputes its search arrays.
@@ -182,7 +221,6 @@ class Library:
 
 AUGMENT_ANGLES_DEG = (20.0, 65.0, 110.0, 155.0)
 AUGMENT_SCALES = (0.85, 1.0, 1.18)
-UNKNOWN_FACTOR = 3.0
 AUGMENT_BLUR = (0.05, 0.1, 0.2)  # Gaussian blur sigma as a fraction of the spot's d90 (spot size)
 
 
@@ -206,108 +244,16 @@ def augmented_views(image: np.ndarray, blur: bool = False) -> list[np.ndarray]:
             views.append(cv2.warpAffine(img, m, (cols, rows), flags=cv2.INTER_LINEAR,
                                         borderMode=cv2.BORDER_REPLICATE))
     if blur:
-        d90 = analyze(img, threshold=MULTI_THRESHOLDS[0], background="auto").d90_px
-        for f in AUGMENT_BLUR:
-            views.append(cv2.GaussianBlur(img, (0, 0), sigmaX=max(f * d90, 0.3),
-                                          borderType=cv2.BORDER_REPLICATE))
+        d90 = spot_d90(img)
+        views += [widened(img, f, d90) for f in AUGMENT_BLUR]
     return views
-
-
-@dataclass(frozen=True)
-class Spread:
-    """Within-case spread of a library, from augmented views of its own images.
-
-    ``deviations``: (m, 7) feature deviations of augmented views from their entry (in feature
-    units, unscaled); ``owner``: (m,) index of the entry each deviation belongs to.
-    """
-
-    deviations: np.ndarray
-    owner: np.ndarray
-
-
-def feature_scale(spread: Spread, kind: str) -> np.ndarray:
-    """Per-feature divisor of the distance.
-
-    ``hu``: 1 (the paper's raw Euclidean distance, Eq. 14). ``log-hu``: the pooled within-case
-    RMS deviation of each feature, i.e. a diagonal Mahalanobis distance, so that phi_5..phi_7 of
-    near-symmetric spots (log of noise) weigh as little as they deserve. Floored at 1e-5 of the
-    largest value so a perfectly stable feature cannot dominate.
-    """
-    k = spread.deviations.shape[1] if spread.deviations.size else 7
-    if kind == "hu" or spread.deviations.shape[0] == 0:
-        return np.ones(k)
-    rms = np.sqrt(np.mean(spread.deviations**2, axis=0))
-    top = float(rms.max())
-    if top == 0.0:
-        return np.ones(k)
-    return np.maximum(rms, 1e-5 * top)
-
-
-def whitening(x: np.ndarray, spread: Spread, floor: float = 1e-6) -> np.ndarray:
-    """ZCA whitening W = C^(-1/2) (k, k) learned from the library's own *within-case* spread.
-
-    C = second moment of the augmented views' deviations from their entry (framing, zoom, blur:
-    the nuisances a later view of the same case will have), i.e. a Mahalanobis distance whose
-    covariance is the nuisance alone, as in Fisher's discriminant: directions the nuisances
-    hardly move (where the cases differ) keep their weight, directions they move a lot (spot
-    size, noise of phi_5..phi_7) are shrunk. Adding the covariance of the entries themselves
-    (how the cases differ) shrank exactly the directions that separate them: on the independent
-    sets of docs/recognition.md that cost 3-13 points. Without deviations, C = covariance of
-    the entries ``x`` (n, k). Eigenvalues are floored at ``floor`` x the largest, so a direction
-    in which nothing varies is not blown up beyond 1/sqrt(floor). The distance is still the
-    Euclidean distance of Eq. 14, on W f.
-    """
-    x = np.asarray(x, dtype=np.float64)
-    k = x.shape[1]
-    if spread.deviations.size:
-        c = spread.deviations.T @ spread.deviations / spread.deviations.shape[0]
-    else:
-        c = np.cov(x.T, bias=True).reshape(k, k) if x.shape[0] > 1 else np.zeros((k, k))
-    w, v = np.linalg.eigh(c)
-    if not w.max() > 0:
-        return np.eye(k)
-    w = np.maximum(w, floor * w.max())
-    return (v / np.sqrt(w)) @ v.T
-
-
-def neighbour_thresholds(x: np.ndarray, labels: Sequence[str]) -> np.ndarray:
-    """Per entry, the distance (in the matching space) to the nearest other entry of the same case
-    (inf when it has none): a view of a magnitude between two library magnitudes lies about
-    that far from the nearer one, and must not be rejected as unknown."""
-    lab = np.asarray(labels)
-    out = np.full(len(lab), np.inf)
-    for i in range(len(lab)):
-        same = (lab == lab[i]) & (np.arange(len(lab)) != i)
-        if same.any():
-            out[i] = float(np.min(np.linalg.norm(x[same] - x[i], axis=1)))
-    return out
-
-
-def unknown_thresholds(spread: Spread, scale: np.ndarray, n_entries: int,
-                       factor: float = UNKNOWN_FACTOR) -> np.ndarray:
-    """Per-entry unknown threshold, shape (n_entries,).
-
-    T_i = ``factor`` x the 95th percentile of the scaled distances between augmented views and
-    their entry, taken over the whole library (the augmentation models framing, not sensor
-    noise, so one entry's own spread can be unrepresentatively small), and raised to the same
-    statistic of entry i's own views where that is larger (shapes sensitive to framing).
-    Inf when there is no spread to calibrate from.
-    """
-    d = np.sqrt(np.sum((spread.deviations / scale) ** 2, axis=1)) if spread.deviations.size else np.empty(0)
-    overall = float(factor * np.percentile(d, 95)) if d.size else float("inf")
-    out = np.full(n_entries, overall)
-    for i in range(n_entries):
-        own = d[spread.owner == i]
-        if own.size:
-            out[i] = max(overall, float(factor * np.percentile(own, 95)))
-    return out
 
 
 def build_library(images: Sequence[np.ndarray], labels: Sequence[str], *, kind: str = "hu",
                   threshold: float = 0.5, az_deg: Sequence[float | None] | None = None,
                   el_deg: Sequence[float | None] | None = None, sha256: Sequence[str] | None = None,
                   names: Sequence[str] | None = None, params: Sequence[dict | None] | None = None,
-                  whiten: bool | None = None,
+                  whiten: bool | None = None, widen: Sequence[float] | None = None,
                   progress: Callable[[int, int], None] | None = None) -> Library:
     """A :class:`Library` from beam images and their case labels (nothing is read or written).
 
@@ -317,6 +263,9 @@ def build_library(images: Sequence[np.ndarray], labels: Sequence[str], *, kind: 
     ``sha256`` and ``names`` (image file names) and ``params`` (the error state each image
     shows) are carried into the entries.
     ``whiten`` (default: all kinds but ``hu`` and ``log-hu``) compares features after :func:`whitening`.
+    ``widen`` (default: :data:`~controller.recognition.widen.WIDEN` for a whitened library, whose
+    blurred views taught it how a larger spot moves the features; none otherwise, so the paper's
+    raw ``hu`` stays the paper's) is stored as :attr:`Library.widen`.
     Unknown thresholds: :func:`unknown_thresholds`, raised to :func:`neighbour_thresholds`.
     An image without a beam raises InputError naming its position (or name).
     """
@@ -349,7 +298,8 @@ def build_library(images: Sequence[np.ndarray], labels: Sequence[str], *, kind: 
             progress(i + 1, n)
     k = len(entries[0].features)
     spread = Spread(np.array(deviations).reshape(-1, k), np.array(owner, dtype=np.int64))
-    lib = Library(features=kind, threshold=float(threshold), entries=entries, scale=np.ones(k))
+    lib = Library(features=kind, threshold=float(threshold), entries=entries, scale=np.ones(k),
+                  widen=tuple(float(f) for f in (widen if widen is not None else WIDEN if whitened else ())))
     if whitened:
         lib.whiten = whitening(lib.matrix(), spread)
     else:

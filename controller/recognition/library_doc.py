@@ -31,6 +31,7 @@ def library_to_dict(lib: Library) -> dict:
         doc["thresholds"] = list(lib.thresholds)
     return doc | {
         "normalisation": norm,
+        "widen": [float(f) for f in lib.widen],
         "unknown_distance": lib.unknown_distance if np.isfinite(lib.unknown_distance) else None,
         "entries": [entry(e) for e in lib.entries],
     }
@@ -57,6 +58,24 @@ def _opt_positive(value, where: str) -> float:
     if not v > 0:
         raise InputError(f"{where} must be positive")
     return v
+
+
+MAX_WIDEN = 8
+
+
+def _widen(value, where: str) -> tuple[float, ...]:
+    """Absent (a library written before widening existed) -> none; else up to 8 numbers in (0, 1]."""
+    if value is None:
+        return ()
+    if not isinstance(value, list) or len(value) > MAX_WIDEN:
+        raise InputError(f"{where} must be a list of at most {MAX_WIDEN} numbers")
+    try:
+        out = tuple(float(v) for v in value)
+    except (TypeError, ValueError):
+        raise InputError(f"{where} must be a list of numbers") from None
+    if not all(0.0 < v <= 1.0 for v in out):
+        raise InputError(f"{where} must hold numbers in (0, 1] (σ as a fraction of the spot's d90)")
+    return out
 
 
 def library_from_dict(data: object, p: str) -> Library:
@@ -110,4 +129,5 @@ def library_from_dict(data: object, p: str) -> Library:
     except (TypeError, ValueError):
         raise InputError(f"{p}: threshold: must be a number") from None
     return Library(features=kind, threshold=threshold, entries=entries, scale=scale,
-                   unknown_distance=float("inf") if unknown is None else float(unknown), whiten=whiten)
+                   unknown_distance=float("inf") if unknown is None else float(unknown), whiten=whiten,
+                   widen=_widen(data.get("widen"), f"{p}: widen"))

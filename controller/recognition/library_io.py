@@ -13,7 +13,7 @@ from __future__ import annotations
 import csv
 import hashlib
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -127,7 +127,7 @@ def _params(extra: dict[str, str]) -> dict | None:
 
 def build_library_from_manifest(manifest: str | Path, kind: str = "hu", threshold: float = 0.5,
                                 progress: Callable[[int, int], None] | None = None,
-                                whiten: bool | None = None) -> Library:
+                                whiten: bool | None = None, widen: Sequence[float] | None = None) -> Library:
     """Read every manifest image and build the :class:`Library` (nothing is written); errors
     name the manifest line. Extra columns become the entries' ``params``."""
     rows = read_manifest(manifest)
@@ -142,7 +142,8 @@ def build_library_from_manifest(manifest: str | Path, kind: str = "hu", threshol
         return build_library(images, [r.label for r in rows], kind=kind, threshold=threshold,
                              az_deg=[r.az_deg for r in rows], el_deg=[r.el_deg for r in rows],
                              sha256=[sha256_file(r.image) for r in rows], names=names,
-                             params=[_params(r.extra) for r in rows], whiten=whiten, progress=progress)
+                             params=[_params(r.extra) for r in rows], whiten=whiten, widen=widen,
+                             progress=progress)
     except InputError as exc:
         line = next((r.line for r in rows if str(exc).startswith(f"{r.image}:")), None)
         raise InputError(f"{Path(manifest)}:{line}: {exc}" if line else str(exc)) from None

@@ -266,11 +266,14 @@ def test_beam_chain_match_is_the_library_match_as_the_machine_type():
     images, labels = _three_shapes()
     lib = build_library(images, labels, kind="log-hu")
     lib.entries[2].correction = {"az_deg": -0.1, "el_deg": 0.03}
+    from controller.calibration.observations import Observation
+
     hu = analyze(gaussian((100, 120), 50, 45, 5, 15, amp=50.0), threshold=lib.threshold).hu
-    m = BeamChain(cfg, library=lib).match(hu)
+    obs = Observation((50.0, 45.0), (0.0, 0.0, 0.0), hu, 50.0)
+    m = BeamChain(cfg, library=lib).match(obs)
     want = lib.match_hu(hu)
     assert type(m) is Match
     assert m == Match(want.label, want.distance, want.runner_up, want.runner_up_distance, want.unknown,
                       want.correction_deg, want.coarse_correction_deg, want.confidence)
     assert (m.label, m.correction_deg) == ("tall", (-0.1, 0.03))
-    assert BeamChain(cfg).match(hu) is None
+    assert BeamChain(cfg).match(obs) is None

@@ -47,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
     lib = load_library(existing_file(args.library, "library"))
     rows = read_manifest(existing_file(args.test, "test manifest"))
     output_dir(args.out)
-    true, pred = [], []
+    true, pred, widened = [], [], 0
     coverage = Coverage.of(lib.entries)
     split_of = [coverage.split(row.label, row.extra) for row in rows]
     with progress("matching test views", not args.json) as update:
@@ -58,6 +58,7 @@ def run(args: argparse.Namespace) -> int:
                 raise InputError(f"{args.test}:{row.line}: {exc}") from None
             true.append(row.label)
             pred.append(UNKNOWN if m.unknown else m.label)
+            widened += m.widened > 0
             update(i + 1, len(rows))
     labels = list(dict.fromkeys(lib.labels))
     conf = confusion(true, pred, labels)
@@ -66,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
         idx = [i for i, s in enumerate(split_of) if s == name]
         if idx:
             splits[name] = confusion([true[i] for i in idx], [pred[i] for i in idx], labels)
-    report = conf.as_dict() | {"features": lib.features,
+    report = conf.as_dict() | {"features": lib.features, "widened": widened,
                                "splits": {k: c.as_dict() for k, c in splits.items()}}
     write_report(conf, report, Path(args.out), splits)
     if args.json:
