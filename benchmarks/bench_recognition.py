@@ -27,9 +27,11 @@ sun, slope errors, spot size = blur). In both, magnitude 0.5-1.5 and spot size x
 the test views (24 per case) and the library holds 3 magnitudes per case. Scored through the CLI
 contract (``heliocal library build`` default and ``--features multi-hu``, ``blur-hu``,
 ``multi-blur-hu``, ``hu --whiten no``; ``heliocal report confusion --json``), plus ablations of
-the default through the Python API (no interpolation between magnitudes, no blur views, the
-entries' covariance added to the whitening as before) and the default's rate by nuisance (m / spot
-inside or outside the library's 0.5-1.5 for the first renderer, spot size for the second).
+the default through the Python API (no interpolation between magnitudes, no widening, no blur
+views, the entries' covariance added to the whitening as before), the default's rate by nuisance
+(m / spot inside or outside the library's 0.5-1.5 for the first renderer, spot size for the
+second), and the price of the widening: each case left out of the library in turn, how many of
+its views are still rejected as unknown, with and without widening.
 JSON: ``renderers.{independent_spots,facet_spots}.seeds.{seed}`` (and ``seeds`` = the first).
 
 ``--campaign [--threshold T] [--heliostats N]``: instead, the coarse correction in the closed
@@ -192,7 +194,7 @@ def independent(seeds: list[int], views: int) -> dict:
         return (v / np.sqrt(w)) @ v.T
 
     def api(out: Path, kind: str, interpolate: bool = True, blur: bool = True,
-            total_cov: bool = False) -> dict:
+            total_cov: bool = False, widen: bool = True) -> dict:
         saved = library.AUGMENT_BLUR, library.whitening
         library.AUGMENT_BLUR = saved[0] if blur else ()
         library.whitening = entries_in_whitening if total_cov else saved[1]
@@ -201,8 +203,28 @@ def independent(seeds: list[int], views: int) -> dict:
         finally:
             library.AUGMENT_BLUR, library.whitening = saved
         lib.interpolate = interpolate
+        lib.widen = lib.widen if widen else ()
         rows, ok = scored(out, lib)
         return {"recognition_rate": _rate(ok)}
+
+    def novel(out: Path, cases) -> dict:
+        # Each case left out of the library in turn: how many of its views the default still
+        # rejects as unknown, with and without widening (the price of the widening).
+        rows = read_manifest(out / "library.csv")
+        test = read_manifest(out / "test.csv")
+        images = {r.image: read_image(r.image) for r in rows}
+        views = [read_image(r.image) for r in test]
+        kept = {"n": 0, "rejected": 0, "rejected_without_widening": 0}
+        for case in cases:
+            lib_rows = [r for r in rows if r.label != case]
+            lib = library.build_library([images[r.image] for r in lib_rows], [r.label for r in lib_rows],
+                                        kind="multi-lobe-hu")
+            mine = [v for v, r in zip(views, test, strict=True) if r.label == case]
+            kept["n"] += len(mine)
+            kept["rejected"] += sum(lib.match_image(v).unknown for v in mine)
+            lib.widen = ()
+            kept["rejected_without_widening"] += sum(lib.match_image(v).unknown for v in mine)
+        return kept
 
     paper = ("--features", "hu", "--whiten", "no")
     kinds = (("multi-lobe-hu (default)", ()), ("multi-hu", ("--features", "multi-hu")),
@@ -225,11 +247,13 @@ def independent(seeds: list[int], views: int) -> dict:
                                "unknown_rate": round(100 * c["unknown_rate"], 2),
                                "recall": {k: v["recall"] for k, v in c["per_class"].items()}}
                 r["default, no interpolation"] = api(out, "multi-lobe-hu", interpolate=False)
+                r["default, no widening"] = api(out, "multi-lobe-hu", widen=False)
                 r["default, no blur views"] = api(out, "multi-lobe-hu", blur=False)
                 r["default, entries' covariance in the whitening"] = api(out, "multi-lobe-hu", total_cov=True)
                 r["multi-hu, entries' covariance in the whitening (before)"] = api(out, "multi-hu",
                                                                                     total_cov=True)
                 r["default by nuisance"] = by_nuisance(out, effective)
+                r["case left out of the library: views rejected as unknown"] = novel(out, module.CASES)
                 per_seed[seed] = r
         default = [v["multi-lobe-hu (default)"]["recognition_rate"] for v in per_seed.values()]
         res["renderers"][rname] = {"seeds": per_seed,

@@ -66,7 +66,7 @@ from controller.recognition.spread import (
     unknown_thresholds,
     whitening,
 )
-from controller.recognition.widen import WIDEN, spot_d90, widened
+from controller.recognition.widen import WIDEN, WIDEN_ACCEPT, spot_d90, widened
 
 LIBRARY_VERSION = 1
 
@@ -192,16 +192,17 @@ class Library:
 
     def match_stacks(self, stacks: Sequence[np.ndarray]) -> LibraryMatch:
         """The direct match of ``stacks[0]`` unless it is unknown; then the first widened
-        stack (``stacks[i]`` widened by ``widen[i - 1]``) that a case claims, without a size
-        estimate (:class:`LibraryMatch`); if none does, the direct (unknown) match."""
+        stack (``stacks[i]`` widened by ``widen[i - 1]``) within :data:`WIDEN_ACCEPT` × its
+        entry's unknown threshold, as a case without a size or correction
+        (:class:`LibraryMatch`); if none is, the direct (unknown) match."""
         direct = self.match_hu(stacks[0])
         if not direct.unknown:
             return direct
         for fraction, stack in zip(self.widen, stacks[1:], strict=False):
             m = self.match_hu(stack)
-            if not m.unknown:
-                return replace(m, error_deg=None, coarse_correction_deg=None, magnitude=None, confidence=0.0,
-                               widened=float(fraction))
+            if m.distance <= WIDEN_ACCEPT * self.entries[m.index].unknown_distance:
+                return replace(m, correction_deg=None, error_deg=None, coarse_correction_deg=None,
+                               magnitude=None, confidence=0.0, widened=float(fraction))
         return direct
 
     def match_image(self, hdr: np.ndarray, *, threshold: float | None = None) -> LibraryMatch:
