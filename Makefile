@@ -20,7 +20,7 @@ $(STAMP): pyproject.toml .ci/system-packages
 	@touch $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/heliocal demo
+	$(BIN)/heliocal demo --uncalibrated 12
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q -n 2 --dist loadgroup

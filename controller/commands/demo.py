@@ -13,6 +13,13 @@ import sys
 from pathlib import Path
 
 from controller.commands._common import add_config_option, add_json_option, print_json
+from controller.commands._demo_coarse import (
+    UNCALIBRATED_MAX_MRAD,
+    centroid_only_twin,
+    coarse_summary,
+    print_uncalibrated,
+    uncalibrated_field,
+)
 from controller.config import load_config
 from controller.errors import InputError
 
@@ -32,6 +39,10 @@ def register(subparsers) -> None:
                         "chosen for the daytime error; default 3, 0: the calibration only)")
     p.add_argument("--sequential", action="store_true",
                    help="no pipelining: one heliostat after another (for the speedup comparison)")
+    p.add_argument("--uncalibrated", type=float, default=None, metavar="MRAD",
+                   help="then calibrate the same heliostats on a plant whose hidden errors have this "
+                        "scale (a newly installed field, first spots at the view's edge), with the "
+                        "coarse correction and centroid only (make demo: 12)")
     p.add_argument("--aim-only", action="store_true",
                    help="only print the aim of each heliostat (source direction, normal, steps)")
     add_json_option(p)
@@ -49,6 +60,9 @@ def run(args: argparse.Namespace) -> int:
                          f"got {args.heliostats}")
     if not 0 <= args.nights <= 30:
         raise InputError(f"--nights must be 0 … 30, got {args.nights}")
+    if args.uncalibrated is not None and not 0 < args.uncalibrated <= UNCALIBRATED_MAX_MRAD:
+        raise InputError(f"--uncalibrated must be in (0, {UNCALIBRATED_MAX_MRAD:g}] mrad, "
+                         f"got {args.uncalibrated}")
     ids = field_selection(cfg, args.heliostats)
     if args.aim_only:
         from controller.calibration.pointing import nominal_aims
@@ -70,7 +84,10 @@ def run(args: argparse.Namespace) -> int:
                                       SimulationSettings(seed=args.seed), name, sequential=args.sequential,
                                       quiet=quiet, library_dir=Path(args.out), nights=args.nights)
     coarse = summary["coarse_correction"]
-    _centroid_only_twin(coarse, cfg, Path(args.config), Path(args.out), sim, args)
+    centroid_only_twin(coarse, cfg, Path(args.config), Path(args.out), sim, args)
+    if args.uncalibrated is not None:
+        summary["coarse_correction_uncalibrated"] = uncalibrated_field(Path(args.config), Path(args.out), ids,
+                                                                       args.seed, args.uncalibrated)
     if args.json:
         # The demo's --json keys are a contract (docs/campaigns.md); the outcome is the exit code.
         print_json({k: v for k, v in summary.items() if k not in ("status", "cause")})
@@ -106,74 +123,6 @@ def simulated_campaign(cfg, config_path: str, out: Path, db: Path, ids: list[str
     summary["db"] = str(db)
     summary["report"] = str(report)
     return summary, sim
-
-
-def _centroid_only_twin(coarse: dict, cfg, config: Path, out: Path, sim, args: argparse.Namespace) -> None:
-    """Adds ``iterations_centroid_only_mean`` (and ``centroid_only_rerun``) to ``coarse``.
-
-    A run without a coarse move made only centroid moves: it is its own centroid-only run. The
-    heliostats whose run made one are calibrated again, centroid only, on the same seed (each
-    heliostat's hidden errors and noise come from its own generator, whoever else is in the run)
-    into ``OUT/centroid-only/``; the mean is over both. No coarse move, no second campaign."""
-    from simplant.settings import SimulationSettings
-
-    coarse["iterations_centroid_only_mean"] = coarse["iterations_mean"]
-    coarse["centroid_only_rerun"] = []
-    redo = coarse["applied_heliostats"]
-    if cfg.calibration.coarse_correction is None or not redo:
-        return
-    plain = _centroid_only_config(config, out / "centroid-only")
-    twin = plain.parent
-    _, again = simulated_campaign(load_config(plain), str(plain), twin, twin / "campaign.db", list(redo),
-                                      SimulationSettings(seed=args.seed), f"{sim.result.name}-centroid-only",
-                                      sequential=args.sequential, library_dir=out)
-    its = {r.heliostat_id: r.iterations for r in sim.result.runs}
-    its.update({r.heliostat_id: r.iterations for r in again.result.runs})
-    truth = {**sim.truth, **again.truth}  # closed loop: the plant's true error after each run
-    after = [t.error_after_mrad for h, t in truth.items() if h in its and t.error_after_mrad is not None]
-    coarse["iterations_centroid_only_mean"] = round(sum(its.values()) / len(its), 3)
-    coarse["centroid_only_rerun"] = list(redo)
-    coarse["error_after_centroid_only_mrad"] = {"mean": sum(after) / len(after) if after else None,
-                                                "max": max(after) if after else None}
-
-
-def _centroid_only_config(config: Path, out: Path) -> Path:
-    """A copy of the plant config in ``out`` with ``calibration.coarse_correction: null``."""
-    import yaml
-
-    from controller.io.images import write_atomic
-
-    data = yaml.safe_load(config.read_text(encoding="utf-8"))
-    data["calibration"]["coarse_correction"] = None
-    out.mkdir(parents=True, exist_ok=True)
-    path = out / "config.yaml"
-    write_atomic(path, lambda t: t.write_text(yaml.safe_dump(data, sort_keys=False), encoding="utf-8"))
-    return path
-
-
-def coarse_summary(store, campaign_id: int, threshold: float | None) -> dict:
-    """The coarse correction in the campaign: ``threshold`` (config ``calibration.coarse_correction``),
-    ``applied`` (runs with a coarse move), ``iterations_mean`` (measurements per heliostat) over
-    all runs, and over the runs with and without a coarse move (``..._runs_with_coarse`` /
-    ``..._runs_without_coarse``: different heliostats, not a before/after);
-    ``corrections_mean`` (corrective moves per heliostat, each followed by one more capture:
-    it counts the looks at a clipped spot, which are not measurements) and ``clipped_first_looks``
-    (runs whose first capture showed a spot clipped by the view's edge: a correction before any
-    measurement); ``applied_heliostats`` names the runs with a coarse move. The before/after on
-    the same heliostats, ``iterations_centroid_only_mean``, is added by :func:`run`."""
-    runs = store.runs(campaign_id)
-    moves = {r.id: store.corrections(r.id) for r in runs}
-    coarse = {r.id for r in runs if any(c.kind == "coarse" for c in moves[r.id])}
-
-    def mean(rs) -> float | None:
-        return round(float(sum(r.iterations for r in rs) / len(rs)), 3) if rs else None
-
-    return {"threshold": threshold, "applied": len(coarse), "iterations_mean": mean(runs),
-            "iterations_mean_runs_with_coarse": mean([r for r in runs if r.id in coarse]),
-            "iterations_mean_runs_without_coarse": mean([r for r in runs if r.id not in coarse]),
-            "applied_heliostats": [r.heliostat_id for r in runs if r.id in coarse],
-            "corrections_mean": round(sum(len(m) for m in moves.values()) / len(runs), 3) if runs else None,
-            "clipped_first_looks": sum(1 for m in moves.values() if m and m[0].iteration == 0)}
 
 
 def _print_aim(rows: list[dict]) -> None:
@@ -238,6 +187,8 @@ def _print_summary(s: dict, sim) -> None:
                   f"{s['heliostats']} heliostats ({c['clipped_first_looks']} first looks clipped); "
                   f"iterations per heliostat {_f(c['iterations_mean'], 2)}, centroid only "
                   f"{_f(c['iterations_centroid_only_mean'], 2)} ({rerun})")
+    if "coarse_correction_uncalibrated" in s:
+        print_uncalibrated(con, s["coarse_correction_uncalibrated"])
     con.print(f"database {s['db']}, report {s['report']}")
     con.print(f"beam safety (plant truth): {safety['violations']} of {safety['samples']} samples "
               f"with two beams on the target; at most {safety['max_beams_on_target']} beam(s) on it")

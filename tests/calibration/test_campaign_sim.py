@@ -263,3 +263,32 @@ def test_planned_night_measures_other_geometries_and_explains_them(small_config,
     terms = (rep / "model_terms.csv").read_text().splitlines()
     assert terms[0].startswith("heliostat,az_offset_mrad,az_offset_mrad_sigma") and len(terms) == 3
     assert "<h2>Tracking model and daytime pointing</h2>" in (rep / "report.html").read_text()
+
+
+def test_demo_uncalibrated_field_compares_the_coarse_correction_with_centroid_only(small_config, tmp_path):
+    """``demo --uncalibrated 12`` on four heliostats (seed 1: first spots at the view's edge): the
+    block's figures are those of its two campaigns' databases, the centroid-only one has no coarse
+    move, and both calibrated the same heliostats on the same hidden errors."""
+    out = tmp_path / "demo"
+    p = _heliocal("demo", "--config", str(small_config), "--heliostats", "4", "--seed", "1", "--nights", "0",
+                  "--uncalibrated", "12", "--out", str(out), "--json")
+    stdout, stderr = p.communicate(timeout=scaled_s(300))
+    assert p.returncode == 0, stderr
+    u = json.loads(stdout)["coarse_correction_uncalibrated"]
+    assert (u["tracking_error_mrad"], u["heliostats"]) == (12.0, 4)
+
+    def runs(name):
+        with sqlite3.connect(out / "uncalibrated" / name / "campaign.db") as c:
+            rows = c.execute("SELECT id, heliostat_id, iterations FROM heliostat_runs").fetchall()
+            coarse = {r for (r,) in c.execute("SELECT run_id FROM corrections WHERE kind = 'coarse'")}
+            first = len(c.execute("SELECT DISTINCT run_id FROM corrections WHERE iteration = 0").fetchall())
+        return rows, coarse, first
+
+    with_rows, with_coarse, clipped = runs("coarse")
+    plain_rows, plain_coarse, _ = runs("centroid-only")
+    assert sorted(h for _, h, _ in with_rows) == sorted(h for _, h, _ in plain_rows)
+    assert len(with_coarse) == u["applied"] >= 1 and not plain_coarse
+    assert sorted(h for i, h, _ in with_rows if i in with_coarse) == sorted(u["applied_heliostats"])
+    assert u["clipped_first_looks"] == clipped >= u["applied"]
+    assert u["iterations_mean"] == round(sum(n for *_, n in with_rows) / 4, 3)
+    assert u["iterations_centroid_only_mean"] == round(sum(n for *_, n in plain_rows) / 4, 3)

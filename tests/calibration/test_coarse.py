@@ -5,11 +5,14 @@ limits as every move."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 from controller.calibration.coarse import clipped_applies, correction_step
 from controller.calibration.observations import Match, Observation
+from controller.config import load_config
 
 
 class _Pointing:
@@ -128,7 +131,7 @@ def test_demo_coarse_summary_counts_runs_with_a_coarse_first_move():
     from types import SimpleNamespace as NS
 
     from controller.calibration.records import CorrectionRecord
-    from controller.commands.demo import coarse_summary
+    from controller.commands._demo_coarse import coarse_summary
 
     runs = [NS(id=1, heliostat_id="H01", iterations=3), NS(id=2, heliostat_id="H02", iterations=1),
             NS(id=3, heliostat_id="H03", iterations=2)]
@@ -148,6 +151,7 @@ def test_demo_recalibrates_only_the_heliostats_with_a_coarse_move_centroid_only(
     from argparse import Namespace
     from types import SimpleNamespace as NS
 
+    import controller.commands._demo_coarse as demo_coarse
     import controller.commands.demo as demo
 
     from .conftest import REPO
@@ -169,7 +173,7 @@ def test_demo_recalibrates_only_the_heliostats_with_a_coarse_move_centroid_only(
     cfg = NS(calibration=NS(coarse_correction=0.5))
     args = Namespace(seed=4, sequential=False)
     coarse = {"iterations_mean": 2.333, "applied_heliostats": ["H03"]}
-    demo._centroid_only_twin(coarse, cfg, REPO / "configs" / "demo.yaml", tmp_path, sim, args)
+    demo_coarse.centroid_only_twin(coarse, cfg, REPO / "configs" / "demo.yaml", tmp_path, sim, args)
     # Only H03 (coarse move) again, same seed, centroid only; the others count as they ran.
     assert asked == [(["H03"], 4, None)]
     assert coarse["iterations_centroid_only_mean"] == round((2 + 2 + 4) / 3, 3)
@@ -178,6 +182,56 @@ def test_demo_recalibrates_only_the_heliostats_with_a_coarse_move_centroid_only(
     # No coarse move: no second campaign, the run is its own centroid-only run.
     asked.clear()
     none = {"iterations_mean": 2.333, "applied_heliostats": []}
-    demo._centroid_only_twin(none, cfg, REPO / "configs" / "demo.yaml", tmp_path, sim, args)
+    demo_coarse.centroid_only_twin(none, cfg, REPO / "configs" / "demo.yaml", tmp_path, sim, args)
     assert asked == [] and none["centroid_only_rerun"] == []
     assert none["iterations_centroid_only_mean"] == 2.333
+
+
+def test_demo_uncalibrated_field_runs_the_same_heliostats_with_and_without_the_coarse_correction(tmp_path,
+                                                                                                 monkeypatch):
+
+    import controller.commands._demo_coarse as demo_coarse
+    import controller.commands.demo as demo
+
+    from .conftest import REPO
+
+    asked = []
+
+    def campaign(cfg, config_path, out, db, ids, settings, name, **kw):
+        c = cfg.calibration
+        asked.append((list(ids), settings.seed, settings.tracking_error_mrad, c.coarse_correction,
+                      c.standby_offset_m, Path(config_path).parent == Path(out)))
+        with_coarse = c.coarse_correction is not None
+        coarse = {"clipped_first_looks": 4, "applied": 3 if with_coarse else 0,
+                  "applied_heliostats": ["H01"] if with_coarse else [],
+                  "iterations_mean": 2.5 if with_coarse else 2.75,
+                  "corrections_mean": 1.5 if with_coarse else 2.0}
+        return {"coarse_correction": coarse, "calibrated": 3,
+                "error_after_mrad": {"mean": 0.2, "max": 0.4}}, None
+
+    monkeypatch.setattr(demo, "simulated_campaign", campaign)
+    ids = ["H01", "H02", "H03"]
+    u = demo_coarse.uncalibrated_field(REPO / "configs" / "demo.yaml", tmp_path, ids, 5, 12.0)
+    threshold = load_config(REPO / "configs" / "demo.yaml").calibration.coarse_correction
+    # Same heliostats, seed and hidden-error scale; the config's threshold, then none; beams parked
+    # 16 m off (the demo config's 8 m is within reach of an uncalibrated field's errors).
+    assert asked == [(["H01", "H02", "H03"], 5, 12.0, threshold, 16.0, True),
+                     (["H01", "H02", "H03"], 5, 12.0, None, 16.0, True)]
+    assert (u["applied"], u["iterations_mean"], u["iterations_centroid_only_mean"]) == (3, 2.5, 2.75)
+    assert (u["corrections_mean"], u["corrections_centroid_only_mean"]) == (1.5, 2.0)
+    assert (u["tracking_error_mrad"], u["heliostats"], u["clipped_first_looks"]) == (12.0, 3, 4)
+    assert {"calibrated", "calibrated_centroid_only", "error_after_mrad", "error_after_centroid_only_mrad",
+            "applied_heliostats", "threshold"} <= set(u)
+
+
+@pytest.mark.parametrize("value", ["0", "-3", "51", "nan"])
+def test_demo_refuses_a_bad_uncalibrated_scale_before_any_work(value, tmp_path, capsys):
+    from controller.cli import main
+
+    from .conftest import REPO
+
+    config = str(REPO / "configs" / "demo.yaml")
+    assert main(["demo", "--config", config, "--uncalibrated", value, "--out", str(tmp_path / "o")]) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and len(err.strip().splitlines()) == 1 and "--uncalibrated" in err
+    assert not (tmp_path / "o").exists()
