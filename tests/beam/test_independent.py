@@ -103,8 +103,9 @@ def _score(capsys, out: Path, *features: str) -> dict:
 
 
 # Bars below the rates measured on the design seeds 1-3 (24 views per case: independent_spots
-# 93.8-97.9 %, facet_spots 81.2-88.9 %), leaving room for the smaller set's sampling spread.
-BAR = {"independent_spots": 88.0, "facet_spots": 72.0}
+# 95.8-97.9 %, facet_spots 86.1-93.1 %; here, 6 views per case: 97.2 and 94.4 %), leaving room
+# for the smaller set's sampling spread (one view is 2.8 points).
+BAR = {"independent_spots": 92.0, "facet_spots": 80.0}
 
 
 def test_default_library_generalises_to_both_independent_renderers(independent_set, capsys):
@@ -112,7 +113,11 @@ def test_default_library_generalises_to_both_independent_renderers(independent_s
     default = _score(capsys, out)
     assert default["features"] == "multi-lobe-hu"
     assert default["recognition_rate"] >= BAR[name], default["per_class"]
-    assert default["unknown_rate"] <= 0.1
+    assert default["unknown_rate"] <= 0.03  # the bar for unknowns
+    # Widening the views no case claims pays on both (measured +5.6 points each here).
+    plain = _score(capsys, out, "--widen", "no")
+    assert default["recognition_rate"] > plain["recognition_rate"]
+    assert plain["widened"] == 0 < default["widened"]
     # The paper's raw Hu distance is far below on the same set (measured 44-62 % on seeds 1-3).
     paper = _score(capsys, out, "--features", "hu", "--whiten", "no")
     assert default["recognition_rate"] >= paper["recognition_rate"] + 15
