@@ -35,12 +35,13 @@ def match_image(lib: Library, image) -> dict:
     """Analyse ``image`` with the library's threshold and match it; returns the JSON contract."""
     m = lib.match_image(image)
     entry = lib.entries[m.index]
+    sizeless = m.unknown or m.widened > 0  # a widened match names the case, not its size
     out = {
         "label": "unknown" if m.unknown else m.label,
         "distance": m.distance,
         "runner_up": {"label": m.runner_up, "distance": m.runner_up_distance},
-        "az_deg": None if m.unknown else entry.az_deg,
-        "el_deg": None if m.unknown else entry.el_deg,
+        "az_deg": None if sizeless else entry.az_deg,
+        "el_deg": None if sizeless else entry.el_deg,
         "unknown": m.unknown,
         "nearest": m.label,
         "error_deg": list(m.error_deg) if m.error_deg else None,
@@ -50,7 +51,7 @@ def match_image(lib: Library, image) -> dict:
         "widened": m.widened,
     }
     if entry.correction is not None:
-        out["correction"] = None if m.unknown else entry.correction
+        out["correction"] = None if sizeless else entry.correction
     return out
 
 
@@ -66,5 +67,6 @@ def run(args: argparse.Namespace) -> int:
     else:
         ru = result["runner_up"]
         ru_txt = f"{ru['label']} at {ru['distance']:.4g}" if ru["label"] else "none"
-        print(f"{result['label']} (distance {result['distance']:.4g}; runner-up {ru_txt})")
+        widened = f"; widened σ = {result['widened']:g} × d90, no size" if result["widened"] else ""
+        print(f"{result['label']} (distance {result['distance']:.4g}; runner-up {ru_txt}{widened})")
     return 0

@@ -127,3 +127,24 @@ def test_library_build_widen_option(tmp_path, capsys):
     assert exc.value.code == 2 and "--widen" in capsys.readouterr().err and not (tmp_path / "x.yaml").exists()
     code, out, _ = cli(capsys, "match", str(tmp_path / "0.npy"), "--library", lib, "--json")
     assert code == 0 and json.loads(out)["widened"] == 0.0
+
+
+def test_match_cli_reports_a_widened_match_without_a_size(tmp_path, capsys):
+    rng = np.random.default_rng(11)
+    rows = []
+    for case in independent_spots.CASES:
+        for m in (0.5, 1.0, 1.5):
+            name = f"{case}-{m}.npy"
+            np.save(tmp_path / name, independent_spots.render(case, m, rng))
+            rows.append(f"{name},{case},{0.1 * m},{-0.05 * m}")
+    (tmp_path / "m.csv").write_text("image,label,az_deg,el_deg\n" + "\n".join(rows) + "\n")
+    lib = str(tmp_path / "l.yaml")
+    assert cli(capsys, "library", "build", str(tmp_path / "m.csv"), "--out", lib, "--json")[0] == 0
+    view = independent_spots.render("gear-backlash", 1.5, rng, spot=0.7, rotation_rad=0.3)
+    np.save(tmp_path / "v.npy", view)
+    code, out, _ = cli(capsys, "match", str(tmp_path / "v.npy"), "--library", lib, "--json")
+    d = json.loads(out)
+    assert code == 0 and (d["label"], d["unknown"]) == ("gear-backlash", False) and d["widened"] in WIDEN
+    assert d["az_deg"] is d["el_deg"] is d["error_deg"] is d["magnitude"] is None and d["confidence"] == 0.0
+    code, out, _ = cli(capsys, "match", str(tmp_path / "v.npy"), "--library", lib)
+    assert code == 0 and out.startswith("gear-backlash") and "widened" in out

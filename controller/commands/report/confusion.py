@@ -74,8 +74,8 @@ def run(args: argparse.Namespace) -> int:
         print_json(report)
     else:
         print(f"recognition rate {conf.recognition_rate:.4f} % (TP {conf.tp}, FN {conf.fn}, "
-              f"recall {conf.recall:.4f}, FNR {conf.fnr:.4f}, unknown {100 * conf.unknown_rate:.1f} %); "
-              f"report in {args.out}")
+              f"recall {conf.recall:.4f}, FNR {conf.fnr:.4f}, unknown {100 * conf.unknown_rate:.1f} %, "
+              f"{widened} matched once widened); report in {args.out}")
         for k, c in splits.items():
             print(f"  {k}: {c.recognition_rate:.2f} % of {c.n} (unknown {100 * c.unknown_rate:.1f} %)")
     return 0
