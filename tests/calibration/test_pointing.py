@@ -111,5 +111,5 @@ def test_beam_chain_matches_with_a_multi_threshold_library(small_config):
     chain = BeamChain(cfg, lib)
     obs = chain.analyze(spot(125, 92, 13, 6) + 1.0)
     assert obs.hu.size == 7 * len(lib.thresholds) > 7
-    m = chain.match(obs.hu)
+    m = chain.match(obs)
     assert m is not None and m.label == "wide"
