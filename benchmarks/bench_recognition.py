@@ -34,6 +34,8 @@ second), and the price of the widening: each case left out of the library in tur
 its views are still rejected as unknown, with and without widening.
 JSON: ``renderers.{independent_spots,facet_spots}.seeds.{seed}`` (and ``seeds`` = the first).
 
+``--combined [--seed S] [--views 6] [--dir DIR]``: instead, combined errors (:func:`combined`).
+
 ``--campaign [--threshold T] [--heliostats N]``: instead, the coarse correction in the closed
 loop on the demo plant as it is. Runs ``heliocal demo --nights 0 --json`` (embedded simulated
 plant, demo config, seed ``--seed``) with ``calibration.coarse_correction: T`` and reports its
@@ -93,9 +95,16 @@ def library_manifest(out: Path, sizes: tuple[float, ...], heliostats: tuple[str,
     """The library manifest restricted to ``sizes`` and ``heliostats`` (subsets of the rendered ones)."""
     if sizes == SIZES and heliostats == LIBRARY:
         return out / "library.csv"
-    rows = [r for r in read_manifest(out / "library.csv")
-            if float(r.extra["magnitude"]) in sizes and r.extra["heliostat"] in heliostats]
-    path = out / f"library-{len(heliostats)}x{len(sizes)}.csv"
+    def keep(r) -> bool:
+        return float(r.extra["magnitude"]) in sizes and r.extra["heliostat"] in heliostats
+
+    return subset_manifest(out, f"library-{len(heliostats)}x{len(sizes)}.csv", keep)
+
+
+def subset_manifest(out: Path, name: str, keep) -> Path:
+    """``out/name``: the rows of ``out/library.csv`` for which ``keep(row)`` holds."""
+    rows = [r for r in read_manifest(out / "library.csv") if keep(r)]
+    path = out / name
     write_manifest(path, [(str(r.image), r.label, r.az_deg, r.el_deg, *(r.extra[k] for k in MANIFEST_EXTRA))
                           for r in rows], header=("image", "label", "az_deg", "el_deg", *MANIFEST_EXTRA))
     return path
@@ -263,6 +272,52 @@ def independent(seeds: list[int], views: int) -> dict:
     return res
 
 
+COMBINED_TEST = ("H02", "H10", "H17")
+
+
+def combined(seed: int, views: int, out: Path) -> dict:
+    """Combined errors (two mechanisms at once) as cases of their own: the 6 cases and the 10
+    pairs of the five that change the shape (``write_errorset(combined=True)``), library on six
+    heliostats at sizes 0.5, 1, 1.5, test views on three other heliostats (sizes 0.5-1.5).
+    Default library, scored per kind of case and by mechanism
+    (:func:`controller.recognition.confusion.mechanism_recall`); the peer is the library of
+    the six single cases only, scored by mechanism on the same pair views."""
+    from controller.recognition.confusion import mechanism_recall
+
+    cfg = load_config(CONFIG)
+    if not (out / "test.csv").is_file():
+        write_errorset(out, [scene_from_config(cfg, h) for h in SIX], seed=seed, views=views,
+                       magnitudes=THREE, test_scenes=[scene_from_config(cfg, h) for h in COMBINED_TEST],
+                       test_magnitude_range=(0.5, 1.5), combined=True)
+    rows = read_manifest(out / "test.csv")
+    images = [read_image(r.image) for r in rows]
+    true = [r.label for r in rows]
+    pair = np.array(["+" in t for t in true])
+    res: dict = {"seed": seed, "views": views, "library_heliostats": list(SIX),
+                 "test_heliostats": list(COMBINED_TEST)}
+    path = subset_manifest(out, "library-singles.csv", lambda r: "+" not in r.label)
+    for name, manifest in (("with pairs", out / "library.csv"), ("singles only (peer)", path)):
+        lib = build_library_from_manifest(manifest, "multi-lobe-hu")
+        pred = []
+        for img in images:
+            m = lib.match_image(img)
+            pred.append("unknown" if m.unknown else m.label)
+        ok = np.array([p == t for p, t in zip(pred, true, strict=True)])
+        on_pairs = mechanism_recall([t for t, q in zip(true, pair, strict=True) if q],
+                                    [p for p, q in zip(pred, pair, strict=True) if q])
+        found = sum(r["found"] for r in on_pairs.values()) / max(1, sum(r["n"] for r in on_pairs.values()))
+        both = np.mean([set(t.split("+")) <= set(p.split("+"))
+                        for t, p, q in zip(true, pred, pair, strict=True) if q])
+        res[name] = {"entries": len(lib.entries), "recognition_rate": _rate(ok),
+                     "single_cases": _rate(ok[~pair]), "pair_cases": _rate(ok[pair]),
+                     "unknown_rate": _rate(np.array([p == "unknown" for p in pred])),
+                     "pair_views_mechanisms_found": round(100.0 * found, 2),
+                     "pair_views_both_found": round(100.0 * float(both), 2),
+                     "mechanisms": {k: round(100.0 * v["recall"], 1) for k, v in
+                                    mechanism_recall(true, pred).items()}}
+    return res
+
+
 def campaign(seed: int, threshold: float, heliostats: int) -> dict:
     """The demo with the coarse correction at ``threshold`` and its centroid-only twin (same seed)."""
     import subprocess
@@ -305,7 +360,12 @@ def main() -> None:
     ap.add_argument("--heliostats", type=int, default=12, help="--campaign: heliostats of the demo")
     ap.add_argument("--independent", action="store_true", help="independent renderer's set (see above)")
     ap.add_argument("--seeds", default="1,2,3", help="--independent: seeds of the sets")
+    ap.add_argument("--combined", action="store_true", help="combined errors as own cases (see above)")
     args = ap.parse_args()
+    if args.combined:
+        with tempfile.TemporaryDirectory() as tmp:
+            print(json.dumps(combined(args.seed, args.views, Path(args.dir) if args.dir else Path(tmp))))
+        return
     if args.independent:
         print(json.dumps(independent([int(v) for v in args.seeds.split(",")], 24)))
         return

@@ -89,6 +89,22 @@ class ErrorCase:
         return replace(self, params=params, deformation=deformation, rock_az_rad=m * self.rock_az_rad,
                        focus_factor=1.0 + m * (self.focus_factor - 1.0), magnitude=m * self.magnitude)
 
+    def combined(self, other: ErrorCase) -> ErrorCase:
+        """Both mechanisms at once, label ``"a+b"``: tracking-error parameters, slope fields and
+        dead bands add, curvature excesses add; each at its own size (magnitude 1), so that
+        :meth:`scaled` scales the pair together."""
+        params = TrackingErrorParams(**{f.name: getattr(self.params, f.name) + getattr(other.params, f.name)
+                                        for f in fields(self.params)})
+        parts = tuple(d for d in (self.deformation, other.deformation) if d is not None)
+        deformation = None if not parts else parts[0] if len(parts) == 1 else partial(_summed_slopes, parts)
+        return ErrorCase(f"{self.label}+{other.label}", params, deformation,
+                         rock_az_rad=self.rock_az_rad + other.rock_az_rad,
+                         focus_factor=1.0 + (self.focus_factor - 1.0) + (other.focus_factor - 1.0))
+
+    def has_shape(self) -> bool:
+        """Whether the case changes the spot's shape (slopes, motion or focus), not only where it lands."""
+        return self.deformation is not None or self.rock_az_rad != 0.0 or self.focus_factor != 1.0
+
     def error_params(self) -> dict[str, float]:
         """What a library entry records about this state: magnitude and pointing parameters (mrad)."""
         return {"magnitude": self.magnitude} | {k: v for k, v in self.params.to_dict().items() if v != 0.0}
@@ -97,6 +113,21 @@ class ErrorCase:
 def _scaled_slopes(deformation: Deformation, m: float, x: np.ndarray, y: np.ndarray):
     sx, sy = deformation(x, y)
     return m * sx, m * sy
+
+
+def _summed_slopes(parts: tuple[Deformation, ...], x: np.ndarray, y: np.ndarray):
+    slopes = [d(x, y) for d in parts]
+    return sum(sx for sx, _ in slopes), sum(sy for _, sy in slopes)
+
+
+def shape_pairs(cases: Sequence[ErrorCase]) -> list[ErrorCase]:
+    """Every pair of ``cases`` that both change the spot's shape, combined (:meth:`ErrorCase.combined`).
+
+    A pure pointing case (tracking-offset) is left out: Hu moments ignore translation, so
+    "tracking-offset + X" *is* X to them, a label no shape could earn; its pointing part is
+    what the centroid measures."""
+    shaped = [c for c in cases if c.has_shape()]
+    return [a.combined(b) for i, a in enumerate(shaped) for b in shaped[i + 1:]]
 
 
 def _twist(x, y):
@@ -275,14 +306,16 @@ class ErrorSet:
 def write_errorset(out: str | Path, scene: Scene | Sequence[Scene], seed: int = 0, cases: int = 6,
                    views: int = 14, progress: Callable[[int, int], None] | None = None, *,
                    magnitudes: Sequence[float] = (1.0,), test_scenes: Sequence[Scene] | None = None,
-                   test_magnitude_range: tuple[float, float] | None = None) -> ErrorSet:
+                   test_magnitude_range: tuple[float, float] | None = None,
+                   combined: bool = False) -> ErrorSet:
     """Render the library and the test views; write both manifests.
 
     Library: one nominal view per (case, scene, magnitude) for the scenes ``scene`` (one or
     several heliostat/source geometries) and ``magnitudes`` (multiples of the case's size).
     Test: ``views`` perturbed views per (case, test scene) for ``test_scenes`` (default: the
     library's); each view's magnitude is drawn uniformly from ``test_magnitude_range`` or, without
-    it, taken in turn from ``magnitudes``.
+    it, taken in turn from ``magnitudes``. ``combined`` adds every pair of the chosen cases that
+    both change the shape (:func:`shape_pairs`, labels ``"a+b"``) as cases of their own.
 
     Files: ``OUT/library.csv``, ``OUT/test.csv`` (``image,label,az_deg,el_deg`` with az/el = the
     state's beam pointing error in degrees, then ``heliostat,source,slant_m,magnitude``) and
@@ -295,7 +328,7 @@ def write_errorset(out: str | Path, scene: Scene | Sequence[Scene], seed: int = 
     out = Path(out)
     lib_scenes = [scene] if isinstance(scene, Scene) else list(scene)
     test_scenes = lib_scenes if test_scenes is None else list(test_scenes)
-    chosen = CASES[:cases]
+    chosen = CASES[:cases] + (tuple(shape_pairs(CASES[:cases])) if combined else ())
     multi = len(lib_scenes) > 1 or len(test_scenes) > 1 or len(magnitudes) > 1
     mergers: dict[tuple[float, float], HdrMerger] = {}
     lib_rows, test_rows = [], []

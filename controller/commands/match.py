@@ -17,6 +17,7 @@ import argparse
 from controller.commands._common import add_json_option, existing_file, print_json
 from controller.errors import InputError
 from controller.io.images import read_image
+from controller.recognition.confusion import mechanisms
 from controller.recognition.library import Library
 from controller.recognition.library_io import load_library
 
@@ -49,6 +50,7 @@ def match_image(lib: Library, image) -> dict:
         "magnitude": m.magnitude,
         "confidence": m.confidence,
         "widened": m.widened,
+        "mechanisms": list(mechanisms("unknown" if m.unknown else m.label)),
     }
     if entry.correction is not None:
         out["correction"] = None if sizeless else entry.correction

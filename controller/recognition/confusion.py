@@ -91,3 +91,30 @@ def confusion(true: list[str], predicted: list[str], labels: list[str] | None = 
         else:
             m[index[t], index[p]] += 1
     return Confusion(labels, m, unk)
+
+
+MECHANISM_SEP = "+"
+
+
+def mechanisms(label: str) -> tuple[str, ...]:
+    """The mechanisms a case label names: ``"wind-load+gear-backlash"`` -> both; unknown -> none."""
+    return () if label == UNKNOWN else tuple(label.split(MECHANISM_SEP))
+
+
+def mechanism_recall(true: list[str], predicted: list[str]) -> dict[str, dict]:
+    """Recognition by mechanism, for libraries with combined cases (labels ``"a+b"``): per
+    mechanism M, ``n`` = test views whose true case involves M, ``found`` = those whose predicted
+    case involves M too, ``recall`` = found / n, and ``exact`` = those recognised as their whole
+    case. A view of ``a+b`` called ``a`` finds a and misses b; called ``a+c`` it finds a and
+    counts c nowhere (a false mechanism is not a recall matter)."""
+    out: dict[str, dict] = {}
+    for t, p in zip(true, predicted, strict=True):
+        said = set(mechanisms(p))
+        for m in mechanisms(t):
+            row = out.setdefault(m, {"n": 0, "found": 0, "exact": 0})
+            row["n"] += 1
+            row["found"] += m in said
+            row["exact"] += p == t
+    for row in out.values():
+        row["recall"] = row["found"] / row["n"]
+    return out

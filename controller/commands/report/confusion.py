@@ -26,7 +26,13 @@ from controller.commands._common import _plain, add_json_option, existing_file, 
 from controller.commands.library import progress
 from controller.errors import InputError
 from controller.io.images import read_image, write_atomic
-from controller.recognition.confusion import UNKNOWN, Confusion, confusion
+from controller.recognition.confusion import (
+    MECHANISM_SEP,
+    UNKNOWN,
+    Confusion,
+    confusion,
+    mechanism_recall,
+)
 from controller.recognition.library_io import load_library, read_manifest
 from controller.recognition.splits import SPLITS, Coverage
 from controller.reports.confusion_plot import plot_confusion
@@ -68,6 +74,7 @@ def run(args: argparse.Namespace) -> int:
         if idx:
             splits[name] = confusion([true[i] for i in idx], [pred[i] for i in idx], labels)
     report = conf.as_dict() | {"features": lib.features, "widened": widened,
+                               "mechanisms": mechanism_recall(true, pred),
                                "splits": {k: c.as_dict() for k, c in splits.items()}}
     write_report(conf, report, Path(args.out), splits)
     if args.json:
@@ -125,10 +132,23 @@ def write_report(conf: Confusion, report: dict, out: Path,
                  splits: dict[str, Confusion] | None = None) -> None:
     out.mkdir(parents=True, exist_ok=True)
     csv_text = confusion_csv(conf)
-    md_text = confusion_markdown(conf, report.get("features", ""), splits)
+    md_text = confusion_markdown(conf, report.get("features", ""), splits) + _mechanism_table(report)
     json_text = json.dumps(_plain(report), indent=2) + "\n"
     plot_confusion(conf.matrix, conf.unknown, list(conf.labels), out / "confusion.png",
                    title=f"recognition rate {conf.recognition_rate:.2f} % ({report.get('features', '')})")
     write_atomic(out / "confusion.csv", lambda t: t.write_text(csv_text, encoding="utf-8"))
     write_atomic(out / "confusion.md", lambda t: t.write_text(md_text, encoding="utf-8"))
     write_atomic(out / "report.json", lambda t: t.write_text(json_text, encoding="utf-8"))
+
+
+def _mechanism_table(report: dict) -> str:
+    """Recall by mechanism when the library has combined cases (labels ``a+b``); else nothing."""
+    rows = report.get("mechanisms") or {}
+    if not any(MECHANISM_SEP in lab for lab in report.get("labels", [])):
+        return ""
+    lines = ["", "## By mechanism (combined cases count for each of theirs)", "",
+             "| mechanism | views involving it | named in the prediction | recall | whole case right |",
+             "|---|---:|---:|---:|---:|"]
+    lines += [f"| {m} | {r['n']} | {r['found']} | {r['recall']:.3f} | {r['exact']} |"
+              for m, r in rows.items()]
+    return "\n".join(lines) + "\n"

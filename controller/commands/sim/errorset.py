@@ -33,6 +33,9 @@ def register(subparsers) -> None:
     p.add_argument("--seed", type=int, default=0, metavar="S", help="seed of the perturbations (default 0)")
     p.add_argument("--cases", type=int, default=6, metavar="N",
                    help="number of error cases of the error set, from 1 (default 6)")
+    p.add_argument("--combined", action="store_true",
+                   help="also every pair of the chosen cases that both change the spot's shape, as cases "
+                        "of their own (labels a+b; tracking-offset has no shape and is left out)")
     p.add_argument("--views", type=int, default=14, metavar="N", help="test views per case (default 14)")
     p.add_argument("--heliostat", default="H09", metavar="ID[,ID...]",
                    help="heliostat(s) of the config the library is rendered for (default H09)")
@@ -109,7 +112,8 @@ def run(args: argparse.Namespace) -> int:
     with progress("rendering error set", not args.json) as update:
         es = write_errorset(args.out, scenes, seed=args.seed, cases=args.cases, views=args.views,
                             progress=update, magnitudes=magnitudes, test_scenes=test_scenes,
-                            test_magnitude_range=tuple(test_range) if test_range else None)
+                            test_magnitude_range=tuple(test_range) if test_range else None,
+                            combined=args.combined)
     if args.json:
         print_json({"library_manifest": str(es.library_manifest), "test_manifest": str(es.test_manifest),
                     "labels": es.labels, "images": es.images})
