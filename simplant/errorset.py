@@ -33,6 +33,10 @@ deterministically from the seed by translation (grid centre ±0.3 m), scaling (p
 x 0.8-1.25), rotation (grid axes turned about the target normal by 0-360°), exposure change
 (x 0.6-1.5) and fresh sensor and ray-sampling noise.
 
+Combined errors (``combined=True``, ``heliocal sim errorset --combined``): every pair of the chosen
+cases that both change the spot's shape, as a case of its own labelled ``"a+b"``
+(:meth:`ErrorCase.combined`, :func:`shape_pairs`).
+
 Those nuisances are what Hu moments ignore by construction. To measure generalisation the set
 can span what they do not ignore: several heliostats and light sources (:func:`scene_from_config`
 per heliostat/source) and error sizes (:meth:`ErrorCase.scaled`: the same mechanism at m times
