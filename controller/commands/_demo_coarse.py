@@ -131,7 +131,7 @@ def print_uncalibrated(con, u: dict) -> None:
     def f(v) -> str:
         return "-" if v is None else f"{v:.2f}"
 
-    con.print(f"uncalibrated field (hidden errors ×{u['tracking_error_mrad']:g} mrad scale): "
+    con.print(f"uncalibrated field (hidden-error scale {u['tracking_error_mrad']:g} mrad): "
               f"{u['clipped_first_looks']} of {u['heliostats']} first looks clipped, coarse correction "
               f"applied on {u['applied']}; iterations per heliostat {f(u['iterations_mean'])} with, "
               f"{f(u['iterations_centroid_only_mean'])} centroid only; corrective moves "
