@@ -186,8 +186,7 @@ class Library:
         (:func:`controller.recognition.widen.widened`); :meth:`match_stacks` takes the list."""
         stacks = [self.describe(hdr, threshold)]
         if self.widen and self.match_hu(stacks[0]).unknown:
-            d90 = spot_d90(hdr)
-            stacks += [self.describe(widened(hdr, f, d90), threshold) for f in self.widen]
+            stacks += self._widened_stacks(hdr, threshold)
         return stacks
 
     def match_stacks(self, stacks: Sequence[np.ndarray]) -> LibraryMatch:
@@ -195,15 +194,7 @@ class Library:
         stack (``stacks[i]`` widened by ``widen[i - 1]``) within :data:`WIDEN_ACCEPT` × its
         entry's unknown threshold, as a case without a size or correction
         (:class:`LibraryMatch`); if none is, the direct (unknown) match."""
-        direct = self.match_hu(stacks[0])
-        if not direct.unknown:
-            return direct
-        for fraction, stack in zip(self.widen, stacks[1:], strict=False):
-            m = self.match_hu(stack)
-            if m.distance <= WIDEN_ACCEPT * self.entries[m.index].unknown_distance:
-                return replace(m, correction_deg=None, error_deg=None, coarse_correction_deg=None,
-                               magnitude=None, confidence=0.0, widened=float(fraction))
-        return direct
+        return self._widened_match(self.match_hu(stacks[0]), stacks[1:])
 
     def match_image(self, hdr: np.ndarray, *, threshold: float | None = None) -> LibraryMatch:
         """:meth:`match_stacks` of a beam image (2-D HDR or grey, x = column, y = row), segmented
@@ -211,7 +202,24 @@ class Library:
         single-threshold library's) with the background estimated
         (:func:`controller.imaging.beam.analyze`), widened if no case claims it
         (:meth:`descriptors`). InputError when there is no beam."""
-        return self.match_stacks(self.descriptors(hdr, threshold))
+        direct = self.match_hu(self.describe(hdr, threshold))
+        if not direct.unknown or not self.widen:
+            return direct
+        return self._widened_match(direct, self._widened_stacks(hdr, threshold))
+
+    def _widened_stacks(self, hdr: np.ndarray, threshold: float | None) -> list[np.ndarray]:
+        d90 = spot_d90(hdr)
+        return [self.describe(widened(hdr, f, d90), threshold) for f in self.widen]
+
+    def _widened_match(self, direct: LibraryMatch, stacks: Sequence[np.ndarray]) -> LibraryMatch:
+        if not direct.unknown:
+            return direct
+        for fraction, stack in zip(self.widen, stacks, strict=False):
+            m = self.match_hu(stack)
+            if m.distance <= WIDEN_ACCEPT * self.entries[m.index].unknown_distance:
+                return replace(m, correction_deg=None, error_deg=None, coarse_correction_deg=None,
+                               magnitude=None, confidence=0.0, widened=float(fraction))
+        return direct
 
     def _matcher(self) -> Matcher:
         # Built once per library: the matcher precomputes its search arrays.
