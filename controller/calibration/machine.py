@@ -245,18 +245,22 @@ class CalibrationCycle:
         p = self.ctx.pointing
         self.aim = p.aim_steps(self.ctx.model)
         self.standby = p.standby_steps(self.ctx.model)
-        # The slew to standby must not sweep the beam across the target (someone else may be
-        # measured there): the pointing plans waypoints that keep it off.
-        st = self.ctx.drive.status()
-        for waypoint in p.path_to((st.az_steps, st.el_steps), self.standby):
-            self._move("preparing", *waypoint)
+        self._park("preparing")
         self.run_rec.at_standby_s = self.ctx.clock()
         return "parked"
+
+    def _park(self, state: str) -> None:
+        # The slew to standby must not sweep the beam across a target (someone else may be
+        # measured there) nor into a person zone: the pointing plans waypoints that keep it off,
+        # from wherever the drive stands (after a fault, anywhere along a move).
+        st = self.ctx.drive.status()
+        for waypoint in self.ctx.pointing.path_to((st.az_steps, st.el_steps), self.standby):
+            self._move(state, *waypoint)
 
     def do_standby(self) -> str:
         if self.measured or self.cause:
             if self.beam_on_target:
-                self._move("standby", *self.standby)
+                self._park("standby")
                 self.beam_on_target = False
                 self.run_rec.off_target_s = self.ctx.clock()
             self._release_target()
@@ -351,7 +355,7 @@ class CalibrationCycle:
                 d.clear_fault()
                 if self.standby == (0, 0):
                     self.standby = self.ctx.pointing.standby_steps(self.ctx.model)
-                self._move("fault", *self.standby)
+                self._park("fault")
                 self.beam_on_target = False
                 self.run_rec.off_target_s = self.ctx.clock() if self.holds_target else None
                 return "recovered"
@@ -361,7 +365,7 @@ class CalibrationCycle:
                 first = exc
                 if attempt + 1 < FAULT_ATTEMPTS:
                     self._wait("fault", 1.0)
-            except Exception as exc:  # not a link problem: retrying will not help, stow instead
+            except Exception as exc:  # not a link problem, or no safe path: retrying will not help, stow
                 first = exc
                 break
         try:

@@ -133,6 +133,29 @@ def test_actuator_stalls_mid_move(make_cycle):
     assert (drive.status().az_steps, drive.status().el_steps) == plant.standby
 
 
+def test_a_fault_mid_move_parks_along_the_planned_path_from_where_the_drive_stands(make_cycle):
+    """The fault path plans its slew to standby like ``preparing`` (``Pointing.path_to``: the beam
+    must not sweep across another target or into a person zone), from the pose the drive reports
+    after the fault, not from the last commanded one, and moves through every waypoint."""
+    cyc, plant, drive = make_cycle()
+    asked, visited = [], []
+
+    def path_to(start, end):
+        asked.append((cyc.state, tuple(start), tuple(end)))
+        return [(start[0], end[1]), end]  # elevation first
+
+    cyc.ctx.pointing.path_to = path_to
+    real_move = drive._send_move_abs
+    drive._send_move_abs = lambda az, el: (visited.append((cyc.state, (az, el))), real_move(az, el))[1]
+    drive.after.append(once_moving_onto_target(cyc, plant, lambda: plant.ctl.inject_stall("az")))
+    rec = cyc.run()
+    assert rec.status == "failed" and rec.fault_state == "slewing" and rec.final_state == "done"
+    (state, start, end), = [a for a in asked if a[0] == "fault"]
+    assert end == plant.standby and start != plant.standby  # stopped part-way, away from standby
+    assert [pose for st, pose in visited if st == "fault"] == [(start[0], end[1]), end]
+    assert (drive.status().az_steps, drive.status().el_steps) == plant.standby
+
+
 def test_firmware_power_cycles_mid_move(make_cycle):
     cyc, plant, drive = make_cycle()
     drive.after.append(once_moving_onto_target(cyc, plant, plant.ctl.power_cycle))
