@@ -21,8 +21,9 @@ from pathlib import Path
 
 from controller.commands._common import add_json_option, existing_file, output_file, print_json
 from controller.commands.beam import add_threshold_option
+from controller.errors import InputError
 from controller.recognition.library import FEATURE_KINDS
-from controller.recognition.library_doc import MAX_WIDEN
+from controller.recognition.library_doc import check_widen
 from controller.recognition.library_io import build_library_from_manifest, save_library
 
 
@@ -70,17 +71,14 @@ def register(subparsers) -> None:
 
 def _widen(text: str) -> tuple[float, ...] | None:
     """``--widen``: auto -> None (the library's default), no -> none, else σ/d90 fractions in (0, 1]."""
-    if text == "auto":
-        return None
-    if text == "no":
-        return ()
+    if text in ("auto", "no"):
+        return None if text == "auto" else ()
     try:
-        values = tuple(float(v) for v in text.split(","))
+        return check_widen([float(v) for v in text.split(",")], "--widen")
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected auto, no or numbers like 0.1,0.2, not {text!r}") from None
-    if not values or len(values) > MAX_WIDEN or not all(0.0 < v <= 1.0 for v in values):
-        raise argparse.ArgumentTypeError(f"expected 1-{MAX_WIDEN} numbers in (0, 1], not {text!r}")
-    return values
+    except InputError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def run_build(args: argparse.Namespace) -> int:

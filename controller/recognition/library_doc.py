@@ -63,7 +63,7 @@ def _opt_positive(value, where: str) -> float:
 MAX_WIDEN = 8
 
 
-def _widen(value, where: str) -> tuple[float, ...]:
+def check_widen(value, where: str) -> tuple[float, ...]:
     """Absent (a library written before widening existed) -> none; else up to 8 numbers in (0, 1]."""
     if value is None:
         return ()
@@ -130,4 +130,4 @@ def library_from_dict(data: object, p: str) -> Library:
         raise InputError(f"{p}: threshold: must be a number") from None
     return Library(features=kind, threshold=threshold, entries=entries, scale=scale,
                    unknown_distance=float("inf") if unknown is None else float(unknown), whiten=whiten,
-                   widen=_widen(data.get("widen"), f"{p}: widen"))
+                   widen=check_widen(data.get("widen"), f"{p}: widen"))
