@@ -130,6 +130,40 @@ def test_a_heliostat_that_cannot_be_made_safe_keeps_the_lamp_dark(base, tmp_path
     assert plant.lit is None
 
 
+def test_ctrl_c_during_a_lamp_change_leaves_every_lamp_dark_and_the_moves_finishing(base, tmp_path):
+    """Ctrl-C while the heliostats are moved in the dark: the interrupt propagates as itself (the
+    command records the campaign interrupted; a rerun changes the lamp again), no lamp is lit,
+    and the moves already sent go on to their safe poses (nothing is left half-way by the stop)."""
+    field = _field(base, tmp_path)  # L1, the night's previous lamp, is lit
+    cfg, plant = field.cfg, field.plant
+    drives = night_drives(cfg, field.pool)
+    commanded: dict[str, tuple[int, int]] = {}
+    waits = {}
+
+    def drive_of(hid):
+        d = drives(hid)
+        move, wait = d.move_abs, d.wait_in_position
+
+        def move_abs(az, el):
+            commanded[hid] = (az, el)
+            return move(az, el)
+
+        def wait_in_position(*args, **kw):
+            raise KeyboardInterrupt  # the operator's Ctrl-C, while the first move is waited for
+
+        d.move_abs, d.wait_in_position, waits[hid] = move_abs, wait_in_position, wait
+        return d
+
+    changer = LampChanger(cfg, drive_of, lambda _: None, plant.lights_out, clock=plant.clock,
+                          sleep=plant.clock.sleep)
+    with pytest.raises(KeyboardInterrupt):
+        changer("L3", {x.id: Standby(required=True) for x in cfg.heliostats})
+    assert plant.lit is None and commanded
+    for hid, pose in commanded.items():
+        st = waits[hid](60.0, 0.05, plant.clock.sleep, plant.clock, expect=pose)
+        assert (st.az_steps, st.el_steps) == pose
+
+
 def test_campaign_start_moves_a_beam_off_the_target_before_lighting(base, tmp_path):
     field = _field(base, tmp_path)
     cfg, plant = field.cfg, field.plant
