@@ -1,5 +1,6 @@
 """What one measurement of a cycle yields: the beam seen on the target, the library's match,
-and a correction step; :class:`BeamNotFound` when there is nothing to measure."""
+and a correction step; :class:`BeamNotFound` when there is nothing to measure, :class:`NoBeam`
+when the presence decision says there is no beam on the target at all."""
 
 from __future__ import annotations
 
@@ -50,3 +51,14 @@ class Step:
 
 class BeamNotFound(RuntimeError):
     """No usable beam spot in the image (none, or clipped by the edge of the view)."""
+
+
+class NoBeam(BeamNotFound):
+    """No beam on the target by the presence decision (:mod:`controller.imaging.presence`):
+    ``statistic`` < ``threshold``. The cycle records ``no_beam`` and computes no correction
+    from the frame (docs/campaigns.md, "No beam")."""
+
+    def __init__(self, message: str, statistic: float, threshold: float) -> None:
+        super().__init__(message)
+        self.statistic = statistic
+        self.threshold = threshold
