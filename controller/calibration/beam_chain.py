@@ -6,7 +6,6 @@ import threading
 
 import numpy as np
 
-from controller.calibration.clipped_spot import clipped_centre
 from controller.calibration.observations import BeamNotFound, Match, NoBeam, Observation
 from controller.config import PlantConfig
 from controller.errors import InputError, NoBeamError
@@ -14,6 +13,7 @@ from controller.geometry.target_frame import TargetFrame
 from controller.imaging.background import subtract_background
 from controller.imaging.beam import analyze
 from controller.imaging.centroid import energy_centroid
+from controller.imaging.clipped_spot import clipped_centre
 from controller.imaging.crf_io import load_crf
 from controller.imaging.hdr import HdrMerger
 

@@ -18,7 +18,7 @@ class Observation:
     hu: np.ndarray
     peak: float
     clipped: tuple[str, ...] = ()  # edges of the view the spot touches: its centroid is biased inward
-    # A clipped spot's centre from its half-maximum contour (controller.calibration.clipped_spot),
+    # A clipped spot's centre from its half-maximum contour (controller.imaging.clipped_spot),
     # m ENU, and its confidence in [0, 1]; None / 0 when not clipped or not estimable.
     clipped_centre_enu: tuple[float, float, float] | None = None
     clipped_confidence: float = 0.0
