@@ -49,6 +49,15 @@ class Background:
         x = np.arange(origin[1], origin[1] + shape[1], dtype=dtype)
         return self.on_grid(x, y, dtype)
 
+    def at(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """b at the points (``x``, ``y``) (px, arrays of one shape and dtype; no null image)."""
+        out = self.level + self.slope_x * x + self.slope_y * y
+        if any(self.quad):
+            cxx, cyy, cxy = self.quad
+            u, v = x - self.centre[0], y - self.centre[1]
+            out = out + cxx * u * u + cyy * v * v + cxy * u * v
+        return out.astype(x.dtype, copy=False)
+
     def on_grid(self, x: np.ndarray, y: np.ndarray, dtype=np.float64) -> np.ndarray:
         """b at the pixel centres of columns ``x`` and rows ``y`` (1-D, px): (len(y), len(x))."""
         x = np.asarray(x, dtype)

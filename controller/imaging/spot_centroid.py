@@ -32,7 +32,7 @@ from controller.imaging.background import Background
 from controller.imaging.presence import Presence
 
 RING = (0.5, 1.5)  # inner, outer distance of the background ring from the footprint, in r
-WINDOW = 3.0  # the window's half-size in units of the footprint's standard deviation
+WINDOW = 4.0  # the window's half-size in units of the footprint's standard deviation
 ITERATIONS = 12
 SECOND_FRACTION = 0.25  # of the main spot's smoothed peak, for a second spot to be reported
 _CLIP_SIGMA = 3.0
@@ -54,14 +54,16 @@ class SpotCentroid:
     second_spot: tuple[float, float] | None
 
 
-def _surface(level_img: np.ndarray, ring: np.ndarray, scale: int, centre: tuple[float, float],
-             length: float, fallback: Background) -> Background:
-    """Sigma-clipped least-squares quadratic through the ``ring`` pixels of the level image, as a
-    full-resolution :class:`Background` about ``centre`` (coordinates scaled by ``length``)."""
+def _surface(level_img: np.ndarray, ring: np.ndarray, origin: tuple[int, int], scale: int,
+             centre: tuple[float, float], length: float, fallback: Background) -> Background:
+    """Sigma-clipped least-squares quadratic through the ``ring`` pixels (a bool window of the
+    level image whose top-left pixel is ``origin``, row and column), as a full-resolution
+    :class:`Background` about ``centre`` (coordinates scaled by ``length``)."""
     ys, xs = np.nonzero(ring)
-    if ys.size > 4096:  # a quadratic has 6 unknowns: a few thousand samples are plenty
-        pick = np.linspace(0, ys.size - 1, 4096).astype(np.int64)
+    if ys.size > 2048:  # a quadratic has 6 unknowns: a couple of thousand samples are plenty
+        pick = np.linspace(0, ys.size - 1, 2048).astype(np.int64)
         ys, xs = ys[pick], xs[pick]
+    ys, xs = ys + origin[0], xs + origin[1]
     if ys.size < 24:
         return fallback
     v = level_img[ys, xs].astype(np.float64)
@@ -113,30 +115,39 @@ def spot_centroid(image: np.ndarray, presence: Presence, mask: np.ndarray | None
     cov = cov + np.eye(2) * (0.25 * k * k + 1.0)  # at least a pixel wide
     cinv = np.linalg.inv(cov)
     r_eq = float(np.sqrt(fy.size / np.pi))
-    dist = cv2.distanceTransform((~fp).view(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-    ring = (dist > RING[0] * r_eq) & (dist <= RING[1] * r_eq) & presence.target
-    bg = _surface(presence.level_image, ring, k, (cx, cy), max(r_eq * k, 1.0), presence.background)
-    # The window's bounding box at the start, with room for the centre to move.
+    # The ring, on the footprint's bounding box grown by the ring's outer distance only.
+    grow = int(np.ceil(RING[1] * r_eq)) + 2
+    a0, a1 = max(0, int(fy.min()) - grow), min(g.shape[0], int(fy.max()) + grow + 1)
+    b0, b1 = max(0, int(fx.min()) - grow), min(g.shape[1], int(fx.max()) + grow + 1)
+    dist = cv2.distanceTransform((~fp[a0:a1, b0:b1]).view(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_3)
+    ring = (dist > RING[0] * r_eq) & (dist <= RING[1] * r_eq) & presence.target[a0:a1, b0:b1]
+    bg = _surface(presence.level_image, ring, (a0, b0), k, (cx, cy), max(r_eq * k, 1.0), presence.background)
+    # The pixels the window can reach: the window at the start grown by a fifth (room for the
+    # centre to move), listed once; the iterations work on that list.
     hx = WINDOW * float(np.sqrt(cov[0, 0])) + 2 + k
     hy = WINDOW * float(np.sqrt(cov[1, 1])) + 2 + k
-    x0, x1 = int(np.floor(cx - 1.5 * hx)), int(np.ceil(cx + 1.5 * hx)) + 1
-    y0, y1 = int(np.floor(cy - 1.5 * hy)), int(np.ceil(cy + 1.5 * hy)) + 1
+    x0, x1 = int(np.floor(cx - 1.2 * hx)), int(np.ceil(cx + 1.2 * hx)) + 1
+    y0, y1 = int(np.floor(cy - 1.2 * hy)), int(np.ceil(cy + 1.2 * hy)) + 1
     c0, c1, r0, r1 = max(0, x0), min(cols, x1), max(0, y0), min(rows, y1)
-    s = np.asarray(img[r0:r1, c0:c1], dtype=np.float64) - bg.evaluate((r1 - r0, c1 - c0), origin=(r0, c0))
+    a = cinv.astype(np.float32)
+    reach = _ellipse_q(a, np.arange(c0, c1, dtype=np.float32), np.arange(r0, r1, dtype=np.float32),
+                       np.float32(cx), np.float32(cy)) <= (1.2 * WINDOW) ** 2
     if mask is not None:
-        s = np.where(np.asarray(mask[r0:r1, c0:c1], bool), s, 0.0)
-    xs = np.arange(c0, c1, dtype=np.float64)
-    ys = np.arange(r0, r1, dtype=np.float64)
+        reach &= np.asarray(mask[r0:r1, c0:c1], bool)
+    py, px = np.nonzero(reach)
+    xs, ys = (px + c0).astype(np.float32), (py + r0).astype(np.float32)
+    s = np.asarray(img[r0:r1, c0:c1], dtype=np.float32)[reach] - bg.at(xs, ys)  # float32; sums in float64
     total = 0.0
-    inside = np.zeros(s.shape, bool)
     for _ in range(ITERATIONS):
-        inside = _ellipse_q(cinv, xs, ys, cx, cy) <= WINDOW * WINDOW
-        w = np.where(inside, s, 0.0)
-        total = float(w.sum())
+        u, v = xs - np.float32(cx), ys - np.float32(cy)
+        inside = a[0, 0] * u * u + 2.0 * a[0, 1] * u * v + a[1, 1] * v * v <= WINDOW * WINDOW
+        w = s[inside]
+        total = float(w.sum(dtype=np.float64))
         if not total > 0.0:
             break
-        nx = float(w.sum(axis=0) @ xs) / total
-        ny = float(w.sum(axis=1) @ ys) / total
+        # Products in float32, sums in float64 (np.dot would call a BLAS for a few thousand values).
+        nx = float(np.sum(w * xs[inside], dtype=np.float64)) / total
+        ny = float(np.sum(w * ys[inside], dtype=np.float64)) / total
         moved = np.hypot(nx - cx, ny - cy)
         cx, cy = nx, ny
         if moved < 0.01:
