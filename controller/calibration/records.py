@@ -87,7 +87,8 @@ class RunRecord:
     """Outcome of one heliostat's calibration cycle, written atomically with its children.
 
     ``status``: ``calibrated`` (within tolerance), ``not_converged`` (max iterations reached),
-    ``measured`` (an observation of a planned night: one measurement, no correction)
+    ``measured`` (an observation of a planned night: one measurement, no correction),
+    ``no_beam`` (a frame held no beam: nothing computed from it, controller.calibration.no_beam)
     or ``failed`` (fault; ``fault_cause`` says why, ``fault_state`` where). ``id`` and
     ``finished_utc`` are set when read back from the store."""
 
