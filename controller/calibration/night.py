@@ -112,6 +112,7 @@ class PlannedNight:
         self.strategy = strategy
         self.observers = list(observers)
         self.progress = progress or (lambda text: None)
+        self._watched = progress is not None  # someone follows the night: tell them the field's state
         self.changer = LampChanger(plant, lights_out=None if plant.lamps is not None else ask_operator)
         self.path = sun_path(plant.cfg.site)
         self._lock = threading.Lock()
@@ -197,12 +198,16 @@ class PlannedNight:
         self.progress(f"{p.name}: {len(p.aims)} heliostat(s) under {p.lamp}" + (f" on {p.target}" if p.target else ""))
         r = self._campaign(CampaignOptions(name=p.name, light_source=p.lamp, aims=p.aims, observe=True,
                                            target=p.target), list(p.aims))
-        with self._lock, self.field.time.computing():
+        with self._lock:
             self.measured |= {f"{p.name}/{run.heliostat_id}" for run in r.runs if run.status == "measured"}
-        now = predicted_daytime(self.field.cfg, {hid: self.field.model(hid) for hid in self.ids}, self.path)
-        self.state["daytime_error_predicted_rms"] = now.rms
-        self.progress(f"{self.name}: {len(self.measured)}/{len(self.plan)} geometries measured; "
-                      f"field predicted daytime RMS {now.rms:.2f} mrad")
+        if self._watched:
+            # The operator's view of the field as the night goes: the controller's own computing.
+            with self.field.time.computing():
+                now = predicted_daytime(self.field.cfg, {hid: self.field.model(hid) for hid in self.ids},
+                                        self.path)
+            self.state["daytime_error_predicted_rms"] = now.rms
+            self.progress(f"{self.name}: {len(self.measured)}/{len(self.plan)} geometries measured; "
+                          f"field predicted daytime RMS {now.rms:.2f} mrad")
         return r
 
     def _campaign(self, options: CampaignOptions, ids: list[str]) -> CampaignResult:
@@ -235,8 +240,10 @@ class PlannedNight:
         measured = sum(1 for r in results if not r.name.endswith("/calibration") for run in r.runs
                        if run.status == "measured")
         models = {hid: self.field.model(hid) for hid in self.ids}
+        with self.field.time.computing():
+            predicted = predicted_daytime(self.field.cfg, models, self.path).to_json()
         s = NightSummary(self.index, self.name, len(self.ids), len(self.plan), measured, len(self.plan) - measured,
-                         list(self.lamps.values()), predicted_daytime(self.field.cfg, models, self.path).to_json(),
+                         list(self.lamps.values()), predicted,
                          status, cause, first,
                          [{"name": r.name, "status": r.status, "cause": r.cause,
                            "measured": sum(run.status in ("measured", "calibrated") for run in r.runs),

@@ -262,7 +262,7 @@ class Campaign:
                 raise
         t1 = self.time.now()
         runs = self.store.runs(cid)
-        status, cause = outcome(runs, queue, gate.blocked)
+        status, cause = outcome(runs, queue, gate.blocked, "measured" if self.opt.observe else "calibrated")
         if stop.is_set() and not gate.blocked:  # request_stop: parked, resumable
             status, cause = "interrupted", f"{INTERRUPTED}; start it again to resume"
         self._finish(cid, status, cause)

@@ -22,8 +22,11 @@ def _row(store, c) -> dict:
             "measured": sum(r.status == "measured" for r in runs), "target": c.target, "lamp": c.light_source}
 
 
-def _belongs(name: str, night: str) -> bool:
-    return name == night or name.startswith(night + "/")
+def _night_of(name: str, nights: list[str]) -> str | None:
+    """The night a campaign belongs to: the longest night name it is, or starts with (a planned
+    night ``<base>/night-k`` is named after the calibration night ``<base>``)."""
+    mine = [n for n in nights if name == n or name.startswith(n + "/")]
+    return max(mine, key=len, default=None)
 
 
 def list_campaigns(args: argparse.Namespace) -> int:
@@ -33,8 +36,10 @@ def list_campaigns(args: argparse.Namespace) -> int:
     with open_existing(args.db) as store:
         rows = [_row(store, c) for c in store.campaigns()]
         nights = []
-        for n in NightBook(store).nights():
-            mine = [r for r in rows if _belongs(r["name"], n.name)]
+        recorded = NightBook(store).nights()
+        owner = {r["id"]: _night_of(r["name"], [n.name for n in recorded]) for r in rows}
+        for n in recorded:
+            mine = [r for r in rows if owner[r["id"]] == n.name]
             s = n.summary
             nights.append({"index": n.index, "name": n.name, "kind": n.kind, "status": n.status, "cause": n.cause,
                            "started_utc": n.started_utc, "finished_utc": n.finished_utc,
@@ -55,7 +60,7 @@ def list_campaigns(args: argparse.Namespace) -> int:
         for r in rows:
             if r["id"] in n["campaigns"]:
                 shown.add(r["id"])
-                print(_campaign_line(r, indent="    "))
+                print(_campaign_line(r, indent="    ", name=r["name"].removeprefix(n["name"] + "/")))
     rest = [r for r in rows if r["id"] not in shown]
     if rest:
         if nights:
@@ -80,9 +85,10 @@ def _night_line(n: dict) -> str:
     return head + (f" ({n['cause']})" if n["cause"] else "")
 
 
-def _campaign_line(r: dict, indent: str = "") -> str:
+def _campaign_line(r: dict, indent: str = "", name: str | None = None) -> str:
     measuring = r["measured"] and not r["calibrated"]
     done = f"{r['measured'] if measuring else r['calibrated']}/{r['heliostats']}"
     what = "measured" if measuring else "calibrated"
-    return (f"{indent}{r['id']:>4}  {r['name'][:40]:40} {r['night']:10}  {r['status']:11} {done:>6} {what}"
+    name = r["name"] if name is None else name
+    return (f"{indent}{r['id']:>4}  {name[:40]:40} {r['night']:10}  {r['status']:11} {done:>6} {what}"
             + (f"  {r['cause']}" if r["cause"] else ""))

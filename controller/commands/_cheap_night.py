@@ -49,6 +49,13 @@ class CheapNight:
         return {hid for hid, _ in self.measured}
 
 
+def cheap_field(cheap, store) -> Field:
+    """The :class:`Field` of a cheap simulated field's devices, recording into ``store``."""
+    return Field(cheap.cfg, str(cheap.config_path), config_sha256(cheap.config_path), store, cheap.pool,
+                 cheap.cameras, cheap.time, PanelLamps(cheap.lamps, cheap.time, CONFIRM_S),
+                 meta={"plant": "simulated, cheap optics"})
+
+
 def run_cheap_night(cheap, plan: list[PlanItem], night: str, budget_s: float, *,
                     unsafe_lamp_change: bool = False) -> CheapNight:
     """Run ``plan`` as night ``night`` on ``cheap`` (module docstring). ``unsafe_lamp_change``
@@ -59,9 +66,7 @@ def run_cheap_night(cheap, plan: list[PlanItem], night: str, budget_s: float, *,
     over = threading.Event()
     done = threading.Event()
     try:
-        plant = Field(cheap.cfg, str(cheap.config_path), config_sha256(cheap.config_path), store, cheap.pool,
-                      cheap.cameras, cheap.time, PanelLamps(cheap.lamps, cheap.time, CONFIRM_S),
-                      meta={"plant": "simulated, cheap optics"})
+        plant = cheap_field(cheap, store)
         book.record_plan(plan)
         pn = PlannedNight(plant, book, night, book.index_for(night),
                           heliostat_ids=list(dict.fromkeys(i.heliostat_id for i in plan)))

@@ -23,7 +23,6 @@ from controller.storage.db import CampaignStore
 from controller.storage.images import ImageArchive
 from controller.storage.nights import NightBook
 
-
 BUILD = object()  # simulated_field(library=BUILD): the simulated plant's own error library
 
 
@@ -91,15 +90,22 @@ def simulated_field(cfg: PlantConfig, config_path: str, store: CampaignStore, ou
                            source=str(config_path), clock_start=clock_start)
     plant.set_night(night)
     with plant, LinkPool(timeout_s=0.5, retries=2) as pool:
-        plant_cfg = plant.start()
-        clock = plant.clock
-        time = PlantTime(now=clock, sleep=clock.sleep, utc=plant.utc, computing=clock.realtime)
-        lamps = PanelLamps.open(plant_cfg.lamps, time)
+        plant.start()
+        f = plant_field(plant, config_path, store, pool, library=lib, images=ImageArchive(out / "images"))
         try:
-            f = Field(plant_cfg, str(config_path), config_sha256(config_path), store, pool, plant.cameras, time,
-                      lamps, ImageArchive(out / "images"), lib,
-                      meta={"plant": "simulated", "seed": settings.seed, "clock_speedup": settings.clock_speedup},
-                      label="simulated plant")
             yield FieldSession(f, NightBook(store), plant)
         finally:
-            lamps.close()
+            f.lamps.close()
+
+
+def plant_field(plant, config_path: str | Path, store, pool, *, library=None, images=None) -> Field:
+    """The :class:`Field` of a started simulated plant (``plant.start()`` done): its rewritten
+    configuration and links through ``pool``, its cameras, its lamp panel over Modbus TCP, its
+    clock. Close ``field.lamps`` when done."""
+    clock = plant.clock
+    time = PlantTime(now=clock, sleep=clock.sleep, utc=plant.utc, computing=clock.realtime)
+    s = plant.settings
+    return Field(plant.config, str(config_path), config_sha256(config_path), store, pool, plant.cameras, time,
+                 PanelLamps.open(plant.config.lamps, time), images, library,
+                 meta={"plant": "simulated", "seed": plant.seed, "clock_speedup": s.clock_speedup},
+                 label="simulated plant")

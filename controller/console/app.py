@@ -25,8 +25,8 @@ from controller.calibration.pointing import UnsafePath
 from controller.console import views
 from controller.console.backend import Conflict, Console
 from controller.console.campaigns import CampaignControl
-from controller.console.nights import NightControl
 from controller.console.events import plain
+from controller.console.nights import NightControl
 from controller.console.steps import STEPS, run_step
 from controller.devices.drive import DriveError, LinkError, NakError
 from controller.errors import HeliocalError, InputError, LimitError

@@ -21,13 +21,13 @@ import threading
 import time
 from collections.abc import Callable
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 from controller.calibration.commissioning import Commissioning
 from controller.calibration.field import Field
 from controller.console.events import EventBus
-from controller.devices.drive import Drive, DriveError, DriveStatus
+from controller.devices.drive import Drive, DriveError, DriveLimits, DriveStatus
 from controller.errors import HeliocalError, InputError
 
 STATUS_POLL_S = 0.1  # wall seconds between two status readings of every drive

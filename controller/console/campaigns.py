@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import threading
 import time
-from pathlib import Path
 
 from controller.calibration.runner import Campaign, CampaignObserver, CampaignOptions
 from controller.console.backend import Conflict, Console

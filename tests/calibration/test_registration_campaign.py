@@ -11,7 +11,7 @@ import pytest
 
 from controller.calibration.registration_step import RegistrationError, nominal_camera
 from controller.calibration.runner import Campaign, CampaignObserver, CampaignOptions
-from controller.config import config_sha256
+from controller.commands._field import plant_field
 from controller.devices.factory import LinkPool
 from controller.imaging.registration import CameraModel
 from controller.storage.db import CampaignStore
@@ -45,10 +45,8 @@ def _run(plant, small_config, tmp_path, lamps: _Lamps, ids: list[str], no_light:
         if no_light:  # the fiducials confirm lit but give no light
             plant.lamp_panel.no_light.add("fiducials:" + pcfg.calibration.target)
         with LinkPool() as pool:
-            campaign = Campaign(pcfg, str(small_config), store, pool, plant.camera,
-                                config_sha256=config_sha256(small_config), heliostat_ids=ids,
-                                options=CampaignOptions(name="reg"), clock=plant.clock,
-                                sleep=plant.clock.sleep, observers=[lamps])
+            campaign = Campaign(plant_field(plant, small_config, store, pool), CampaignOptions(name="reg"),
+                                heliostat_ids=ids, observers=[lamps])
             result = campaign.run()
         return result, store.campaign(result.campaign_id), pcfg
 

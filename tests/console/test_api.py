@@ -10,6 +10,7 @@ import time
 import pytest
 from starlette.testclient import TestClient
 
+from controller.commands._field import plant_field
 from controller.console.app import TOKEN_HEADER, create_app
 from controller.console.backend import Console, PlantHooks
 from controller.console.events import EventBus
@@ -38,12 +39,10 @@ def plant_console(tmp_path_factory):
     ids = ["H02", "H14"]
     with SimulatedPlant(load_config_data(cfg_path), tmp / "run", heliostat_ids=ids,
                         settings=SimulationSettings(clock_speedup=50.0), source=str(cfg_path)) as plant:
-        pcfg = plant.start()
-        hooks = PlantHooks(clock=plant.clock, sleep=plant.clock.sleep, compute=plant.clock.realtime,
-                           safety=plant.safety.report, label="simulated plant",
-                           fiducial_lamps=plant.set_fiducials)
+        plant.start()
+        hooks = PlantHooks(safety=plant.safety.report, set_night=plant.set_night, label="simulated plant")
         with LinkPool(timeout_s=0.5, retries=2) as pool, CampaignStore(tmp / "c.db") as store:
-            console = Console(pcfg, str(cfg_path), store, pool, plant.camera, heliostat_ids=ids, hooks=hooks,
+            console = Console(plant_field(plant, cfg_path, store, pool), heliostat_ids=ids, hooks=hooks,
                               work_dir=tmp / "work")
             app = create_app(console, token=TOKEN)
             with TestClient(app, base_url="http://console.test") as client:
