@@ -4,8 +4,9 @@ night and ``heliocal demo``.
 On a :class:`controller.calibration.field.Field` (real or simulated, it cannot tell):
 
 1. open (or resume) the night's record (:class:`NightStore`, the ``nights`` table);
-2. measure every heliostat that has no model yet at the calibration lamp first (a closed-loop
-   campaign ``<night>/calibration``: the planner needs a model to plan from);
+2. unless a plan is already stored for it, measure every heliostat that has no model yet at
+   the calibration lamp first (a closed-loop campaign ``<night>/calibration``: the planner
+   needs a model to plan from);
 3. plan from the models in the store (:func:`controller.calibration.planner.plan_night`), or
    reload the plan stored for this night when it is resumed;
 4. run the passes (:func:`controller.calibration.nights.run_night`): lamps changed in the dark
@@ -147,7 +148,10 @@ class PlannedNight:
         results: list[CampaignResult] = []
         first: list[str] = []
         try:
-            first, calib = self._calibrate_new()
+            # A stored plan (a resumed night, or one handed in) is run as it is; a new night
+            # first measures the heliostats the planner has no model of.
+            stored = self.book.plan(self.name)
+            first, calib = ([], []) if stored else self._calibrate_new()
             results += calib
             if all(r.status in ("finished", "partial") for r in calib) and not self._stopped.is_set():
                 self.plan = self._plan()
