@@ -25,6 +25,7 @@ import asyncio
 import logging
 import threading
 
+from pymodbus import FramerType
 from pymodbus.constants import ExcCodes
 from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
@@ -117,8 +118,10 @@ class SimLampPanel:
         regs = [SimData(0, count=1, datatype=DataType.REGISTERS)]
         return SimDevice(id=self.unit, simdata=(bits, list(bits), regs, list(regs)), action=self._action)
 
-    def start(self) -> int:
-        """Serve on 127.0.0.1, an ephemeral port (returned)."""
+    def start(self, rtu_framing: bool = False) -> int:
+        """Serve on 127.0.0.1, an ephemeral port (returned). ``rtu_framing``: Modbus RTU frames
+        over the TCP connection (a serial gateway; a ``modbus-rtu`` client reaches it through
+        pyserial's ``socket://127.0.0.1:PORT``)."""
         if self._server is not None:
             return self.port
         self._loop = asyncio.new_event_loop()
@@ -126,7 +129,8 @@ class SimLampPanel:
         self._thread.start()
 
         async def make():  # pymodbus servers are built inside their running loop
-            server = ModbusTcpServer([self._device()], address=("127.0.0.1", 0))
+            server = ModbusTcpServer([self._device()], address=("127.0.0.1", 0),
+                                     framer=FramerType.RTU if rtu_framing else FramerType.SOCKET)
             await server.serve_forever(background=True)
             return server
 

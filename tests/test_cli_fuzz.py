@@ -159,6 +159,8 @@ TABLE: dict[str, list[Entry]] = {
                            {"config": Slot("--config", YAML, "config")},
                            {"--serial-link": OUTPUTS, "--modbus-tcp": "an address",
                             "--modbus-rtu": OUTPUTS, "--units": "unit numbers"})],
+    "lamps": [Entry("lamps --config {config} status", {"config": Slot("--config", YAML, "config")},
+                    {"LAMP": "a lamp channel name"})],
     "sun": [Entry("sun --config {config} --time 2026-06-21T12:00:00Z",
                   {"config": Slot("--config", YAML, "config")},
                   {"--time": "a time", "--lat": "a number", "--lon": "a number", "--elevation": "a number",
