@@ -51,7 +51,8 @@ COMPAT_LAZY = {("controller.imaging.crf", "controller.imaging.crf_io")}
 
 # The commands that run the simulated plant (they import it lazily, in their --simulate path).
 SIMULATOR_USERS = ("controller.commands.demo", "controller.commands._demo_coarse",
-                   "controller.commands._field", "controller.commands._simulate", "controller.commands._night",
+                   "controller.commands._field", "controller.commands._simulate",
+                   "controller.commands._night",
                    "controller.commands.campaign", "controller.commands.commission",
                    "controller.commands.sim", "controller.commands.report.weighting",
                    "controller.commands.console")

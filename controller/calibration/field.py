@@ -25,7 +25,7 @@ from typing import Any, Protocol
 from controller.calibration.records import ModelRecord
 from controller.config import PlantConfig
 from controller.devices.drive import Drive, DriveLimits
-from controller.devices.lamp_panel import LampPanel, light_only, lights_out, open_lamp_panel, set_and_confirm
+from controller.devices.lamp_panel import LampPanel, light_only, lights_out, open_lamp_panel
 from controller.devices.plant_time import WALL, PlantTime
 
 
@@ -46,13 +46,11 @@ class LampLit:
 class Lamps(Protocol):
     """The field's lamps. ``light_only`` switches every other lamp off and ``lamp`` on and
     returns once the plant confirms it (or raises naming the lamp); ``lights_out`` switches
-    every lamp off (confirmed dark); ``fiducials`` switches a target's fiducial lamps for the
-    camera registration (``has_fiducials``: whether they are wired)."""
+    every lamp off (confirmed dark). The targets' fiducial lamps are the camera registration's
+    (:func:`controller.devices.lamp_panel.fiducial_switch`)."""
 
     def light_only(self, lamp: str) -> LampLit: ...
     def lights_out(self) -> None: ...
-    def fiducials(self, target: str, on: bool) -> None: ...
-    def has_fiducials(self, target: str) -> bool: ...
 
 
 @dataclass
@@ -93,13 +91,6 @@ class Field:
         """The latest fitted tracking model of ``hid`` (None before its first)."""
         return self.store.latest_model(hid)
 
-    def fiducial_switch(self, target: str) -> Callable[[bool], None] | None:
-        """What switches ``target``'s fiducial lamps for the registration (None: no lamps wired)."""
-        lamps = self.lamps
-        if lamps is None or not lamps.has_fiducials(target):
-            return None
-        return lambda on: lamps.fiducials(target, on)
-
     def light(self, lamp: str, ask_operator: Callable[[str], None]) -> LampLit:
         """Light ``lamp`` for measuring: through the lamp panel (every other lamp off, the lamp
         confirmed lit, else LampError naming it) or, without one, by asking the operator
@@ -139,16 +130,5 @@ class PanelLamps:
     def lights_out(self) -> None:
         lights_out(self.panel, time=self.time, timeout_s=self.timeout_s)
 
-    def fiducials(self, target: str, on: bool) -> None:
-        set_and_confirm(self.panel, fiducial_channel(target), on, time=self.time, timeout_s=self.timeout_s)
-
-    def has_fiducials(self, target: str) -> bool:
-        return fiducial_channel(target) in self.panel.channels
-
     def close(self) -> None:
         self.panel.close()
-
-
-def fiducial_channel(target: str) -> str:
-    """The lamp panel channel of ``target``'s fiducial lamps (docs/lamps.md)."""
-    return f"fiducials:{target}"

@@ -86,7 +86,8 @@ class NightSummary:
         return {"finished": 0, "partial": 3, "interrupted": 130}.get(self.status, 1)
 
     def to_json(self) -> dict:
-        return {"night": self.night, "name": self.name, "heliostats": self.heliostats, "planned": self.planned,
+        return {"night": self.night, "name": self.name, "heliostats": self.heliostats,
+                "planned": self.planned,
                 "measured": self.measured, "failed": self.failed, "lamps": self.lamps,
                 "daytime_error_predicted_mrad": self.daytime_error_predicted_mrad, "status": self.status,
                 "cause": self.cause, "first_calibrated": self.first_calibrated, "passes": self.passes,
@@ -157,7 +158,8 @@ class PlannedNight:
                 self.plan = self._plan()
                 self.progress(f"{self.name}: {len(self.plan)} geometries planned for "
                               f"{len({i.heliostat_id for i in self.plan})} heliostats")
-                results += run_night(self.plan, self.name, self._run_pass, self.request_stop, self._change_lamp)
+                results += run_night(self.plan, self.name, self._run_pass, self.request_stop,
+                                     self._change_lamp)
         except KeyboardInterrupt:
             self._end(rec, results, first, "interrupted", "interrupted by the operator; rerun to resume")
             raise
@@ -199,7 +201,8 @@ class PlannedNight:
 
     def _run_pass(self, p: Pass) -> CampaignResult:
         self.state["pass"] = p.name
-        self.progress(f"{p.name}: {len(p.aims)} heliostat(s) under {p.lamp}" + (f" on {p.target}" if p.target else ""))
+        self.progress(f"{p.name}: {len(p.aims)} heliostat(s) under {p.lamp}"
+                      + (f" on {p.target}" if p.target else ""))
         r = self._campaign(CampaignOptions(name=p.name, light_source=p.lamp, aims=p.aims, observe=True,
                                            target=p.target), list(p.aims))
         with self._lock:
@@ -246,7 +249,8 @@ class PlannedNight:
         models = {hid: self.field.model(hid) for hid in self.ids}
         with self.field.time.computing():
             predicted = predicted_daytime(self.field.cfg, models, self.path).to_json()
-        s = NightSummary(self.index, self.name, len(self.ids), len(self.plan), measured, len(self.plan) - measured,
+        s = NightSummary(self.index, self.name, len(self.ids), len(self.plan), measured,
+                         len(self.plan) - measured,
                          list(self.lamps.values()), predicted,
                          status, cause, first,
                          [{"name": r.name, "status": r.status, "cause": r.cause,
@@ -254,7 +258,8 @@ class PlannedNight:
                            "heliostats": len(r.runs)} for r in results],
                          [c.to_json() for c in self.changes])
         self.book.finish_night(rec.id, status, cause, s.to_json())
-        self.progress(f"{self.name}: {status}; {measured}/{len(self.plan)} geometries measured; field predicted "
+        self.progress(f"{self.name}: {status}; {measured}/{len(self.plan)} geometries measured; "
+                      "field predicted "
                       f"daytime RMS {s.daytime_error_predicted_mrad['rms']:.2f} mrad")
         return s
 
@@ -269,4 +274,6 @@ def _status(results: list[CampaignResult], stopped: bool) -> tuple[str, str | No
     if stopped:
         return "interrupted", "stopped by the operator; rerun to resume"
     partial = [r for r in results if r.status == "partial"]
-    return ("partial", "; ".join(f"{r.name}: {r.cause}" for r in partial[:3])) if partial else ("finished", None)
+    if partial:
+        return "partial", "; ".join(f"{r.name}: {r.cause}" for r in partial[:3])
+    return "finished", None

@@ -143,7 +143,7 @@ def register_camera(cfg: PlantConfig, camera: DoubleCcdCamera, lamps: Callable[[
 
 
 def register_chain(cfg: PlantConfig, camera: DoubleCcdCamera, chain, lamps: Callable[[bool], None],
-                   meta: dict, lock) -> None:
+                   meta: dict, lock, time: PlantTime = WALL) -> None:
     """With ``camera.registration`` configured: register ``camera`` (holding ``lock``, the
     camera's), make ``chain`` (a BeamChain) rectify through it and keep the result in the
     campaign metadata ``meta["camera_registration"]`` (:meth:`CameraRegistration.to_json`).
@@ -152,5 +152,5 @@ def register_chain(cfg: PlantConfig, camera: DoubleCcdCamera, chain, lamps: Call
     if cfg.camera.registration is None or isinstance(camera, FileCamera):
         return
     with lock:
-        chain.registration = register_camera(cfg, camera, lamps, chain.frame)
+        chain.registration = register_camera(cfg, camera, lamps, chain.frame, time)
     meta["camera_registration"] = chain.registration.to_json()

@@ -99,7 +99,8 @@ class CampaignOptions:
     def resolved(self, cfg: PlantConfig) -> CampaignOptions:
         """These options with every default taken from ``cfg``."""
         cal = cfg.calibration
-        return replace(self, pipeline_depth=cal.pipeline_depth if self.pipeline_depth is None else self.pipeline_depth,
+        depth = cal.pipeline_depth if self.pipeline_depth is None else self.pipeline_depth
+        return replace(self, pipeline_depth=depth,
                        settle_s=cal.settle_s if self.settle_s is None else self.settle_s,
                        light_source=self.light_source or cal.light_source, target=self.target or cal.target)
 
@@ -179,8 +180,9 @@ class Campaign:
                 pass
         with self.time.computing():
             pointing = {hid: GeometryPointing(self.cfg.heliostat(hid), target, source, self.chain.frame,
-                                              cal.standby_offset_m, current.get(hid), cal.model, aims.get(hid),
-                                              others=self.cfg.targets, zones=self.cfg.person_zones)
+                                              cal.standby_offset_m, current.get(hid), cal.model,
+                                              aims.get(hid), others=self.cfg.targets,
+                                              zones=self.cfg.person_zones)
                         for hid in self.ids}
             existing = self.store.campaign_by_name(self.opt.name)
             queue = existing.queue if existing is not None else order_queue(self.cfg, self.ids, current,
@@ -189,8 +191,8 @@ class Campaign:
         self.meta.setdefault("site", [site.latitude_deg, site.longitude_deg, site.elevation_m])
         self.meta.setdefault("target_normal", list(target.normal))
         # Camera registration (camera.registration) before the campaign opens: refused, nothing is recorded.
-        fiducials = self.field.fiducial_switch(target.id) or self.observer.fiducial_lamps
-        register_chain(self.cfg, self.camera, self.chain, fiducials, self.meta, self._camera_lock)
+        register_chain(self.cfg, self.camera, self.chain, self.observer.fiducial_lamps, self.meta,
+                       self._camera_lock, self.time)
         cid, resumed = self.store.open_campaign(
             self.opt.name, config_path=self.field.config_path, config_sha256=self.field.config_sha256,
             light_source=source.id, target=target.id, queue=queue, meta=self.meta)

@@ -41,7 +41,8 @@ def list_campaigns(args: argparse.Namespace) -> int:
         for n in recorded:
             mine = [r for r in rows if owner[r["id"]] == n.name]
             s = n.summary
-            nights.append({"index": n.index, "name": n.name, "kind": n.kind, "status": n.status, "cause": n.cause,
+            nights.append({"index": n.index, "name": n.name, "kind": n.kind, "status": n.status,
+                           "cause": n.cause,
                            "started_utc": n.started_utc, "finished_utc": n.finished_utc,
                            "planned": s.get("planned"), "measured": s.get("measured"),
                            "lamps": [x["lamp"] for x in s.get("lamps", [])],

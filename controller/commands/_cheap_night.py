@@ -99,5 +99,5 @@ def run_cheap_night(cheap, plan: list[PlanItem], night: str, budget_s: float, *,
     for _, name in measured:
         per_target[target[name]] = per_target.get(target[name], 0) + 1
     beams = {tid: cam.beams_in_view for tid, cam in cheap.cameras.items()}
-    return CheapNight(t1 - t0, time.perf_counter() - wall0, len(plan), measured, results, beams, over.is_set(),
-                      summary, per_target)
+    return CheapNight(t1 - t0, time.perf_counter() - wall0, len(plan), measured, results, beams,
+                      over.is_set(), summary, per_target)

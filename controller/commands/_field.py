@@ -68,8 +68,9 @@ def real_field(cfg: PlantConfig, config_path: str, store: CampaignStore, *,
         if cfg.lamps is not None:
             lamps = PanelLamps.open(cfg.lamps, time)
             stack.callback(lamps.close)
-        yield FieldSession(Field(cfg, str(config_path), config_sha256(config_path), store, pool, cameras, time,
-                                 lamps, ImageArchive(Path(store.path).parent / "images"), lib), NightBook(store))
+        images = ImageArchive(Path(store.path).parent / "images")
+        yield FieldSession(Field(cfg, str(config_path), config_sha256(config_path), store, pool, cameras,
+                                 time, lamps, images, lib), NightBook(store))
 
 
 @contextmanager

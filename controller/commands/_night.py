@@ -26,8 +26,8 @@ def run_night_cli(args: argparse.Namespace) -> int:
     cfg = load_config(args.config)
     ids = _ids(args, cfg)
     if not args.simulate and cfg.lamps is None:
-        raise InputError(f"{args.config}: lamps: a planned night switches lamps in the dark and confirms each "
-                         "one lit; configure the lamp panel (lamps:, docs/lamps.md)")
+        raise InputError(f"{args.config}: lamps: a planned night switches lamps in the dark and confirms "
+                         "each one lit; configure the lamp panel (lamps:, docs/lamps.md)")
     db = Path(args.db)
     quiet = args.json or not sys.stderr.isatty()
     progress = None if quiet else (lambda text: print(text, file=sys.stderr))
@@ -50,10 +50,11 @@ def run_night_cli(args: argparse.Namespace) -> int:
         print_json(summary)
     else:
         p = summary["daytime_error_predicted_mrad"]
-        print(f"night {summary['night']} ({summary['name']}): {summary['measured']}/{summary['planned']} geometries "
-              f"measured; lamps {', '.join(x['lamp'] for x in summary['lamps']) or 'none'}; predicted daytime RMS "
-              f"{p['rms']:.2f} mrad; status {summary['status']}" + (f" ({summary['cause']})" if summary["cause"]
-                                                                    else "") + f"; database {db}")
+        lamps = ", ".join(x["lamp"] for x in summary["lamps"]) or "none"
+        cause = f" ({summary['cause']})" if summary["cause"] else ""
+        print(f"night {summary['night']} ({summary['name']}): {summary['measured']}/{summary['planned']} "
+              f"geometries measured; lamps {lamps}; predicted daytime RMS {p['rms']:.2f} mrad; "
+              f"status {summary['status']}{cause}; database {db}")
     if summary["status"] == "aborted":
         print(f"heliocal campaign night: {summary['cause']}", file=sys.stderr)
     return code
@@ -78,7 +79,10 @@ def _simulated(args, cfg, store, ids, base, progress) -> tuple[dict, int]:
     first = store.campaign_by_name(base)
     seed = None if first is None else first.meta.get("seed")
     if seed is not None and seed != args.seed:
-        raise InputError(f"--seed {args.seed}: {args.db} was calibrated on the simulated plant with seed {seed}")
-    report = planned_night(cfg, args.config, store, sim_dir(Path(args.db)), ids, SimulationSettings(seed=args.seed),
-                           base, progress=progress, strategy=args.strategy)
-    return {**report.summary.to_json(), "daytime_error_mrad": report.daytime.to_json()}, report.summary.exit_code
+        raise InputError(f"--seed {args.seed}: {args.db} was calibrated on the simulated plant with "
+                         f"seed {seed}")
+    report = planned_night(cfg, args.config, store, sim_dir(Path(args.db)), ids,
+                           SimulationSettings(seed=args.seed), base, progress=progress,
+                           strategy=args.strategy)
+    summary = {**report.summary.to_json(), "daytime_error_mrad": report.daytime.to_json()}
+    return summary, report.summary.exit_code

@@ -81,9 +81,10 @@ def _merge_safety(into: dict, plant) -> None:
     into["max_beams_on_target"] = max(into.get("max_beams_on_target", 0), r["max_beams_on_target"])
 
 
-def calibrate(cfg: PlantConfig, config_path: str, store: CampaignStore, out: Path, ids: list[str], settings,
-              name: str, *, sequential: bool = False, observers=(), progress=None, library_dir: Path | None = None,
-              safety: dict | None = None, on_target: dict | None = None) -> CampaignResult:
+def calibrate(cfg: PlantConfig, config_path: str, store: CampaignStore, out: Path, ids: list[str],
+              settings, name: str, *, sequential: bool = False, observers=(), progress=None,
+              library_dir: Path | None = None, safety: dict | None = None,
+              on_target: dict | None = None) -> CampaignResult:
     """``campaign run --simulate``: campaign ``name`` (night 0 of a fresh database) on the
     simulated plant, with the plant's truth recorded per run."""
     from simplant.harness import TruthRecorder
@@ -108,8 +109,8 @@ def calibrate(cfg: PlantConfig, config_path: str, store: CampaignStore, out: Pat
     return result
 
 
-def planned_night(cfg: PlantConfig, config_path: str, store: CampaignStore, out: Path, ids: list[str], settings,
-                  base: str, *, observers=(), progress=None, library_dir: Path | None = None,
+def planned_night(cfg: PlantConfig, config_path: str, store: CampaignStore, out: Path, ids: list[str],
+                  settings, base: str, *, observers=(), progress=None, library_dir: Path | None = None,
                   strategy: str = "design", safety: dict | None = None,
                   on_target: dict | None = None) -> NightReport:
     """``campaign night --simulate``: tonight's planned night (or the unfinished one) on the
@@ -162,8 +163,8 @@ def simulated_run(cfg: PlantConfig, config_path: str, out: Path, db: Path, ids: 
                                          library_dir=library_dir, safety=safety, on_target=on_target))
         models = {hid: store.latest_model(hid) for hid in ids}
         path = sun_path(cfg.site)
-        truth = SimulatedPlant(load_config_data(config_path), out / "plant", heliostat_ids=ids, settings=settings,
-                               source=str(config_path))
+        truth = SimulatedPlant(load_config_data(config_path), out / "plant", heliostat_ids=ids,
+                               settings=settings, source=str(config_path))
         truth.set_night(NightBook(store).next_index() - 1)
         daytime = reports[-1].daytime if reports else daytime_error(truth, cfg, models, path)
         predicted = reports[-1].predicted if reports else predicted_daytime(cfg, models, path)

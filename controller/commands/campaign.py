@@ -107,8 +107,9 @@ def _ids(args, cfg) -> list[str]:
                          "with it")
     if not args.simulate and not args.camera_manifest and cfg.camera.driver is None:
         raise InputError(
-            f"campaign {args.campaign_command}: no camera; pass --camera-manifest FILE (recorded pairs), set "
-            "camera.driver in the configuration (docs/camera.md) or pass --simulate (embedded simulated plant)")
+            f"campaign {args.campaign_command}: no camera; pass --camera-manifest FILE (recorded pairs), "
+            "set camera.driver in the configuration (docs/camera.md) or pass --simulate (embedded "
+            "simulated plant)")
     return ids
 
 
@@ -199,9 +200,11 @@ def _run_field(cfg, args, ids, name, quiet):
                 result = Campaign(fs.field, CampaignOptions(name=name), heliostat_ids=ids,
                                   observers=[] if quiet else [TerminalProgress()]).run()
             except KeyboardInterrupt:
-                fs.book.finish_night(night.id, "interrupted", "interrupted by the operator; rerun to resume", {})
+                fs.book.finish_night(night.id, "interrupted", "interrupted by the operator; rerun to resume",
+                                     {})
                 raise
-            fs.book.finish_night(night.id, result.status, result.cause, {"campaign": name, "status": result.status})
+            fs.book.finish_night(night.id, result.status, result.cause,
+                                 {"campaign": name, "status": result.status})
         summary = summarize(store, result.campaign_id)
     finally:
         store.close()

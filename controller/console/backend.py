@@ -28,9 +28,15 @@ from controller.calibration.commissioning import Commissioning
 from controller.calibration.field import Field
 from controller.console.events import EventBus
 from controller.devices.drive import Drive, DriveError, DriveLimits, DriveStatus
+from controller.devices.lamp_panel import fiducials_wired
 from controller.errors import HeliocalError, InputError
 
 STATUS_POLL_S = 0.1  # wall seconds between two status readings of every drive
+
+
+def _plant_switches_them(on: bool) -> None:
+    """The commissioning's fiducial hook where the plant switches the fiducials itself (its lamp
+    panel or lamp command, :func:`controller.devices.lamp_panel.fiducial_switch`): register."""
 
 
 class Conflict(HeliocalError):
@@ -79,7 +85,8 @@ class Console:
     ``field.store``: the writer :class:`controller.storage.db.CampaignStore`); the calibration
     target's camera is the one commissioning looks through."""
 
-    def __init__(self, plant: Field, *, heliostat_ids: list[str] | None = None, library_path: str | None = None,
+    def __init__(self, plant: Field, *, heliostat_ids: list[str] | None = None,
+                 library_path: str | None = None,
                  hooks: PlantHooks | None = None, work_dir: str | Path, reports_dir: str | None = None,
                  poll_s: float = STATUS_POLL_S, move_timeout_s: float = 300.0) -> None:
         cfg = plant.cfg
@@ -127,7 +134,8 @@ class Console:
             self.sessions[hid] = Commissioning(self.cfg, hid, self.drive(hid), self.camera,
                                                library=self.library, model=model,
                                                move_timeout_s=self.move_timeout_s,
-                                               fiducial_lamps=self.field.fiducial_switch(self.cfg.calibration.target))
+                                               fiducial_lamps=_plant_switches_them
+                                               if fiducials_wired(self.cfg) else None)
         self.sessions[hid].model = model
         return self.sessions[hid]
 

@@ -63,7 +63,8 @@ class NightControl:
                 c.hooks.set_night(index)
             night = PlannedNight(c.field, book, name, index, heliostat_ids=ids, progress=self._progress)
             self._night, self.log, self.outcome, self.started = night, [], None, time.monotonic()
-            self._thread = threading.Thread(target=self._run, args=(night,), name="console-night", daemon=True)
+            self._thread = threading.Thread(target=self._run, args=(night,), name="console-night",
+                                            daemon=True)
             self._thread.start()
         self._publish("started")
         return self.snapshot()

@@ -137,6 +137,14 @@ def lights_out(panel: LampPanel, *, time: PlantTime, timeout_s: float) -> None:
     _confirm(panel, list(panel.channels), False, time, timeout_s)
 
 
+def fiducials_wired(cfg) -> bool:
+    """Whether the plant switches ``cfg``'s calibration target's fiducial lamps itself (a lamp
+    panel channel or ``camera.registration.lamp_command``), so a live camera can register."""
+    reg = cfg.camera.registration
+    return (cfg.lamps is not None and FIDUCIALS + cfg.calibration.target in cfg.lamps.channels) \
+        or (reg is not None and bool(reg.lamp_command))
+
+
 @contextmanager
 def fiducial_switch(cfg, hook: Callable[[bool], None],
                     time: PlantTime = WALL) -> Iterator[Callable[[bool], None]]:

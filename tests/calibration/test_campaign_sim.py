@@ -132,8 +132,8 @@ class _OnState(CampaignObserver):
 
 
 def _campaign(plant, store, pcfg, small_config, pool, ids, name, observer):
-    return Campaign(plant_field(plant, small_config, store, pool), CampaignOptions(name=name), heliostat_ids=ids,
-                    observers=[observer])
+    return Campaign(plant_field(plant, small_config, store, pool), CampaignOptions(name=name),
+                    heliostat_ids=ids, observers=[observer])
 
 
 def test_serial_link_lost_mid_approach_halts_the_campaign(small_config, tmp_path):

@@ -178,7 +178,7 @@ def test_campaign_abort_parks_and_records_interrupted(plant_console):
     r = _post(client, "/api/campaign/start", {"name": "api-abort"})
     assert r.status_code == 200 and r.json()["running"]
     r = _post(client, "/api/heliostats/H02/jog", {"az_steps": 10, "el_steps": 0})
-    assert r.status_code == 409 and "campaign is running" in r.json()["error"]
+    assert r.status_code == 409 and "campaign api-abort is running" in r.json()["error"]
     deadline = time.monotonic() + scaled_s(30.0)
     while not console.campaign.on_target() and time.monotonic() < deadline:
         time.sleep(0.02)  # abort while a beam is on the target

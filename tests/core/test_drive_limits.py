@@ -96,7 +96,8 @@ def test_wait_deadline_uses_the_given_clock():
     t = [0.0]
     d = FlakyDrive([_at(10, True)] * 10)
     with pytest.raises(DriveError, match="not in position after 5 s"):
-        d.wait_in_position(5.0, PlantTime(now=lambda: t[0], sleep=lambda s: t.__setitem__(0, t[0] + s), poll_s=1.0))
+        d.wait_in_position(5.0, PlantTime(now=lambda: t[0], sleep=lambda s: t.__setitem__(0, t[0] + s),
+                                          poll_s=1.0))
     assert len(d.script) == 10 - 6
 
 
