@@ -39,6 +39,8 @@ def register(subparsers) -> None:
     r.add_argument("--camera-manifest", default=None, metavar="FILE", help="replay frame pairs (FileCamera)")
     r.add_argument("--simulate", action="store_true", help="run against the embedded simulated plant")
     r.add_argument("--seed", type=int, default=0, help="simulation seed (with --simulate; default 0)")
+    r.add_argument("--clock-speedup", type=float, default=20.0, metavar="X",
+                   help="simulated plant seconds per wall second (with --simulate; default 20)")
     r.add_argument("--report", default=None, metavar="DIR", help="also write the morning report into DIR")
     r.add_argument("--notify", default=None, metavar="CMD",
                    help="run CMD (a shell command) at the end with the summary JSON on its standard input")
@@ -56,6 +58,8 @@ def register(subparsers) -> None:
                    help="replay frame pairs for the calibration target (FileCamera)")
     n.add_argument("--simulate", action="store_true", help="run against the embedded simulated plant")
     n.add_argument("--seed", type=int, default=0, help="simulation seed (with --simulate; default 0)")
+    n.add_argument("--clock-speedup", type=float, default=20.0, metavar="X",
+                   help="simulated plant seconds per wall second (with --simulate; default 20)")
     n.add_argument("--strategy", default="design", choices=("design", "round-robin"),
                    help="planner strategy (default design: the daytime variance reduction)")
     add_json_option(n)
@@ -175,7 +179,8 @@ def _run(args, cfg, ids, name, quiet, db):
         from simplant.settings import SimulationSettings
 
         summary, sim = simulated_campaign(cfg, args.config, sim_dir(db), db, ids,
-                                          SimulationSettings(seed=args.seed), name, quiet=quiet)
+                                          SimulationSettings(seed=args.seed, clock_speedup=args.clock_speedup),
+                                          name, quiet=quiet)
         return summary, sim.result
     return _run_field(cfg, args, ids, name, quiet)
 
