@@ -178,9 +178,8 @@ def _run(args, cfg, ids, name, quiet, db):
         from controller.commands.demo import simulated_campaign
         from simplant.settings import SimulationSettings
 
-        summary, sim = simulated_campaign(cfg, args.config, sim_dir(db), db, ids,
-                                          SimulationSettings(seed=args.seed, clock_speedup=args.clock_speedup),
-                                          name, quiet=quiet)
+        settings = SimulationSettings(seed=args.seed, clock_speedup=args.clock_speedup)
+        summary, sim = simulated_campaign(cfg, args.config, sim_dir(db), db, ids, settings, name, quiet=quiet)
         return summary, sim.result
     return _run_field(cfg, args, ids, name, quiet)
 

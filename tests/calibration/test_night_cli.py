@@ -26,7 +26,15 @@ from tests.conftest import scaled_s
 REPO = Path(__file__).resolve().parents[2]
 IDS = "H02,H14"  # serial bus 1 and Modbus TCP
 SPEEDUP = "50"
-KEYS = {"night", "name", "planned", "measured", "failed", "lamps", "daytime_error_predicted_mrad", "status", "db"}
+KEYS = {"night", "name", "planned", "measured", "failed", "lamps", "daytime_error_predicted_mrad", "status",
+        "db"}
+RUNS_OF = ("SELECT r.id FROM heliostat_runs r JOIN campaigns c ON c.id = r.campaign_id "
+           "WHERE c.name LIKE '%/night-{}/%'")
+
+
+def _cli(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "controller.cli", *args], cwd=REPO, capture_output=True,
+                          text=True)
 
 
 def _heliocal(*args: str) -> subprocess.Popen:
@@ -52,9 +60,8 @@ def _daytime_rms(config: Path, db: Path, night: int) -> float:
     errs = []
     for hid in IDS.split(","):
         for k in range(0, len(path.times), 5):
-            p = subprocess.run([sys.executable, "-m", "controller.cli", "aim", "--config", str(config), "--db",
-                                str(db), "--heliostat", hid, "--sun-az", str(path.azimuth_deg[k]), "--sun-el",
-                                str(path.elevation_deg[k]), "--json"], cwd=REPO, capture_output=True, text=True)
+            p = _cli("aim", "--config", str(config), "--db", str(db), "--heliostat", hid, "--sun-az",
+                     str(path.azimuth_deg[k]), "--sun-el", str(path.elevation_deg[k]), "--json")
             out = json.loads(p.stdout)
             if "az_steps" not in out:
                 continue
@@ -85,8 +92,7 @@ def test_planned_nights_in_separate_processes_resume_and_improve_the_day(small_c
 
     # kill -9 in the middle of night 2: the rerun resumes the same night with its stored plan.
     p = _heliocal("campaign", "night", *common)
-    sql = "SELECT r.id FROM heliostat_runs r JOIN campaigns c ON c.id = r.campaign_id WHERE c.name LIKE '%/night-2/%'"
-    before = _wait_for_rows(p, db, sql, scaled_s(240))
+    before = _wait_for_rows(p, db, RUNS_OF.format(2), scaled_s(240))
     assert before and p.poll() is None, "night 2 ended before it could be killed"
     os.kill(p.pid, signal.SIGKILL)
     p.wait(scaled_s(10))
@@ -100,9 +106,7 @@ def test_planned_nights_in_separate_processes_resume_and_improve_the_day(small_c
     assert dict(plans)[second["name"]] == second["planned"] and not dup
 
     # The records know nights: each pass grouped under its night, measured ones never failures.
-    ls = subprocess.run([sys.executable, "-m", "controller.cli", "campaign", "list", "--db", str(db), "--json"],
-                        cwd=REPO, capture_output=True, text=True)
-    listing = json.loads(ls.stdout)
+    listing = json.loads(_cli("campaign", "list", "--db", str(db), "--json").stdout)
     assert [(n["index"], n["kind"]) for n in listing["nights"]] == [(0, "calibration"), (1, "planned"),
                                                                      (2, "planned")]
     rows = {r["id"]: r for r in listing["campaigns"]}
@@ -110,8 +114,7 @@ def test_planned_nights_in_separate_processes_resume_and_improve_the_day(small_c
     assert night2["measured"] == second["measured"] and night2["daytime_error_true_mrad"]["rms"] > 0
     assert sum(rows[i]["measured"] for i in night2["campaigns"]) == second["measured"]
     assert all(rows[i]["calibrated"] == 0 for i in night2["campaigns"])
-    text = subprocess.run([sys.executable, "-m", "controller.cli", "campaign", "list", "--db", str(db)],
-                          cwd=REPO, capture_output=True, text=True).stdout
+    text = _cli("campaign", "list", "--db", str(db)).stdout
     assert f"night 2: {second['name']} (planned)" in text and "measured" in text
 
     # What the nights were for, scored independently: the day after night 2 beats night 0's models.
@@ -126,8 +129,7 @@ def test_ctrl_c_during_a_night_parks_and_the_rerun_resumes_it(small_config, tmp_
     code, _, err = _done(_heliocal("campaign", "run", *common), scaled_s(300))
     assert code == 0, err
     p = _heliocal("campaign", "night", *common)
-    sql = "SELECT r.id FROM heliostat_runs r JOIN campaigns c ON c.id = r.campaign_id WHERE c.name LIKE '%/night-1/%'"
-    assert _wait_for_rows(p, db, sql, scaled_s(240)) and p.poll() is None
+    assert _wait_for_rows(p, db, RUNS_OF.format(1), scaled_s(240)) and p.poll() is None
     p.send_signal(signal.SIGINT)
     code, _, err = _done(p, scaled_s(60))
     assert code == 130 and "interrupted" in err and "every lamp off" in err
