@@ -117,6 +117,14 @@ def test_planned_nights_in_separate_processes_resume_and_improve_the_day(small_c
     text = _cli("campaign", "list", "--db", str(db)).stdout
     assert f"night 2: {second['name']} (planned)" in text and "measured" in text
 
+    # The default morning report is the latest whole night, as a night.
+    out = str(tmp_path / "rep")
+    rep = json.loads(_cli("report", "campaign", "--db", str(db), "--out", out, "--json").stdout)
+    md = Path(rep["report"]).read_text()
+    assert rep["night"] == 2 and md.startswith(f"# Morning report: night 2, `{second['name']}`")
+    assert f"geometries measured **{second['measured']}** of {second['planned']}" in md
+    assert (tmp_path / "rep" / "passes.png").is_file() and "failed" not in md.split("## Passes")[1]
+
     # What the nights were for, scored independently: the day after night 2 beats night 0's models.
     assert _daytime_rms(small_config, db, 2) < second["daytime_error_mrad"]["rms"] * 1.15 + 0.05
 
