@@ -50,6 +50,23 @@ class NightStore(Protocol):
     def record_plan(self, items: list[PlanItem]) -> None: ...
 
 
+def calibration_night(book: NightStore, campaign: Campaign) -> CampaignResult:
+    """Run ``campaign`` (a closed-loop calibration campaign) as a night of its own: night 0 of a
+    new field, the next index otherwise; its record says how it ended."""
+    rec, _ = book.open_night(campaign.opt.name, "calibration")
+    try:
+        r = campaign.run()
+    except KeyboardInterrupt:
+        book.finish_night(rec.id, "interrupted", "interrupted by the operator; rerun to resume", {})
+        raise
+    except BaseException as exc:
+        book.finish_night(rec.id, "aborted", f"{type(exc).__name__}: {exc}", {})
+        raise
+    lamps = [campaign.lamp.to_json()] if campaign.lamp else []
+    book.finish_night(rec.id, r.status, r.cause, {"campaign": r.name, "status": r.status, "lamps": lamps})
+    return r
+
+
 def tonight(book: NightStore, base: str) -> tuple[str, int]:
     """The name and index of tonight's planned night: the unfinished one to resume, else
     ``<base>/night-<k>`` with the next index ``k``."""

@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from controller.calibration.daytime import PredictedDaytime, predicted_daytime, sun_path
-from controller.calibration.night import NightSummary, PlannedNight, tonight
+from controller.calibration.night import NightSummary, PlannedNight, calibration_night, tonight
 from controller.calibration.outcome import CampaignResult
 from controller.calibration.runner import Campaign, CampaignOptions
 from controller.commands._field import open_store, simulated_field
@@ -74,11 +74,17 @@ class SimulatedRun:
     on_target: dict[str, list[tuple[float, float, str]]] = field(default_factory=dict)
 
 
-def _merge_safety(into: dict, plant) -> None:
+def _merge_safety(plant, into: dict | None, on_target: dict | None) -> None:
+    """Add a plant session's beam-safety monitor (counts; spans with a beam on each target) to
+    those of the sessions before it."""
     r = plant.safety.report()
-    into["samples"] = into.get("samples", 0) + r["samples"]
-    into["violations"] = into.get("violations", 0) + r["violations"]
-    into["max_beams_on_target"] = max(into.get("max_beams_on_target", 0), r["max_beams_on_target"])
+    if into is not None:
+        into["samples"] = into.get("samples", 0) + r["samples"]
+        into["violations"] = into.get("violations", 0) + r["violations"]
+        into["max_beams_on_target"] = max(into.get("max_beams_on_target", 0), r["max_beams_on_target"])
+    if on_target is not None:
+        for tid, spans in plant.safety.intervals.items():
+            on_target.setdefault(tid, []).extend(spans)
 
 
 def calibrate(cfg: PlantConfig, config_path: str, store: CampaignStore, out: Path, ids: list[str],
@@ -93,19 +99,11 @@ def calibrate(cfg: PlantConfig, config_path: str, store: CampaignStore, out: Pat
     with simulated_field(cfg, config_path, store, out, ids, settings, night=book.index_for(name),
                          library_dir=library_dir, clock_start=store.last_end_s(name) or 0.0,
                          progress=progress) as fs:
-        night, _ = book.open_night(name, "calibration")
         opts = CampaignOptions(name=name, pipeline_depth=1 if sequential else None)
-        try:
-            result = Campaign(fs.field, opts, heliostat_ids=ids,
-                              observers=[TruthRecorder(fs.plant, store.path), *observers]).run()
-        except KeyboardInterrupt:
-            book.finish_night(night.id, "interrupted", "interrupted by the operator; rerun to resume", {})
-            raise
-        book.finish_night(night.id, result.status, result.cause, {"campaign": name, "status": result.status})
-        _merge_safety(safety if safety is not None else {}, fs.plant)
-        if on_target is not None:
-            for tid, spans in fs.plant.safety.intervals.items():
-                on_target.setdefault(tid, []).extend(spans)
+        campaign = Campaign(fs.field, opts, heliostat_ids=ids,
+                            observers=[TruthRecorder(fs.plant, store.path), *observers])
+        result = calibration_night(book, campaign)
+        _merge_safety(fs.plant, safety, on_target)
     return result
 
 
@@ -130,10 +128,7 @@ def planned_night(cfg: PlantConfig, config_path: str, store: CampaignStore, out:
         report = NightReport(summary, daytime_error(fs.plant, cfg, models, path),
                              predicted_daytime(cfg, models, path))
         book.add_to_summary(name, {"truth": {"daytime_error_mrad": report.daytime.to_json()}})
-        _merge_safety(safety if safety is not None else {}, fs.plant)
-        if on_target is not None:
-            for tid, spans in fs.plant.safety.intervals.items():
-                on_target.setdefault(tid, []).extend(spans)
+        _merge_safety(fs.plant, safety, on_target)
     if progress is not None:
         progress(f"{name}: field daytime error now {report.predicted.rms:.2f} mrad RMS predicted, "
                  f"{report.daytime.rms:.2f} true (plant truth)")

@@ -191,6 +191,7 @@ def sim_dir(db: Path) -> Path:
 
 
 def _run_field(cfg, args, ids, name, quiet):
+    from controller.calibration.night import calibration_night
     from controller.calibration.runner import Campaign, CampaignOptions
     from controller.commands._field import open_store, real_field
     from controller.commands._progress import TerminalProgress
@@ -199,16 +200,9 @@ def _run_field(cfg, args, ids, name, quiet):
     store = open_store(args.db)
     try:
         with real_field(cfg, args.config, store, camera_manifest=args.camera_manifest) as fs:
-            night, _ = fs.book.open_night(name, "calibration")
-            try:
-                result = Campaign(fs.field, CampaignOptions(name=name), heliostat_ids=ids,
-                                  observers=[] if quiet else [TerminalProgress()]).run()
-            except KeyboardInterrupt:
-                fs.book.finish_night(night.id, "interrupted", "interrupted by the operator; rerun to resume",
-                                     {})
-                raise
-            fs.book.finish_night(night.id, result.status, result.cause,
-                                 {"campaign": name, "status": result.status})
+            campaign = Campaign(fs.field, CampaignOptions(name=name), heliostat_ids=ids,
+                                observers=[] if quiet else [TerminalProgress()])
+            result = calibration_night(fs.book, campaign)
         summary = summarize(store, result.campaign_id)
     finally:
         store.close()

@@ -15,9 +15,11 @@ from __future__ import annotations
 import threading
 import time
 
+from controller.calibration.night import calibration_night
 from controller.calibration.runner import Campaign, CampaignObserver, CampaignOptions
 from controller.console.backend import Conflict, Console
 from controller.errors import HeliocalError, InputError
+from controller.storage.nights import NightBook
 
 # States in which a cycle's beam is (or is moving) on the target (controller.calibration.machine).
 ON_TARGET = ("slewing", "settling", "capturing", "merging", "analysing", "matching", "verifying",
@@ -82,7 +84,7 @@ class CampaignControl(CampaignObserver):
 
     def _run(self, camp: Campaign) -> None:
         try:
-            r = camp.run()
+            r = calibration_night(NightBook(self.c.store), camp)
             self.outcome = {"status": r.status, "cause": r.cause, "campaign_id": r.campaign_id}
         except HeliocalError as exc:
             self.outcome = {"status": "error", "cause": str(exc), "campaign_id": self.campaign_id}
