@@ -13,9 +13,10 @@ from typing import Any, Protocol
 import numpy as np
 
 from controller.calibration.gate import TargetGate
-from controller.calibration.observations import Match, Observation, Step
+from controller.calibration.observations import Observation, Step
 from controller.calibration.records import MeasurementRecord, ModelRecord
 from controller.devices.plant_time import WALL, PlantTime
+from controller.recognition.library import Match
 
 
 class Pointing(Protocol):

@@ -24,9 +24,10 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from controller.calibration.beam_safety import UnsafePath
 from controller.calibration.field import Field
 from controller.calibration.park import park
-from controller.calibration.pointing import GeometryPointing, UnsafePath
+from controller.calibration.pointing import GeometryPointing
 from controller.calibration.records import ModelRecord
 from controller.devices.drive import Drive, DriveError
 from controller.devices.plant_time import PlantTime

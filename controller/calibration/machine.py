@@ -47,10 +47,11 @@ from transitions.extensions.states import Timeout, add_state_features
 from controller.calibration.approach import approach_path
 from controller.calibration.coarse import correction_step
 from controller.calibration.context import CycleContext, CycleObserver
-from controller.calibration.observations import BeamNotFound, Match, Observation
+from controller.calibration.observations import BeamNotFound, Observation
 from controller.calibration.park import park
 from controller.calibration.records import CorrectionRecord, RunRecord, measurement_record
 from controller.devices.drive import DriveError, LinkError, MoveCancelled
+from controller.recognition.library import Match
 
 # -- the tables ---------------------------------------------------------------------------------
 # (state, timeout in wall seconds, what the state does). Timeouts are generous upper bounds

@@ -50,7 +50,7 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from controller.calibration.pointing import model_prior
+    from controller.calibration.model_update import model_prior
     from simplant.plant import field_selection
 
     cfg = load_config(args.config)

@@ -13,9 +13,10 @@ import numpy as np
 import pytest
 import yaml
 
+from controller.calibration.beam_safety import UnsafePath
 from controller.calibration.nights import run_night
 from controller.calibration.planner import plan_night
-from controller.calibration.pointing import GeometryPointing, UnsafePath
+from controller.calibration.pointing import GeometryPointing
 from controller.calibration.runner import CampaignResult
 from controller.config import load_config, parse_config
 from controller.errors import ConfigError
