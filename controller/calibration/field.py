@@ -27,6 +27,7 @@ from controller.config import PlantConfig
 from controller.devices.drive import Drive, DriveLimits
 from controller.devices.lamp_panel import LampPanel, light_only, lights_out, open_lamp_panel
 from controller.devices.plant_time import WALL, PlantTime
+from controller.errors import DeviceError
 
 
 @dataclass(frozen=True)
@@ -84,8 +85,13 @@ class Field:
             return self._drives[hid]
 
     def camera(self, target: str | None = None) -> Any:
-        """The camera looking at ``target`` (default: the calibration target)."""
-        return self.cameras[target or self.cfg.calibration.target]
+        """The camera looking at ``target`` (default: the calibration target); DeviceError naming
+        the target when the field has none there (e.g. recorded pairs of one target only)."""
+        tid = target or self.cfg.calibration.target
+        if tid not in self.cameras:
+            have = ", ".join(self.cameras) or "none"
+            raise DeviceError(f"no camera looks at target {tid!r} (cameras at: {have})")
+        return self.cameras[tid]
 
     def model(self, hid: str) -> ModelRecord | None:
         """The latest fitted tracking model of ``hid`` (None before its first)."""
