@@ -2,8 +2,9 @@
 
 Reprocessing is measured and tested on archives far larger than a demo run records. This
 builds one from a real demo database: every campaign of the source copied ``copies`` times,
-the k-th copy recorded k days earlier (its own campaign, its own frame files, hard-linked to the
-source's so a 5,000-pair archive costs no disk), through the product's record store. The copies
+the k-th copy recorded k nights (or ``spacing_h`` hours) earlier (its own campaign, its own frame
+files, hard-linked to the source's so a 5,000-pair archive costs no disk), through the product's
+record store. The copies
 carry the source's measurements, pairs and camera registrations; no models (reprocessing fits
 them).
 """
@@ -20,8 +21,8 @@ from controller.calibration.records import ImageRecord
 from controller.storage.db import CampaignStore, open_existing
 
 
-def _earlier(stamp: str, days: int) -> str:
-    return (datetime.fromisoformat(stamp) - timedelta(days=days)).isoformat(timespec="milliseconds")
+def _earlier(stamp: str, hours: float) -> str:
+    return (datetime.fromisoformat(stamp) - timedelta(hours=hours)).isoformat(timespec="milliseconds")
 
 
 def _link(src: str, dst: Path) -> str:
@@ -33,9 +34,11 @@ def _link(src: str, dst: Path) -> str:
     return str(dst)
 
 
-def replicate(source_db: Path, out_db: Path, images: Path, copies: int) -> int:
+def replicate(source_db: Path, out_db: Path, images: Path, copies: int, spacing_h: float = 24.0) -> int:
     """Write ``out_db`` holding ``copies`` copies of every campaign of ``source_db`` (frames
-    under ``images/<campaign>/``); returns the number of frame pairs."""
+    under ``images/<campaign>/``), the k-th recorded k × ``spacing_h`` hours earlier (24: a
+    night each; less than 6 h apart they count as one night for the model's epochs); returns the
+    number of frame pairs."""
     pairs = 0
     with open_existing(source_db) as src, CampaignStore(out_db) as out:
         campaigns = src.campaigns()
@@ -51,7 +54,7 @@ def replicate(source_db: Path, out_db: Path, images: Path, copies: int) -> int:
                         imgs = [ImageRecord(i.kind, _link(i.path, images / name / Path(i.path).name),
                                             i.sha256, i.exposures) for i in src.images(m.id)]
                         pairs += len(imgs) == 2
-                        ms.append(dataclasses.replace(m, measured_utc=_earlier(m.measured_utc, k),
+                        ms.append(dataclasses.replace(m, measured_utc=_earlier(m.measured_utc, k * spacing_h),
                                                       images=imgs, id=None, run_id=None, campaign_id=None,
                                                       heliostat_id=None))
                     out.record_run(cid, dataclasses.replace(run, measurements=ms, corrections=[], model=None,
