@@ -137,6 +137,10 @@ TABLE: dict[str, list[Entry]] = {
                              {"rec": Slot("RECORD.json", JSON, "rec"),
                               "props": Slot("--heliostat-properties", JSON, "props"),
                               "towers": Slot("--towers", JSON, "towers")})],
+    "reprocess": [Entry("reprocess --db {db} --out {out}/new.db --workers 1",
+                        {"db": Slot("--db", DB, "db")},
+                        {"--out": OUTPUTS, "--images": "a folder (frames are read per pair, by workers)",
+                         "--since": "a date", "--scheduler": "an address"})],
     "report campaign": [Entry("report campaign --db {db} --out {out}/r", {"db": Slot("--db", DB, "db")},
                               {"--out": OUTPUTS, "--campaign": "a campaign name"})],
     "report confusion": [
