@@ -26,8 +26,8 @@ import numpy as np
 
 from controller.calibration.beam_chain import BeamChain
 from controller.calibration.daytime import model_covariance, sun_path
-from controller.calibration.observations import BeamNotFound
 from controller.calibration.model_update import fit_measurements
+from controller.calibration.observations import BeamNotFound
 from controller.calibration.records import MeasurementRecord, ModelRecord
 from controller.calibration.reprocess_chain import registration_from_record
 from controller.config import PlantConfig, config_sha256, load_config
