@@ -40,6 +40,7 @@ sys.path.insert(0, str(ROOT))
 
 import uvicorn  # noqa: E402
 
+from controller.commands._field import plant_field  # noqa: E402
 from controller.console.app import create_app  # noqa: E402
 from controller.console.backend import STATUS_POLL_S, Console, PlantHooks  # noqa: E402
 from controller.devices.drive import DriveLimits  # noqa: E402
@@ -118,9 +119,9 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as tmp, \
             SimulatedPlant(load_config_data(cfg_path), Path(tmp) / "run", heliostat_ids=ids,
                            settings=SimulationSettings(), source=str(cfg_path)) as plant:
-        pcfg = plant.start()
+        plant.start()
         with LinkPool(timeout_s=0.5, retries=2) as pool, CampaignStore(Path(tmp) / "c.db") as store:
-            console = Console(pcfg, str(cfg_path), store, pool, plant.camera, heliostat_ids=ids,
+            console = Console(plant_field(plant, cfg_path, store, pool), heliostat_ids=ids,
                               hooks=PlantHooks(label="simulated plant"), work_dir=tmp)
             app = create_app(console)
             console.start()
@@ -134,7 +135,7 @@ def main() -> int:
                 time.sleep(0.01)
             w = Watch()
             ready = threading.Event()
-            h = pcfg.heliostat(HID)
+            h = plant.config.heliostat(HID)
             peer_drive = pool.drive(h.link, DriveLimits.from_axes(h.axes))
             threads = [threading.Thread(target=sse_client, args=(port, w, ready), daemon=True),
                        threading.Thread(target=http_poller, args=(port, w, args.poll_ms / 1000), daemon=True),

@@ -11,10 +11,12 @@ target, timed per decision. ``--planned`` heliostats are planned (default 200 of
 planning all takes ~0.1 s each on this machine); the others take the aim points of the
 planned heliostat nearest to them on the same target.
 
-**The run** (:class:`simplant.cheap_night.CheapField`): the product's night
-(:func:`controller.calibration.nights.run_night` → one
-:class:`controller.calibration.runner.Campaign` per pass, the targets of a lamp in parallel,
-state machine, gate per target, fit, SQLite store) against the simulated plant's hidden
+**The run** (:func:`controller.commands._cheap_night.run_cheap_night` on a
+:class:`simplant.cheap_night.CheapField`): the product's night
+(:class:`controller.calibration.night.PlannedNight`, as ``heliocal campaign night`` runs it:
+lamp changes in the dark, one :class:`controller.calibration.runner.Campaign` per pass, the
+targets of a lamp in parallel, state machine, gate per target, fit, SQLite store) against the
+simulated plant's hidden
 heliostats, driven in-process through the firmware physics (:mod:`simplant.inproc`) and seen
 by cheap analytic-spot cameras (:mod:`simplant.cheap_camera`, 128 × 96), on the plant clock at
 ``--speedup`` (the controller's own computing runs at 1x plant time). The night ends after
@@ -51,6 +53,7 @@ import yaml
 from controller.calibration.nights import night_passes
 from controller.calibration.planner import plan_heliostat, planner_sun
 from controller.calibration.planning import slew_time_s
+from controller.commands._cheap_night import run_cheap_night
 from controller.config import parse_config
 from simplant.cheap_night import LAMPS, CheapField, field_data
 
@@ -133,7 +136,7 @@ def runner_night(data: dict, plans: dict[str, list], targets: int, night_s: floa
     """The night through the real runner over the cheap plant (module docstring)."""
     with tempfile.TemporaryDirectory(prefix="bench-field-") as tmp:
         f = CheapField(data, Path(tmp), speedup=speedup)
-        r = f.run_night([it for p in plans.values() for it in p], "n1", night_s)
+        r = run_cheap_night(f, [it for p in plans.values() for it in p], "n1", night_s)
     hours = r.plant_s / 3600.0
     several = {t: sum(1 for b in v if len(b) > 1) for t, v in r.beams_in_view.items()}
     failed: dict[str, int] = {}  # runs not measured, by the exception that ended them

@@ -32,8 +32,8 @@ import numpy as np
 import yaml
 
 from controller.calibration.daytime import model_covariance, predicted_daytime, sun_path, tracking_steps
+from controller.calibration.model_update import fit_measurements
 from controller.calibration.planner import candidates, plan_night, planner_sun
-from controller.calibration.pointing import fit_measurements
 from controller.calibration.records import MeasurementRecord
 from controller.config import parse_config
 from controller.geometry.aiming import angle_mrad, intersect_plane, reflected_beam, source_direction

@@ -27,6 +27,7 @@ from controller.camera_config import Camera, Gige, Sensor  # noqa: F401 - the ca
 from controller.errors import ConfigError, InputError
 from controller.io.config_keys import did_you_mean, key_path
 from controller.io.yaml_files import parse_yaml, read_text
+from controller.lamp_config import CommandLamps, Lamps, ModbusRtuLamps, ModbusTcpLamps, check_channels  # noqa: F401
 from controller.link_config import Link, ModbusRtuLink, ModbusTcpLink, SerialLink  # noqa: F401 - the links section
 
 Vec3 = tuple[float, float, float]
@@ -246,6 +247,8 @@ class PlantConfig(_Model):
     camera: Camera
     calibration: Calibration
     person_zones: tuple[PersonZone, ...] = ()
+    lamps: Lamps | None = Field(default=None, description="the lamp panel (docs/lamps.md); None: "
+                                "lamps are switched by hand or by the simulator")
 
     @model_validator(mode="after")
     def _references(self) -> PlantConfig:
@@ -281,6 +284,13 @@ class PlantConfig(_Model):
                 raise ValueError(f"heliostats[{index}].link: heliostats {seen[key]!r} and {h.id!r} "
                                  f"share the link {key}")
             seen[key] = h.id
+        if self.lamps is not None:
+            needed = [lamp for lamp in (*self.calibration.planned_lamps(), self.calibration.light_source)
+                      if lamp in lamps]
+            by_command = {t.id for t in self.targets
+                          if (cam := t.camera or self.camera).registration is not None
+                          and cam.registration.lamp_command}
+            check_channels(self.lamps, lamps, {t.id for t in self.targets}, needed, by_command)
         return self
 
     def heliostat(self, hid: str) -> Heliostat:

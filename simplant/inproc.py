@@ -13,6 +13,7 @@ faults are latched, limits it cannot take, with the same rejection codes (NAK er
 from __future__ import annotations
 
 from controller.devices.drive import AxisLimits, Drive, DriveLimits, DriveStatus, FirmwareInfo
+from controller.devices.lamp_panel import LampPanel, LampState
 from controller.devices.serial_drive import nak_error
 from firmware_proto.faults import Reject, fault_names
 from firmware_proto.messages import PROTOCOL_VERSION, Command
@@ -123,3 +124,27 @@ class InProcPool:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+class InProcLampPanel(LampPanel):
+    """The plant's lamps as a :class:`controller.devices.lamp_panel.LampPanel` without a wire
+    (a field too large for sockets): a switch is the plant's lamp at once, and the lamp
+    confirms what it actually is (every lamp of ``light_sources`` is a channel)."""
+
+    name = "in-process lamp panel"
+
+    def __init__(self, plant) -> None:
+        self.plant = plant
+        self.channels = tuple(s.id for s in plant.cfg.light_sources if s.kind == "lamp")
+
+    def switch(self, channel: str, on: bool) -> None:
+        self.plant.switch_lamp(self.check_channel(channel), on)
+
+    def confirmed(self, channel: str) -> bool:
+        return self.plant.lamp_lit(self.check_channel(channel))
+
+    def states(self) -> list[LampState]:
+        return [LampState(c, self.plant.lamp_lit(c), self.plant.lamp_lit(c)) for c in self.channels]
+
+    def close(self) -> None:
+        """Nothing to release."""

@@ -8,6 +8,9 @@ What it runs, all in this process but reachable only through the real wire proto
   symlinked inside the run directory (the config's device paths are rewritten to it);
 * the Modbus TCP heliostats behind :class:`simplant.firmware.modbus.ModbusSimServer` on
   127.0.0.1, an ephemeral port (written back into the links); Modbus RTU on a pty;
+* the lamp panel (:class:`simplant.lamp_panel.SimLampPanel`) on 127.0.0.1, an ephemeral port
+  (written into the config as its ``lamps:`` section): its coils switch the lamps the plant
+  renders with, its discrete inputs report them;
 * a hidden heliostat per id (:mod:`simplant.truth`, written independently of the controller's
   kinematics and error model: perturbed actuators, pedestal, joints, canting, position, gravity
   droop, nightly drift, per-move repeatability; seeded, angular errors scaled by
@@ -94,7 +97,8 @@ class SimulatedPlant:
         self.clock = PlantClock(sim.clock_speedup, start=clock_start)
         self.hidden: dict[str, HiddenHeliostat] = {}
         self.night = 0
-        self.lit = self.cfg.calibration.light_source
+        self._lit: tuple[str, ...] = (self.cfg.calibration.light_source,)  # in the order switched on
+        self.lamp_panel = None  # simplant.lamp_panel.SimLampPanel, from start()
         index = {h.id: i for i, h in enumerate(cfg.heliostats)}
         for hid in self.ids:
             h = cfg.heliostat(hid)
@@ -158,10 +162,21 @@ class SimulatedPlant:
                 link["device"] = new_paths[link["device"]]
             if link.get("kind") == "modbus-tcp" and port is not None:
                 link["host"], link["port"] = "127.0.0.1", port
+        self._start_lamp_panel()
         self.config = parse_config(self.data, str(self.run_dir / "plant.yaml"))
         self._start_cameras()
         self.safety.start()
         return self.config
+
+    def _start_lamp_panel(self) -> None:
+        """Serve the plant's lamp panel and write its ``lamps:`` section (replacing any)."""
+        from simplant.lamp_panel import SimLampPanel, panel_channels
+
+        channels = panel_channels(self.cfg)
+        self.lamp_panel = SimLampPanel(self, channels)
+        port = self.lamp_panel.start()
+        self.data["lamps"] = {"driver": "modbus-tcp", "host": "127.0.0.1", "port": port, "unit": 1,
+                              "channels": channels}
 
     def _start_cameras(self) -> None:
         """One camera per target (seeded apart, the calibration target's with the plant seed).
@@ -191,6 +206,8 @@ class SimulatedPlant:
         if self.modbus is not None:
             self.modbus.stop()
             self.modbus = None
+        if self.lamp_panel is not None:
+            self.lamp_panel.stop()
 
     def __enter__(self) -> SimulatedPlant:
         return self
@@ -215,15 +232,31 @@ class SimulatedPlant:
             if target is None or tid == target:
                 cam.fiducials_lit = bool(on)
 
+    @property
+    def lit(self) -> str | None:
+        """The lamp the plant renders with: the lit one (the last switched on, should a panel
+        light several); None while every lamp is dark."""
+        return self._lit[-1] if self._lit else None
+
+    def lamp_lit(self, lamp_id: str) -> bool:
+        return lamp_id in self._lit
+
+    def switch_lamp(self, lamp_id: str, on: bool) -> None:
+        """Switch one lamp (the lamp panel's coil), leaving the others as they are."""
+        if getattr(self.cfg.light_source(lamp_id), "kind", "") != "lamp":
+            raise ValueError(f"the simulated plant lights lamps only, not {lamp_id!r}")
+        rest = tuple(lamp for lamp in self._lit if lamp != lamp_id)
+        self._lit = (*rest, lamp_id) if on else rest
+
     def set_light(self, source_id: str) -> None:
         """Light lamp ``source_id`` (the others go dark): one lamp at a time, as a campaign asks."""
         if getattr(self.cfg.light_source(source_id), "kind", "") != "lamp":
             raise ValueError(f"the simulated plant lights lamps only, not {source_id!r}")
-        self.lit = source_id
+        self._lit = (source_id,)
 
     def lights_out(self) -> None:
         """Switch every lamp off (a night's lamp change: heliostats are moved in the dark)."""
-        self.lit = None
+        self._lit = ()
 
     def lamp(self):
         """The lamp lit now (config entry); None while every lamp is dark."""

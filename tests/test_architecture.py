@@ -20,7 +20,7 @@ PRODUCT = ("controller", "firmware_proto")
 
 # Imported by every layer: the error types and the validated plant configuration (data only).
 FOUNDATION = {"controller", "controller.errors", "controller.config", "controller.camera_config",
-              "controller.link_config"}
+              "controller.link_config", "controller.lamp_config"}
 
 LAYERS: dict[str, set[str]] = {
     "wire": {"firmware_proto"},
@@ -51,9 +51,18 @@ COMPAT_LAZY = {("controller.imaging.crf", "controller.imaging.crf_io")}
 
 # The commands that run the simulated plant (they import it lazily, in their --simulate path).
 SIMULATOR_USERS = ("controller.commands.demo", "controller.commands._demo_coarse",
+                   "controller.commands._field", "controller.commands._simulate",
+                   "controller.commands._night",
                    "controller.commands.campaign", "controller.commands.commission",
                    "controller.commands.sim", "controller.commands.report.weighting",
                    "controller.commands.console")
+
+# The product's orchestration the simulated plant must never import: it provides devices and
+# truth (like ophyd.sim), it does not assemble campaigns, nights or lamp changes itself.
+ORCHESTRATION_OPERATIONS = ("controller.calibration.runner", "controller.calibration.nights",
+                            "controller.calibration.night", "controller.calibration.lamp_change",
+                            "controller.calibration.planner", "controller.calibration.parallel",
+                            "controller.calibration.machine")
 
 # Modules allowed over MAX_LINES, with the reason (one cohesive thing each).
 MAX_LINES = 400
@@ -170,3 +179,24 @@ def test_modules_are_short_or_one_cohesive_thing():
             if (n := len(p.read_text(encoding="utf-8").splitlines())) > MAX_LINES}
     unexplained = {m: n for m, n in long.items() if m not in LONG_MODULES}
     assert not unexplained, f"modules over {MAX_LINES} lines: {unexplained}"
+
+
+def simplant_graph() -> dict[str, list[tuple[str, bool]]]:
+    return {module_name(p): imports_of(p) for p in sorted((ROOT / "simplant").rglob("*.py"))}
+
+
+def plant_violations(graph: dict[str, list[tuple[str, bool]]]) -> list[str]:
+    """Every import of the product's orchestration by the simulated plant."""
+    return [f"{mod} imports {target}" for mod, imports in sorted(graph.items()) for target, _ in imports
+            if any(target == o or target.startswith(o + ".") for o in ORCHESTRATION_OPERATIONS)]
+
+
+def test_the_simulated_plant_assembles_no_orchestration():
+    bad = plant_violations(simplant_graph())
+    assert not bad, "the simulated plant must only provide devices and truth:\n" + "\n".join(bad)
+
+
+@pytest.mark.parametrize("module", ORCHESTRATION_OPERATIONS)
+def test_a_plant_that_imports_orchestration_is_caught(module):
+    graph = {"simplant.harness": [(module, True), ("controller.calibration.observers", True)]}
+    assert plant_violations(graph) == [f"simplant.harness imports {module}"]

@@ -6,7 +6,7 @@ import threading
 
 import numpy as np
 
-from controller.calibration.observations import BeamNotFound, Match, NoBeam, Observation
+from controller.calibration.observations import BeamNotFound, NoBeam, Observation
 from controller.config import PlantConfig
 from controller.errors import InputError, NoBeamError
 from controller.geometry.target_frame import TargetFrame
@@ -16,6 +16,7 @@ from controller.imaging.centroid import energy_centroid
 from controller.imaging.clipped_spot import clipped_centre
 from controller.imaging.crf_io import load_crf
 from controller.imaging.hdr import HdrMerger
+from controller.recognition.library import Match
 
 # A beam's smoothed peak stands this many noise σ above the background, or there is no beam
 # (a heliostat at stow leaves only noise, whose "spot" touches every edge).
@@ -100,6 +101,4 @@ class BeamChain:
     def match(self, obs: Observation) -> Match | None:
         if self.library is None:
             return None
-        m = self.library.match_stacks([obs.hu, *obs.hu_widened])
-        return Match(m.label, m.distance, m.runner_up, m.runner_up_distance, m.unknown, m.correction_deg,
-                     m.coarse_correction_deg, m.confidence)
+        return self.library.match_stacks([obs.hu, *obs.hu_widened])

@@ -26,7 +26,8 @@ from __future__ import annotations
 import numpy as np
 
 from controller.calibration.context import Pointing
-from controller.calibration.observations import Match, Observation, Step
+from controller.calibration.observations import Observation, Step
+from controller.recognition.library import Match
 
 
 def clipped_applies(obs: Observation, min_confidence: float | None) -> bool:

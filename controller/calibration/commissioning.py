@@ -26,9 +26,12 @@ import numpy as np
 
 from controller.calibration.beam_chain import BeamChain
 from controller.calibration.observations import BeamNotFound, NoBeam, Observation
+from controller.calibration.park import park
 from controller.calibration.pointing import GeometryPointing
 from controller.calibration.registration_step import register_chain
 from controller.config import PlantConfig
+from controller.devices.drive import DRIVE_TIME
+from controller.devices.plant_time import PlantTime
 from controller.errors import HeliocalError, InputError
 from controller.geometry.aiming import pointing_error_mrad
 from controller.io.images import write_preview
@@ -61,7 +64,8 @@ class Commissioning:
     it the pairs are taken as rectified (recorded pairs)."""
 
     def __init__(self, cfg: PlantConfig, heliostat_id: str, drive, camera, *, library=None,
-                 model=None, move_timeout_s: float = 300.0, fiducial_lamps=None) -> None:
+                 model=None, move_timeout_s: float = 300.0, fiducial_lamps=None,
+                 time: PlantTime = DRIVE_TIME) -> None:
         self.cfg = cfg
         self.h = cfg.heliostat(heliostat_id)
         self.drive = drive
@@ -75,6 +79,7 @@ class Commissioning:
                                          cfg.calibration.model, others=cfg.targets, zones=cfg.person_zones)
         self.model = model
         self.move_timeout_s = move_timeout_s
+        self.time = time
         self.last: Capture | None = None
         # Whether this session moved the heliostat away from where it parked it last: an
         # operator command must not end with the beam wherever the session left it.
@@ -86,7 +91,8 @@ class Commissioning:
 
     def move(self, az_steps: int, el_steps: int) -> dict:
         self.needs_parking = True
-        st = self.drive.move_and_wait(int(az_steps), int(el_steps), timeout_s=self.move_timeout_s)
+        st = self.drive.move_and_wait(int(az_steps), int(el_steps), timeout_s=self.move_timeout_s,
+                                      time=self.time)
         return st.to_json()
 
     def jog(self, daz_steps: int, del_steps: int) -> dict:
@@ -102,13 +108,9 @@ class Commissioning:
         return self.move(az, el)
 
     def park(self) -> dict:
-        st = self.drive.status()
-        standby = self.pointing.standby_steps(self.model)
-        out = st.to_json()
-        for wp in self.pointing.path_to((st.az_steps, st.el_steps), standby):
-            out = self.move(*wp)
+        out = park(self.drive, self.pointing, self.pointing.standby_steps(self.model), self.move)
         self.needs_parking = False
-        return out
+        return out if isinstance(out, dict) else out.to_json()
 
     def make_safe(self) -> dict:
         """End of session: park at standby along a beam-safe path; if that fails, stop the

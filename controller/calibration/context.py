@@ -6,8 +6,6 @@ Units: motor steps (int), ENU metres, plant-clock seconds; per-state timeouts in
 
 from __future__ import annotations
 
-import contextlib
-import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
@@ -15,8 +13,10 @@ from typing import Any, Protocol
 import numpy as np
 
 from controller.calibration.gate import TargetGate
-from controller.calibration.observations import Match, Observation, Step
-from controller.calibration.records import MeasurementRecord, ModelRecord, utc_now
+from controller.calibration.observations import Observation, Step
+from controller.calibration.records import MeasurementRecord, ModelRecord
+from controller.devices.plant_time import WALL, PlantTime
+from controller.recognition.library import Match
 
 
 class Pointing(Protocol):
@@ -54,18 +54,14 @@ class CycleContext:
     max_iterations: int = 4
     settle_s: float = 0.5
     move_timeout_s: float = 120.0  # plant seconds
-    poll_s: float = 0.1  # status polling interval, plant seconds
-    clock: Callable[[], float] = time.monotonic  # plant clock, s
-    sleep: Callable[[float], None] = time.sleep  # sleeps the given plant seconds
+    time: PlantTime = WALL  # plant time: waits, deadlines, stamps, the controller's computing
     timeouts: dict[str, float] = field(default_factory=dict)  # per-state overrides, wall s
     save_images: Callable[[Any, np.ndarray, int], list] | None = None  # -> [ImageRecord]
     observer: CycleObserver | None = None  # told of state changes and measurements
     ticket: int | None = None  # turn on the target (TargetGate); default: queue_index
-    compute: Callable[[], Any] = contextlib.nullcontext  # context around the controller's computing
     observe_only: bool = False  # a planned observation: one measurement, no correction
     coarse_confidence: float | None = None  # apply a match's coarse correction at >= this; None: never
     backlash_steps: tuple[int, int] = (0, 0)  # (az, el): measuring moves end moving up by more
-    utc: Callable[[], str] = utc_now  # the time stamped on measurements (ISO 8601, UTC)
 
 
 class CycleObserver:

@@ -22,13 +22,15 @@ off the targets, so the lamp must stay dark.
 from __future__ import annotations
 
 from collections.abc import Callable
-from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass
 
-from controller.calibration.pointing import GeometryPointing, UnsafePath
+from controller.calibration.beam_safety import UnsafePath
+from controller.calibration.field import Field
+from controller.calibration.park import park
+from controller.calibration.pointing import GeometryPointing
 from controller.calibration.records import ModelRecord
-from controller.config import PlantConfig
-from controller.devices.drive import Drive, DriveError, DriveLimits
+from controller.devices.drive import Drive, DriveError
+from controller.devices.plant_time import PlantTime
 from controller.errors import HeliocalError, LimitError
 from controller.geometry.target_frame import TargetFrame
 
@@ -64,28 +66,18 @@ class Standby:
 
 
 class LampChanger:
-    """Makes the heliostats of a night safe for a new lamp in the dark (module docstring).
+    """Makes the heliostats of a night safe for a new lamp in the dark (module docstring), on
+    ``plant`` (:class:`controller.calibration.field.Field`: its drives, latest models, lamps and
+    time). ``lights_out()``: switches every lamp off — default the field's lamps (a lamp panel,
+    confirmed dark); a field without a panel must hand in how its operator is asked."""
 
-    ``drive_of(hid)``: the heliostat's drive; ``model_of(hid)``: its latest fitted model (aims
-    with it, as the cycles do); ``lights_out()``: switches every lamp off (a lamp controller, an
-    operator, a simulated plant); ``clock``/``sleep``: the plant clock for the moves;
-    ``compute``: a context manager around the controller's own computing, as for a campaign (a
-    simulated plant lets its clock run at 1x there)."""
-
-    def __init__(self, cfg: PlantConfig, drive_of: Callable[[str], Drive],
-                 model_of: Callable[[str], ModelRecord | None], lights_out: Callable[[], None], *,
-                 clock: Callable[[], float], sleep: Callable[[float], None],
-                 move_timeout_s: float = 120.0, poll_s: float = 0.1,
-                 compute: Callable[[], AbstractContextManager] = nullcontext) -> None:
-        self.cfg = cfg
-        self.compute = compute
-        self.drive_of = drive_of
-        self.model_of = model_of
-        self.lights_out = lights_out
-        self.clock = clock
-        self.sleep = sleep
+    def __init__(self, plant: Field, *, move_timeout_s: float = 120.0,
+                 lights_out: Callable[[], None] | None = None) -> None:
+        self.cfg = plant.cfg
+        self.field = plant
+        self.time = plant.time
+        self.lights_out = lights_out or plant.lights_out
         self.move_timeout_s = move_timeout_s
-        self.poll_s = poll_s
 
     def pointing(self, hid: str, lamp: str, where: Standby, current: tuple[int, int]) -> GeometryPointing:
         cfg = self.cfg.for_target(where.target) if where.target else self.cfg
@@ -108,13 +100,13 @@ class LampChanger:
         moving: dict[str, tuple[Drive, GeometryPointing, tuple[int, int] | None]] = {}
         stowed: list[str] = []
         for hid, where in standby.items():
-            drive = self._ask(hid, lamp, lambda h=hid: self.drive_of(h))
+            drive = self._ask(hid, lamp, lambda h=hid: self.field.drive(h))
             st = self._ask(hid, lamp, drive.status)
-            with self.compute():
+            with self.time.computing():
                 p = self.pointing(hid, lamp, where, (st.az_steps, st.el_steps))
                 if not where.required and _safe(p, st.az_steps, st.el_steps, stay_margin):
                     continue
-                pose = _safe_standby(p, self.model_of(hid))
+                pose = _safe_standby(p, self.field.model(hid))
             try:
                 if pose is None:
                     raise LimitError("no safe standby for it")
@@ -126,8 +118,8 @@ class LampChanger:
                 stowed.append(hid)
         for hid, (drive, p, pose) in moving.items():
             st = self._ask(hid, lamp, lambda d=drive, e=pose: d.wait_in_position(
-                self.move_timeout_s, self.poll_s, self.sleep, self.clock, expect=e))
-            with self.compute():
+                self.move_timeout_s, self.time, expect=e))
+            with self.time.computing():
                 safe = _safe(p, st.az_steps, st.el_steps)
             if not safe:
                 raise LampChangeError(f"lamp {lamp} not lit: {hid} at ({st.az_steps}, {st.el_steps}) "
@@ -163,33 +155,29 @@ def _safe(p: GeometryPointing, az_steps: float, el_steps: float, margin_m: float
 
 def clear_targets(pointing: dict[str, GeometryPointing], current: dict[str, tuple[int, int]],
                   drive_of: Callable[[str], Drive], model_of: Callable[[str], ModelRecord | None], *,
-                  timeout_s: float, clock: Callable[[], float], sleep: Callable[[float], None],
-                  poll_s: float) -> list[str]:
+                  timeout_s: float, time: PlantTime) -> list[str]:
     """Before a campaign lights its source (which may already be lit): every heliostat of
     ``pointing`` whose beam under that source lands on a target at its ``current`` pose goes to
-    its standby along a beam-safe path (:meth:`GeometryPointing.path_to`), one after another.
-    Its cycle would park it too, but only when its turn in the queue comes; until then its
-    beam would sit on a target. Heliostats without a ``current`` pose (unreachable) are left to
-    their cycles. The ids moved; UnsafePath or DriveError end the campaign before it starts."""
+    its standby along a beam-safe path (:func:`controller.calibration.park.park`), one after
+    another. Its cycle would park it too, but only when its turn in the queue comes; until then
+    its beam would sit on a target. Heliostats without a ``current`` pose (unreachable) are
+    left to their cycles. The ids moved; UnsafePath or DriveError end the campaign before it
+    starts."""
     moved = []
     for hid, p in pointing.items():
         if hid not in current or _safe(p, *current[hid]):
             continue
-        for waypoint in p.path_to(current[hid], p.standby_steps(model_of(hid))):
-            drive_of(hid).move_and_wait(*waypoint, timeout_s=timeout_s, clock=clock, sleep=sleep,
-                                        poll_s=poll_s)
+        drive = drive_of(hid)
+        park(drive, p, p.standby_steps(model_of(hid)),
+             lambda az, el, d=drive: d.move_and_wait(az, el, timeout_s=timeout_s, time=time),
+             status=_Pose(*current[hid]))
         moved.append(hid)
     return moved
 
 
-def night_drives(cfg: PlantConfig, pool) -> Callable[[str], Drive]:
-    """Drives by heliostat id from ``pool`` (a link pool), opened once, with the config's limits."""
-    drives: dict[str, Drive] = {}
+@dataclass(frozen=True)
+class _Pose:
+    """A pose just read (a drive status's steps), to park from without reading it again."""
 
-    def drive_of(hid: str) -> Drive:
-        if hid not in drives:
-            h = cfg.heliostat(hid)
-            drives[hid] = pool.drive(h.link, DriveLimits.from_axes(h.axes))
-        return drives[hid]
-    return drive_of
-
+    az_steps: int
+    el_steps: int

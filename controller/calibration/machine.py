@@ -47,9 +47,11 @@ from transitions.extensions.states import Timeout, add_state_features
 from controller.calibration.approach import approach_path
 from controller.calibration.coarse import correction_step
 from controller.calibration.context import CycleContext, CycleObserver
-from controller.calibration.observations import BeamNotFound, Match, NoBeam, Observation
+from controller.calibration.observations import BeamNotFound, NoBeam, Observation
+from controller.calibration.park import park
 from controller.calibration.records import CorrectionRecord, RunRecord, measurement_record
 from controller.devices.drive import DriveError, LinkError, MoveCancelled
+from controller.recognition.library import Match
 
 # -- the tables ---------------------------------------------------------------------------------
 # (state, timeout in wall seconds, what the state does). Timeouts are generous upper bounds
@@ -144,7 +146,7 @@ class CalibrationCycle:
         self.clipped_looks, self.no_beam = 0, False  # no_beam: a frame held none (status "no_beam")
         self.observer = ctx.observer or CycleObserver()
         self.run_rec = RunRecord(ctx.heliostat_id, ctx.queue_index, "running", "idle", 0,
-                                 start_s=ctx.clock(), end_s=ctx.clock())
+                                 start_s=ctx.time.now(), end_s=ctx.time.now())
 
     # -- machine plumbing ---------------------------------------------------------------------
     state: str  # set by transitions
@@ -196,7 +198,7 @@ class CalibrationCycle:
             state = self.state
             try:
                 if state in _COMPUTE_STATES:
-                    with self.ctx.compute():
+                    with self.ctx.time.computing():
                         nxt = getattr(self, f"do_{state}")()
                 else:
                     nxt = getattr(self, f"do_{state}")()
@@ -206,8 +208,7 @@ class CalibrationCycle:
                 if self.state != state:
                     continue
                 self.cause = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
-                self.no_beam = isinstance(exc, NoBeam)
-                self.fault_state = state
+                self.fault_state, self.no_beam = state, isinstance(exc, NoBeam)
                 if state == "fault":
                     self.trigger("give_up")
                 else:
@@ -224,18 +225,19 @@ class CalibrationCycle:
 
     def _wait(self, state: str, seconds: float) -> None:
         """Wait ``seconds`` of plant time, giving up if the machine leaves ``state``."""
-        end = self.ctx.clock() + seconds
-        while self.ctx.clock() < end:
+        t = self.ctx.time
+        end = t.now() + seconds
+        while t.now() < end:
             self._check_current(state)
-            self.ctx.sleep(self.ctx.poll_s)
+            t.sleep(t.poll_s)
 
     def _move(self, state: str, az: int, el: int) -> None:
         """Absolute move and wait in position on the plant clock, giving up if the machine
         leaves ``state``; faults raise ActuatorFault/DriveError (controller.devices.drive)."""
         c = self.ctx
         try:
-            st = c.drive.move_and_wait(int(az), int(el), timeout_s=c.move_timeout_s, clock=c.clock,
-                                       sleep=c.sleep, poll_s=c.poll_s, cancelled=lambda: self.state != state)
+            st = c.drive.move_and_wait(int(az), int(el), timeout_s=c.move_timeout_s, time=c.time,
+                                       cancelled=lambda: self.state != state)
         except MoveCancelled:
             raise Cancelled(state) from None
         self.az, self.el = st.az_steps, st.el_steps
@@ -247,23 +249,21 @@ class CalibrationCycle:
         self.aim = p.aim_steps(self.ctx.model)
         self.standby = p.standby_steps(self.ctx.model)
         self._park("preparing")
-        self.run_rec.at_standby_s = self.ctx.clock()
+        self.run_rec.at_standby_s = self.ctx.time.now()
         return "parked"
 
     def _park(self, state: str) -> None:
         # The slew to standby must not sweep the beam across a target (someone else may be
         # measured there) nor into a person zone: the pointing plans waypoints that keep it off,
         # from wherever the drive stands (after a fault, anywhere along a move).
-        st = self.ctx.drive.status()
-        for waypoint in self.ctx.pointing.path_to((st.az_steps, st.el_steps), self.standby):
-            self._move(state, *waypoint)
+        park(self.ctx.drive, self.ctx.pointing, self.standby, lambda az, el: self._move(state, az, el))
 
     def do_standby(self) -> str:
         if self.measured or self.cause:
             if self.beam_on_target:
                 self._park("standby")
                 self.beam_on_target = False
-                self.run_rec.off_target_s = self.ctx.clock()
+                self.run_rec.off_target_s = self.ctx.time.now()
             self._release_target()
             return "release"
         if not self.ctx.gate.acquire(self._ticket, lambda: self.state != "standby"):
@@ -275,7 +275,7 @@ class CalibrationCycle:
 
     def do_slewing(self) -> str:
         if not self.beam_on_target:
-            self.run_rec.on_target_s = self.ctx.clock()
+            self.run_rec.on_target_s = self.ctx.time.now()
         self.beam_on_target = True  # from the first command on, the beam may cross the target
         lim = self.ctx.drive.limits
         for waypoint in approach_path(self.at, (self.az, self.el), self.ctx.backlash_steps, lim):
@@ -311,8 +311,8 @@ class CalibrationCycle:
                                    f"view after {CLIPPED_LOOKS} corrections towards it")
             return "correct"
         self.iteration += 1
-        rec = measurement_record(p, obs, m, self.iteration, (self.az, self.el), self.ctx.clock(),
-                                 self.ctx.utc())
+        rec = measurement_record(p, obs, m, self.iteration, (self.az, self.el), self.ctx.time.now(),
+                                 self.ctx.time.utc())
         err = rec.error_mrad
         if self.ctx.save_images is not None:
             rec.images = self.ctx.save_images(self.frame, self.hdr, self.iteration)
@@ -358,7 +358,7 @@ class CalibrationCycle:
                     self.standby = self.ctx.pointing.standby_steps(self.ctx.model)
                 self._park("fault")
                 self.beam_on_target = False
-                self.run_rec.off_target_s = self.ctx.clock() if self.holds_target else None
+                self.run_rec.off_target_s = self.ctx.time.now() if self.holds_target else None
                 return "recovered"
             except Cancelled:
                 raise
@@ -396,5 +396,5 @@ class CalibrationCycle:
         r.final_state = self.state
         r.fault_cause = self.cause
         r.fault_state = self.fault_state
-        r.end_s = self.ctx.clock()
+        r.end_s = self.ctx.time.now()
         return r

@@ -28,18 +28,6 @@ class Observation:
 
 
 @dataclass(frozen=True)
-class Match:
-    label: str
-    distance: float
-    runner_up: str | None = None
-    runner_up_distance: float | None = None
-    unknown: bool = False
-    correction_deg: tuple[float, float] | None = None  # (daz, del) of the library entry, deg
-    coarse_correction_deg: tuple[float, float] | None = None  # -(beam error) interpolated, deg
-    confidence: float = 0.0  # of the match, in [0, 1] (controller.recognition.estimate)
-
-
-@dataclass(frozen=True)
 class Step:
     """A correction in both units: axis angles in degrees and motor steps."""
 

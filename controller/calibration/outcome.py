@@ -27,8 +27,10 @@ class CampaignResult:
         return {"finished": 0, "partial": 3}.get(self.status, 1)
 
 
-def outcome(runs: list[RunRecord], queue: list[str], target_blocked: bool) -> tuple[str, str | None]:
-    """Status and cause of a campaign session that ran to its end (records.CAMPAIGN_STATUSES)."""
+def outcome(runs: list[RunRecord], queue: list[str], target_blocked: bool,
+            done: str = "calibrated") -> tuple[str, str | None]:
+    """Status and cause of a campaign session that ran to its end (records.CAMPAIGN_STATUSES);
+    ``done``: what the campaign's heliostats were for (``measured`` in a planned night's pass)."""
     if target_blocked:
         return "aborted", ("a beam may have been left on the target (a heliostat could not be parked); "
                            "nobody else was sent onto it")
@@ -36,7 +38,7 @@ def outcome(runs: list[RunRecord], queue: list[str], target_blocked: bool) -> tu
     missing = len(queue) - len(runs)
     if not failed and not missing:
         return "finished", None
-    parts = [f"{len(failed)} of {len(queue)} heliostats not calibrated"] if failed else []
+    parts = [f"{len(failed)} of {len(queue)} heliostats not {done}"] if failed else []
     if missing:
         parts.append(f"{missing} not recorded")
     detail = "; ".join(f"{r.heliostat_id}: {r.fault_cause or r.status.replace('_', ' ')}" for r in failed[:3])

@@ -10,14 +10,10 @@ plant times in seconds of the plant clock (``*_s``).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from datetime import UTC, datetime
 
+from controller.devices.plant_time import utc_now
 from controller.geometry.aiming import pointing_error_mrad
 from controller.geometry.vectors import vector_to_azel
-
-
-def utc_now() -> str:
-    return datetime.now(UTC).isoformat(timespec="milliseconds")
 
 
 @dataclass
@@ -173,3 +169,24 @@ def measurement_record(pointing, obs, match, iteration: int, steps: tuple[int, i
         match_distance=None if m is None else m.distance,
         runner_up_label=None if m is None else m.runner_up,
         runner_up_distance=None if m is None else m.runner_up_distance)
+
+
+NIGHT_KINDS = ("calibration", "planned")
+
+
+@dataclass
+class NightRecord:
+    """One night as stored: its ``index`` (0 the field's calibration night, then each planned
+    night), ``name`` (its passes are the campaigns named ``<name>/...``; a calibration night's
+    campaign has the night's name), ``kind`` (:data:`NIGHT_KINDS`), how it ended and its
+    summary (the ``campaign night --json`` keys)."""
+
+    id: int
+    index: int
+    name: str
+    kind: str
+    started_utc: str
+    finished_utc: str | None
+    status: str
+    cause: str | None
+    summary: dict

@@ -16,7 +16,6 @@ Hu moments of recognition all work in the rectified view they were written for.
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -25,7 +24,8 @@ import numpy as np
 from controller.config import PlantConfig
 from controller.devices.camera import DoubleCcdCamera, FramePair
 from controller.devices.file_camera import FileCamera
-from controller.devices.lamps import switch_lamps
+from controller.devices.lamp_panel import fiducial_switch
+from controller.devices.plant_time import WALL, PlantTime
 from controller.errors import HeliocalError
 from controller.geometry.target_frame import TargetFrame
 from controller.imaging.fiducials import detect_fiducials, look_at_pose, rectify_sensor
@@ -105,14 +105,15 @@ def fiducial_frame(camera: DoubleCcdCamera, lamps: Callable[[bool], None]) -> tu
 
 
 def register_camera(cfg: PlantConfig, camera: DoubleCcdCamera, lamps: Callable[[bool], None],
-                    frame: TargetFrame) -> CameraRegistration:
+                    frame: TargetFrame, time: PlantTime = WALL) -> CameraRegistration:
     """Register both sensors of ``camera`` to the target's fiducials (module docstring).
+    The fiducial lamps are switched by the plant's lamp panel or ``lamp_command`` when
+    configured, else by ``lamps`` (:func:`controller.devices.lamp_panel.fiducial_switch`).
     RegistrationError names the sensor and what failed."""
     reg_cfg = cfg.camera.registration
     nominal = nominal_camera(cfg)
-    if reg_cfg.lamp_command:  # the plant's own lamp controller, not the caller's hook
-        lamps = functools.partial(switch_lamps, reg_cfg.lamp_command)
-    dark, lit = fiducial_frame(camera, lamps)
+    with fiducial_switch(cfg, lamps, time) as switch:
+        dark, lit = fiducial_frame(camera, switch)
     pts = np.asarray(reg_cfg.fiducials_enu_m, float)
     predicted = nominal.project(pts)
     # A search disc never reaches halfway to a neighbour's nominal pixel: each disc holds one
@@ -142,7 +143,7 @@ def register_camera(cfg: PlantConfig, camera: DoubleCcdCamera, lamps: Callable[[
 
 
 def register_chain(cfg: PlantConfig, camera: DoubleCcdCamera, chain, lamps: Callable[[bool], None],
-                   meta: dict, lock) -> None:
+                   meta: dict, lock, time: PlantTime = WALL) -> None:
     """With ``camera.registration`` configured: register ``camera`` (holding ``lock``, the
     camera's), make ``chain`` (a BeamChain) rectify through it and keep the result in the
     campaign metadata ``meta["camera_registration"]`` (:meth:`CameraRegistration.to_json`).
@@ -151,5 +152,5 @@ def register_chain(cfg: PlantConfig, camera: DoubleCcdCamera, chain, lamps: Call
     if cfg.camera.registration is None or isinstance(camera, FileCamera):
         return
     with lock:
-        chain.registration = register_camera(cfg, camera, lamps, chain.frame)
+        chain.registration = register_camera(cfg, camera, lamps, chain.frame, time)
     meta["camera_registration"] = chain.registration.to_json()

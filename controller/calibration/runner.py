@@ -28,19 +28,20 @@ from __future__ import annotations
 
 import functools
 import threading
-import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Protocol
 
 from controller.calibration.beam_chain import BeamChain
-from controller.calibration.context import CycleContext, CycleObserver
+from controller.calibration.context import CycleContext
 from controller.calibration.exposure import capture_unsaturated
+from controller.calibration.field import Field, LampLit
 from controller.calibration.gate import TargetGate
 from controller.calibration.lamp_change import clear_targets
 from controller.calibration.machine import CalibrationCycle
 from controller.calibration.no_beam import NoBeamWatch
+from controller.calibration.observers import CampaignObserver, Observers
 from controller.calibration.outcome import CampaignResult, outcome
 from controller.calibration.planning import order_queue
 from controller.calibration.pointing import GeometryPointing
@@ -53,7 +54,7 @@ from controller.calibration.records import (
 )
 from controller.calibration.registration_step import register_chain
 from controller.config import PlantConfig
-from controller.devices.drive import DriveError, DriveLimits
+from controller.devices.drive import DriveError
 from controller.errors import InputError
 
 INTERRUPTED = "interrupted by the operator"
@@ -80,117 +81,59 @@ class ImageSink(Protocol):
     def save(self, campaign: str, heliostat_id: str, iteration: int, frame: Any) -> list[ImageRecord]: ...
 
 
-class CampaignObserver(CycleObserver):
-    """What a campaign tells the outside world, besides every cycle's :class:`CycleObserver`
-    hooks; every hook defaults to doing nothing."""
-
-    def campaign_started(self, campaign_id: int, queue: list[str], done: set[str]) -> None:
-        """The campaign (re)started; ``done`` are the heliostats recorded in earlier sessions."""
-
-    def run_recorded(self, campaign_id: int, run: RunRecord) -> None:
-        """A heliostat's run was committed (``run.id`` is its database id)."""
-
-    def campaign_finished(self, campaign_id: int, status: str) -> None:
-        """The session ended with ``status`` (one of ``records.CAMPAIGN_STATUSES``)."""
-
-    def light_source_needed(self, source_id: str) -> None:
-        """The campaign is about to move heliostats for light source ``source_id``: it must be
-        lit now (an operator or a lamp controller does so; a simulated plant switches it)."""
-
-    def fiducial_lamps(self, on: bool) -> None:
-        """The target's fiducial lamps must be on (``on``) or off now, for the camera
-        registration's fiducial frame (docs/camera.md, "Registration")."""
-
-
-class _Observers(CampaignObserver):
-    """Fans every hook out to several observers, in order."""
-
-    def __init__(self, observers: Sequence[CampaignObserver]) -> None:
-        self._all = list(observers)
-
-    def state_changed(self, heliostat_id: str, state: str) -> None:
-        for o in self._all:
-            o.state_changed(heliostat_id, state)
-
-    def measured(self, heliostat_id: str, measurement: MeasurementRecord) -> None:
-        for o in self._all:
-            o.measured(heliostat_id, measurement)
-
-    def campaign_started(self, campaign_id: int, queue: list[str], done: set[str]) -> None:
-        for o in self._all:
-            o.campaign_started(campaign_id, queue, done)
-
-    def run_recorded(self, campaign_id: int, run: RunRecord) -> None:
-        for o in self._all:
-            o.run_recorded(campaign_id, run)
-
-    def campaign_finished(self, campaign_id: int, status: str) -> None:
-        for o in self._all:
-            o.campaign_finished(campaign_id, status)
-
-    def light_source_needed(self, source_id: str) -> None:
-        for o in self._all:
-            o.light_source_needed(source_id)
-
-    def fiducial_lamps(self, on: bool) -> None:
-        for o in self._all:
-            o.fiducial_lamps(on)
-
-
 @dataclass
 class CampaignOptions:
+    """How one campaign runs. ``None`` takes the configuration's value
+    (``calibration.pipeline_depth``, ``calibration.settle_s``, ``calibration.light_source``,
+    ``calibration.target``): the configuration is the one source of defaults."""
+
     name: str = "campaign"
-    pipeline_depth: int = 4
-    settle_s: float = 0.5
-    timeouts: dict[str, float] = field(default_factory=dict)
+    pipeline_depth: int | None = None
+    settle_s: float | None = None
+    timeouts: dict[str, float] = field(default_factory=dict)  # per-state overrides, wall s
     move_timeout_s: float = 120.0  # plant seconds
-    poll_s: float = 0.1  # status polling interval, plant seconds
-    light_source: str | None = None  # lamp lit for this campaign (default: calibration.light_source)
+    light_source: str | None = None  # lamp lit for this campaign
     aims: dict[str, tuple[float, float, float]] | None = None  # per-heliostat aim point (planned night)
     observe: bool = False  # planned observations: one measurement each, no correction
-    target: str | None = None  # the target of this campaign (default: calibration.target)
+    target: str | None = None  # the target of this campaign
+
+    def resolved(self, cfg: PlantConfig) -> CampaignOptions:
+        """These options with every default taken from ``cfg``."""
+        cal = cfg.calibration
+        depth = cal.pipeline_depth if self.pipeline_depth is None else self.pipeline_depth
+        return replace(self, pipeline_depth=depth,
+                       settle_s=cal.settle_s if self.settle_s is None else self.settle_s,
+                       light_source=self.light_source or cal.light_source, target=self.target or cal.target)
 
 
 class Campaign:
-    """Runs (or resumes) one campaign; see the module docstring.
+    """Runs (or resumes) one campaign on a :class:`controller.calibration.field.Field`; see
+    the module docstring. ``heliostat_ids``: the queue's heliostats (default: the field's
+    all); ``meta``: added to the campaign's record; ``observers``: told what happens."""
 
-    ``config_sha256`` identifies the configuration file the campaign was started with (a
-    resume with another configuration is refused). ``images``: where frame pairs are kept
-    (None: not kept). ``compute``: a context manager around the controller's own computing
-    (a simulated plant lets its clock run at 1x there)."""
-
-    def __init__(self, cfg: PlantConfig, config_path: str, store: RecordStore, pool, camera, *,
-                 config_sha256: str, heliostat_ids: list[str] | None = None, library=None,
-                 options: CampaignOptions | None = None, images: ImageSink | None = None,
-                 clock: Callable[[], float] = time.monotonic, sleep: Callable[[float], None] = time.sleep,
-                 meta: dict | None = None, compute=None,
-                 observers: Sequence[CampaignObserver] = (), utc: Callable[[], str] | None = None) -> None:
+    def __init__(self, plant: Field, options: CampaignOptions | None = None, *,
+                 heliostat_ids: list[str] | None = None, meta: dict | None = None,
+                 observers: Sequence[CampaignObserver] = ()) -> None:
+        opt = (options or CampaignOptions()).resolved(plant.cfg)
         # A campaign works on one target: it is the calibration target and its camera the camera.
-        cfg = cfg.for_target(options.target) if options is not None and options.target else cfg
+        cfg = plant.cfg.for_target(opt.target)
+        if opt.pipeline_depth < 1:
+            raise InputError(f"pipeline depth must be at least 1, got {opt.pipeline_depth}")
+        self.field = plant
         self.cfg = cfg
-        self.config_path = str(config_path)
-        self.config_sha256 = config_sha256
-        self.store = store
-        self.pool = pool
-        self.camera = camera
+        self.opt = opt
+        self.store = plant.store
+        self.time = plant.time
+        self.camera = plant.camera(opt.target)
         self.ids = list(heliostat_ids) if heliostat_ids is not None else [h.id for h in cfg.heliostats]
         for hid in self.ids:
             cfg.heliostat(hid)  # ConfigError naming an unknown id
-        self.opt = options or CampaignOptions(settle_s=cfg.calibration.settle_s,
-                                              pipeline_depth=cfg.calibration.pipeline_depth)
-        if self.opt.pipeline_depth < 1:
-            raise InputError(f"pipeline depth must be at least 1, got {self.opt.pipeline_depth}")
-        self.images = images
-        self.clock = clock
-        self.sleep = sleep
-        self.meta = meta or {}
-        self.compute = compute
-        self.utc = utc
-        self.observer = _Observers([_StateTable(self), *observers])
-        self.chain = BeamChain(cfg, library)
+        self.meta = {**plant.meta, **(meta or {})}
+        self.observer = Observers([_StateTable(self), *observers])
+        self.chain = BeamChain(cfg, plant.library)
         self._camera_lock = threading.Lock()
-        self._drives: dict[str, Any] = {}
         self.states: dict[str, str] = {}
+        self.lamp: LampLit | None = None  # the light source as lit for this session
         # Stop and pause from another thread (a user interface): request_stop, pause, resume.
         self._stop = threading.Event()
         self._go = threading.Event()
@@ -215,12 +158,8 @@ class Campaign:
 
     # -- devices ------------------------------------------------------------------------------
     def drive(self, hid: str):
-        """The drive of ``hid`` (opened once). Drives on one bus may be used from several cycle
-        threads: each link holds its lock per transaction (controller.devices)."""
-        if hid not in self._drives:
-            h = self.cfg.heliostat(hid)
-            self._drives[hid] = self.pool.drive(h.link, DriveLimits.from_axes(h.axes))
-        return self._drives[hid]
+        """The drive of ``hid`` (the field's, opened once)."""
+        return self.field.drive(hid)
 
     def _capture(self):
         # A beam core saturated in both sensors merges to lower bounds: shorter exposures first.
@@ -240,27 +179,32 @@ class Campaign:
                 current[hid] = (st.az_steps, st.el_steps)
             except DriveError:  # unreachable now: its cycle will record the failure
                 pass
-        pointing = {hid: GeometryPointing(self.cfg.heliostat(hid), target, source, self.chain.frame,
-                                          cal.standby_offset_m, current.get(hid), cal.model, aims.get(hid),
-                                          others=self.cfg.targets, zones=self.cfg.person_zones)
-                    for hid in self.ids}
-        existing = self.store.campaign_by_name(self.opt.name)
-        queue = existing.queue if existing is not None else order_queue(self.cfg, self.ids, current, pointing)
+        with self.time.computing():
+            pointing = {hid: GeometryPointing(self.cfg.heliostat(hid), target, source, self.chain.frame,
+                                              cal.standby_offset_m, current.get(hid), cal.model,
+                                              aims.get(hid), others=self.cfg.targets,
+                                              zones=self.cfg.person_zones)
+                        for hid in self.ids}
+            existing = self.store.campaign_by_name(self.opt.name)
+            queue = existing.queue if existing is not None else order_queue(self.cfg, self.ids, current,
+                                                                            pointing)
         site = self.cfg.site
         self.meta.setdefault("site", [site.latitude_deg, site.longitude_deg, site.elevation_m])
         self.meta.setdefault("target_normal", list(target.normal))
         # Camera registration (camera.registration) before the campaign opens: refused, nothing is recorded.
         register_chain(self.cfg, self.camera, self.chain, self.observer.fiducial_lamps, self.meta,
-                       self._camera_lock)
+                       self._camera_lock, self.time)
         cid, resumed = self.store.open_campaign(
-            self.opt.name, config_path=self.config_path, config_sha256=self.config_sha256,
+            self.opt.name, config_path=self.field.config_path, config_sha256=self.field.config_sha256,
             light_source=source.id, target=target.id, queue=queue, meta=self.meta)
         try:
             # The queue waits where it stands while the source is lit: no beam may sit on a target.
             clear_targets(pointing, current, self.drive, self.store.latest_model,
-                          timeout_s=self.opt.move_timeout_s, clock=self.clock, sleep=self.sleep,
-                          poll_s=self.opt.poll_s)
-            self.observer.light_source_needed(source.id)
+                          timeout_s=self.opt.move_timeout_s, time=self.time)
+            if source.kind == "lamp":
+                # Confirmed lit (a lamp panel) before anything is measured under it; a lamp
+                # that does not confirm ends the campaign here, naming it.
+                self.lamp = self.field.light(source.id, self.observer.light_source_needed)
             return self._session(cid, resumed, queue, pointing)
         except KeyboardInterrupt:
             self._finish(cid, "interrupted", f"{INTERRUPTED}; rerun the same command to resume")
@@ -279,11 +223,11 @@ class Campaign:
         done = self.store.done_heliostats(cid)
         todo = [(i, hid) for i, hid in enumerate(queue) if hid not in done]
         gate = TargetGate()
-        t0 = self.clock()
+        t0 = self.time.now()
         session: list[RunRecord] = []
         cycles = self._cycles
         stop = self._stop
-        watch = NoBeamWatch(self.cfg.light_source(self.opt.light_source).id, self.cfg.target().id)
+        watch = NoBeamWatch(self.cfg.light_source(self.opt.light_source).id, self.cfg.target().id, self.lamp)
         self.observer.campaign_started(cid, list(queue), set(done))
 
         def one(ticket: int, qi: int, hid: str) -> RunRecord | None:
@@ -294,7 +238,7 @@ class Campaign:
                 return None
             if watch.stopped:  # no beam for several heliostats in a row: the light source is suspect
                 gate.release(ticket)
-                rec = watch.not_measured(hid, qi, self.clock())
+                rec = watch.not_measured(hid, qi, self.time.now())
                 rec.id = self.store.record_run(cid, rec)
                 self.observer.run_recorded(cid, rec)
                 return rec
@@ -327,9 +271,9 @@ class Campaign:
                     cyc.request_abort(INTERRUPTED)
                 pool.shutdown(wait=True, cancel_futures=True)
                 raise
-        t1 = self.clock()
+        t1 = self.time.now()
         runs = self.store.runs(cid)
-        status, cause = outcome(runs, queue, gate.blocked)
+        status, cause = outcome(runs, queue, gate.blocked, "measured" if self.opt.observe else "calibrated")
         if stop.is_set() and not gate.blocked:  # request_stop: parked, resumable
             status, cause = "interrupted", f"{INTERRUPTED}; start it again to resume"
         self._finish(cid, status, cause)
@@ -341,7 +285,7 @@ class Campaign:
         cal = self.cfg.calibration
         chain = self.chain
         name = self.opt.name
-        images = self.images
+        images = self.field.images
         h = self.cfg.heliostat(hid)
 
         def save(frame, hdr, iteration):
@@ -357,9 +301,8 @@ class Campaign:
             observe_only=self.opt.observe, settle_s=self.opt.settle_s,
             coarse_confidence=None if self.opt.observe else cal.coarse_correction,
             backlash_steps=(h.axes.azimuth.backlash_steps, h.axes.elevation.backlash_steps),
-            move_timeout_s=self.opt.move_timeout_s, poll_s=self.opt.poll_s, clock=self.clock,
-            sleep=self.sleep, timeouts=self.opt.timeouts, save_images=save, observer=self.observer,
-            **({"compute": self.compute} if self.compute else {}), **({"utc": self.utc} if self.utc else {}))
+            move_timeout_s=self.opt.move_timeout_s, time=self.time, timeouts=self.opt.timeouts,
+            save_images=save, observer=self.observer)
 
 
 class _StateTable(CampaignObserver):

@@ -1,5 +1,7 @@
-"""``heliocal campaign run --config C --db DB [--json]``: a nightly calibration campaign;
-``heliocal campaign list --db DB [--json]``: the campaigns recorded in a database.
+"""``heliocal campaign run --config C --db DB [--json]``: the calibration campaign (night 0);
+``heliocal campaign night --config C --db DB [--simulate] [--seed S] [--json]``: tonight's
+planned night (docs/nights.md); ``heliocal campaign list --db DB [--json]``: the nights and
+campaigns recorded in a database.
 
 Rerunning the same command after an interruption (even ``kill -9``) resumes the campaign in
 the database: heliostats already recorded are skipped, the others are calibrated. The
@@ -19,6 +21,7 @@ import sys
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
+from controller.commands._campaign_list import list_campaigns
 from controller.commands._common import add_config_option, add_json_option, output_dir, print_json
 from controller.errors import InputError
 
@@ -36,40 +39,38 @@ def register(subparsers) -> None:
     r.add_argument("--camera-manifest", default=None, metavar="FILE", help="replay frame pairs (FileCamera)")
     r.add_argument("--simulate", action="store_true", help="run against the embedded simulated plant")
     r.add_argument("--seed", type=int, default=0, help="simulation seed (with --simulate; default 0)")
+    r.add_argument("--clock-speedup", type=float, default=20.0, metavar="X",
+                   help="simulated plant seconds per wall second (with --simulate; default 20)")
     r.add_argument("--report", default=None, metavar="DIR", help="also write the morning report into DIR")
     r.add_argument("--notify", default=None, metavar="CMD",
                    help="run CMD (a shell command) at the end with the summary JSON on its standard input")
     add_json_option(r)
     r.set_defaults(func=run)
-    ls = sub.add_parser("list", help="the campaigns recorded in a database",
-                        description="One line per campaign: id, name, night, status, counts.")
+    n = sub.add_parser("night", help="run or resume tonight's planned night",
+                       description="Tonight's planned night on the configured field: plan from the models "
+                                   "in DB (or reload the stored plan when resuming), change lamps in the "
+                                   "dark, run the passes of every target in parallel, refit, summarise. "
+                                   "Rerun after Ctrl-C or kill -9 to resume the same night.")
+    add_config_option(n)
+    n.add_argument("--db", required=True, metavar="DB", help="campaign database (SQLite, created if missing)")
+    n.add_argument("--heliostats", default=None, metavar="IDS", help="comma-separated ids (default: all)")
+    n.add_argument("--camera-manifest", default=None, metavar="FILE",
+                   help="replay frame pairs for the calibration target (FileCamera)")
+    n.add_argument("--simulate", action="store_true", help="run against the embedded simulated plant")
+    n.add_argument("--seed", type=int, default=0, help="simulation seed (with --simulate; default 0)")
+    n.add_argument("--clock-speedup", type=float, default=20.0, metavar="X",
+                   help="simulated plant seconds per wall second (with --simulate; default 20)")
+    n.add_argument("--strategy", default="design", choices=("design", "round-robin"),
+                   help="planner strategy (default design: the daytime variance reduction)")
+    add_json_option(n)
+    n.set_defaults(func=run_night_command)
+    ls = sub.add_parser("list", help="the nights and campaigns recorded in a database",
+                        description="One block per night (its passes grouped), then campaigns outside "
+                                    "any night: status and counts.")
     ls.add_argument("--db", required=True, metavar="DB", help="campaign database (SQLite)")
     add_json_option(ls)
     ls.set_defaults(func=list_campaigns)
     p.set_defaults(func=lambda args: p.print_help() or 2)
-
-
-def list_campaigns(args: argparse.Namespace) -> int:
-    from controller.storage.db import open_existing
-
-    rows = []
-    with open_existing(args.db) as store:
-        for c in store.campaigns():
-            runs = store.runs(c.id)
-            rows.append({"id": c.id, "name": c.name, "night": c.started_utc[:10], "status": c.status,
-                         "cause": c.cause, "heliostats": len(c.queue), "recorded": len(runs),
-                         "calibrated": sum(r.status == "calibrated" for r in runs)})
-    if args.json:
-        print_json({"campaigns": rows})
-        return 0
-    if not rows:
-        print(f"{args.db}: no campaign recorded")
-        return 0
-    print(f"{'id':>4}  {'name':30} {'night':10}  {'status':11} {'calibrated':>10} {'recorded':>8}  cause")
-    for r in rows:
-        print(f"{r['id']:>4}  {r['name'][:30]:30} {r['night']:10}  {r['status']:11} "
-              f"{r['calibrated']:>4}/{r['heliostats']:<5} {r['recorded']:>8}  {r['cause'] or ''}")
-    return 0
 
 
 def notify(command: str, summary: dict) -> None:
@@ -94,10 +95,7 @@ def default_name(config: str) -> str:
     return f"{Path(config).stem}-{night}"
 
 
-def run(args: argparse.Namespace) -> int:
-    from controller.config import load_config
-
-    cfg = load_config(args.config)
+def _ids(args, cfg) -> list[str]:
     ids = [h.id for h in cfg.heliostats]
     if args.heliostats is not None:
         ids = [i.strip() for i in args.heliostats.split(",") if i.strip()]
@@ -108,12 +106,25 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(f"--heliostats: an id is given twice in {args.heliostats!r}")
         for hid in ids:
             cfg.heliostat(hid)
-    name = args.name or default_name(args.config)
-    quiet = args.json or not sys.stderr.isatty()
-    db = Path(args.db)
     if args.simulate and args.camera_manifest:
         raise InputError("--simulate uses the simulated plant's camera; --camera-manifest cannot be given "
                          "with it")
+    if not args.simulate and not args.camera_manifest and cfg.camera.driver is None:
+        raise InputError(
+            f"campaign {args.campaign_command}: no camera; pass --camera-manifest FILE (recorded pairs), "
+            "set camera.driver in the configuration (docs/camera.md) or pass --simulate (embedded "
+            "simulated plant)")
+    return ids
+
+
+def run(args: argparse.Namespace) -> int:
+    from controller.config import load_config
+
+    cfg = load_config(args.config)
+    ids = _ids(args, cfg)
+    name = args.name or default_name(args.config)
+    quiet = args.json or not sys.stderr.isatty()
+    db = Path(args.db)
     if args.report:
         output_dir(args.report, "--report")
     try:
@@ -167,41 +178,39 @@ def _run(args, cfg, ids, name, quiet, db):
         from controller.commands.demo import simulated_campaign
         from simplant.settings import SimulationSettings
 
-        summary, sim = simulated_campaign(cfg, args.config, db.parent / f"{db.stem}-sim", db, ids,
-                                          SimulationSettings(seed=args.seed), name, quiet=quiet)
+        settings = SimulationSettings(seed=args.seed, clock_speedup=args.clock_speedup)
+        summary, sim = simulated_campaign(cfg, args.config, sim_dir(db), db, ids, settings, name, quiet=quiet)
         return summary, sim.result
-    if not args.camera_manifest and cfg.camera.driver is None:
-        raise InputError(
-            "campaign run: no camera; pass --camera-manifest FILE (recorded pairs), set camera.driver "
-            "in the configuration (docs/camera.md) or pass --simulate (embedded simulated plant)"
-        )
     return _run_field(cfg, args, ids, name, quiet)
 
 
+def sim_dir(db: Path) -> Path:
+    """Where ``--simulate`` keeps the simulated plant's files (ptys, library, frames) for ``db``:
+    shared by ``campaign run`` and every ``campaign night`` on it."""
+    return db.parent / f"{db.stem}-sim"
+
+
 def _run_field(cfg, args, ids, name, quiet):
-    from contextlib import closing
-
+    from controller.calibration.night import calibration_night
     from controller.calibration.runner import Campaign, CampaignOptions
+    from controller.commands._field import open_store, real_field
     from controller.commands._progress import TerminalProgress
-    from controller.config import config_sha256
-    from controller.devices.factory import LinkPool, open_camera
-    from controller.recognition.library_io import load_library
     from controller.reports.summary import summarize
-    from controller.storage.db import CampaignStore
-    from controller.storage.images import ImageArchive
 
-    camera = open_camera(cfg.camera, args.camera_manifest)
-    lib = load_library(cfg.calibration.library) if cfg.calibration.library else None
-    cal = cfg.calibration
-    opts = CampaignOptions(name=name, pipeline_depth=cal.pipeline_depth, settle_s=cal.settle_s)
-    with CampaignStore(args.db) as store, LinkPool() as pool, closing(camera):
-        store.campaign_lock.acquire()
-        result = Campaign(
-            cfg, args.config, store, pool, camera, config_sha256=config_sha256(args.config),
-            heliostat_ids=ids, library=lib, options=opts,
-            images=ImageArchive(Path(args.db).parent / "images"),
-            observers=[] if quiet else [TerminalProgress()],
-        ).run()
+    store = open_store(args.db)
+    try:
+        with real_field(cfg, args.config, store, camera_manifest=args.camera_manifest) as fs:
+            campaign = Campaign(fs.field, CampaignOptions(name=name), heliostat_ids=ids,
+                                observers=[] if quiet else [TerminalProgress()])
+            result = calibration_night(fs.book, campaign)
         summary = summarize(store, result.campaign_id)
+    finally:
+        store.close()
     summary["db"] = str(args.db)
     return summary, result
+
+
+def run_night_command(args: argparse.Namespace) -> int:
+    from controller.commands._night import run_night_cli
+
+    return run_night_cli(args)

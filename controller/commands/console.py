@@ -15,6 +15,7 @@ import ipaddress
 import socket
 import sys
 import tempfile
+from contextlib import contextmanager
 from pathlib import Path
 
 from controller.commands._common import add_config_option
@@ -115,45 +116,42 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("console: no camera; pass --camera-manifest FILE or --simulate")
     if args.reports and not Path(args.reports).is_dir():
         raise InputError(f"--reports {args.reports}: not a folder")
+    sock = _listen(args.host, args.port)
+    try:
+        return serve(cfg, args, ids, token, sock)
+    finally:
+        sock.close()
+
+
+@contextmanager
+def _field(cfg, args, ids, store):
+    """The console's field (controller.commands._field) and its plant hooks."""
+    from controller.commands._field import real_field, simulated_field
+    from controller.console.backend import PlantHooks
+
     library = None
     if args.library and Path(args.library).is_file():
         from controller.recognition.library_io import load_library
 
         library = load_library(args.library)
-    sock = _listen(args.host, args.port)
-    try:
-        if args.simulate:
-            return _simulated(args, ids, library, token, sock)
-        from controller.devices.factory import LinkPool
-        from controller.devices.file_camera import FileCamera
-
-        with LinkPool() as pool:
-            return serve(cfg, args, ids, pool, FileCamera(args.camera_manifest), library, token, sock)
-    finally:
-        sock.close()
-
-
-def _simulated(args, ids, library, token, sock) -> int:
-    from controller.console.backend import PlantHooks
-    from controller.devices.factory import LinkPool
-    from simplant.plant import SimulatedPlant, load_config_data
+    if not args.simulate:
+        with real_field(cfg, args.config, store, camera_manifest=args.camera_manifest) as fs:
+            fs.field.library = library
+            yield fs.field, PlantHooks()
+        return
+    from controller.storage.nights import NightBook
     from simplant.settings import SimulationSettings
 
     settings = SimulationSettings(seed=args.seed, clock_speedup=args.clock_speedup)
     run_dir = Path(args.run_dir) if args.run_dir else Path(tempfile.mkdtemp(prefix="heliocal-console-"))
-    with SimulatedPlant(load_config_data(args.config), run_dir, heliostat_ids=ids, settings=settings,
-                        source=args.config) as plant:
-        pcfg = plant.start()
-        hooks = PlantHooks(clock=plant.clock, sleep=plant.clock.sleep, compute=plant.clock.realtime,
-                           meta={"plant": "simulated", "seed": settings.seed,
-                                 "clock_speedup": settings.clock_speedup},
-                           safety=plant.safety.report, label=f"simulated plant (seed {settings.seed})",
-                           fiducial_lamps=plant.set_fiducials)
-        with LinkPool(timeout_s=0.5, retries=2) as pool:
-            return serve(pcfg, args, ids, pool, plant.camera, library, token, sock, hooks)
+    with simulated_field(cfg, args.config, store, run_dir, ids, settings, night=NightBook(store).next_index(),
+                         library=library) as fs:  # the console builds no library: --library or none
+        plant = fs.plant
+        yield fs.field, PlantHooks(safety=plant.safety.report, set_night=plant.set_night,
+                                   label=f"simulated plant (seed {settings.seed})")
 
 
-def serve(cfg, args, ids, pool, camera, library, token, sock, hooks=None) -> int:
+def serve(cfg, args, ids, token, sock) -> int:
     """Run the console until Ctrl-C / SIGTERM; then stop a running campaign (beams parked),
     park what the console moved and release the database."""
     import uvicorn
@@ -162,9 +160,10 @@ def serve(cfg, args, ids, pool, camera, library, token, sock, hooks=None) -> int
     from controller.console.backend import Console
     from controller.storage.db import CampaignStore
 
-    with CampaignStore(args.db) as store, tempfile.TemporaryDirectory(prefix="heliocal-console-") as work:
-        console = Console(cfg, args.config, store, pool, camera, heliostat_ids=ids, library=library,
-                          library_path=args.library, hooks=hooks, work_dir=work, reports_dir=args.reports)
+    with CampaignStore(args.db) as store, tempfile.TemporaryDirectory(prefix="heliocal-console-") as work, \
+            _field(cfg, args, ids, store) as (plant, hooks):
+        console = Console(plant, heliostat_ids=ids, library_path=args.library, hooks=hooks, work_dir=work,
+                          reports_dir=args.reports)
         app = create_app(console, token=token)
         console.start()
 

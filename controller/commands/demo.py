@@ -50,7 +50,7 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from controller.calibration.pointing import model_prior
+    from controller.calibration.model_update import model_prior
     from simplant.plant import field_selection
 
     cfg = load_config(args.config)
@@ -99,15 +99,16 @@ def run(args: argparse.Namespace) -> int:
 def simulated_campaign(cfg, config_path: str, out: Path, db: Path, ids: list[str], settings, name: str, *,
                        sequential: bool = False, quiet: bool = True, library_dir: Path | None = None,
                        nights: int = 0):
-    """Run the campaign on the simulated plant and write its morning report (with the plant's
-    truth); returns (summary dict, :class:`simplant.harness.SimulatedRun`)."""
+    """The calibration campaign (``campaign run --simulate``) and ``nights`` planned nights
+    (``campaign night --simulate``) on the simulated plant, and the morning report with the
+    plant's truth; returns (summary dict, :class:`controller.commands._simulate.SimulatedRun`)."""
     from controller.commands._progress import TerminalProgress
+    from controller.commands._simulate import simulated_run
     from controller.reports.campaign import write_report
     from controller.reports.summary import summarize
     from controller.storage.db import open_existing
-    from simplant.harness import run_simulated
 
-    sim = run_simulated(cfg, config_path, out, db, ids, settings=settings, name=name, sequential=sequential,
+    sim = simulated_run(cfg, config_path, out, db, ids, settings=settings, name=name, sequential=sequential,
                         library_dir=library_dir, observers=[] if quiet else [TerminalProgress()],
                         progress=None if quiet else (lambda text: print(text, file=sys.stderr)),
                         nights=nights)

@@ -21,11 +21,12 @@ from starlette.responses import FileResponse, JSONResponse, RedirectResponse, Re
 from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
 
-from controller.calibration.pointing import UnsafePath
+from controller.calibration.beam_safety import UnsafePath
 from controller.console import views
 from controller.console.backend import Conflict, Console
 from controller.console.campaigns import CampaignControl
 from controller.console.events import plain
+from controller.console.nights import NightControl
 from controller.console.steps import STEPS, run_step
 from controller.devices.drive import DriveError, LinkError, NakError
 from controller.errors import HeliocalError, InputError, LimitError
@@ -65,6 +66,8 @@ def create_app(console: Console, *, token: str | None = None) -> Starlette:
     """The app over ``console``. ``token``: required on every POST when given."""
     if console.campaign is None:
         console.campaign = CampaignControl(console)
+    if console.night is None:
+        console.night = NightControl(console)
     c = console
 
     async def guard(request: Request) -> dict:
@@ -147,6 +150,20 @@ def create_app(console: Console, *, token: str | None = None) -> Starlette:
             return getattr(c.campaign, action)()
         raise InputError(f"unknown campaign action {action!r}; one of start, pause, resume, abort")
 
+    def api_night(request):
+        return c.night.snapshot()
+
+    def api_night_action(request, body):
+        action = request.path_params["action"]
+        if action == "start":
+            ids = body.get("heliostats")
+            if ids is not None and not (isinstance(ids, list) and all(isinstance(i, str) for i in ids)):
+                raise InputError("heliostats must be a list of heliostat ids")
+            return c.night.start(ids)
+        if action == "stop":
+            return c.night.stop()
+        raise InputError(f"unknown night action {action!r}; one of start, stop")
+
     def api_reports(request):
         return {"campaigns": views.campaigns_json(c), "confusion": views.confusion_reports(c)}
 
@@ -180,6 +197,9 @@ def create_app(console: Console, *, token: str | None = None) -> Starlette:
         Route("/api/campaign", get(api_campaign)),
         Route("/api/campaign/{action}", post(api_campaign_action), methods=["POST"]),
         Route("/api/campaign/{action}", refuse_get, methods=["GET"]),
+        Route("/api/night", get(api_night)),
+        Route("/api/night/{action}", post(api_night_action), methods=["POST"]),
+        Route("/api/night/{action}", refuse_get, methods=["GET"]),
         Route("/api/reports", get(api_reports)),
         Route("/reports/campaign/{cid:int}/", get(campaign_report)),
         Route("/reports/campaign/{cid:int}/{file:path}", get(campaign_report)),

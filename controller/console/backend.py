@@ -21,16 +21,22 @@ import threading
 import time
 from collections.abc import Callable
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 from controller.calibration.commissioning import Commissioning
-from controller.config import PlantConfig
+from controller.calibration.field import Field
 from controller.console.events import EventBus
 from controller.devices.drive import Drive, DriveError, DriveLimits, DriveStatus
+from controller.devices.lamp_panel import fiducials_wired
 from controller.errors import HeliocalError, InputError
 
 STATUS_POLL_S = 0.1  # wall seconds between two status readings of every drive
+
+
+def _plant_switches_them(on: bool) -> None:
+    """The commissioning's fiducial hook where the plant switches the fiducials itself (its lamp
+    panel or lamp command, :func:`controller.devices.lamp_panel.fiducial_switch`): register."""
 
 
 class Conflict(HeliocalError):
@@ -42,21 +48,14 @@ class Conflict(HeliocalError):
 
 @dataclass
 class PlantHooks:
-    """What a plant other than the field hands the console: the simulated plant's clock for
-    the campaign's waits (``clock``, ``sleep``, ``compute`` as for
-    :class:`controller.calibration.runner.Campaign`), campaign ``meta`` and ``safety``, a
+    """What a plant other than the field hands the console besides its field: ``safety``, a
     callable returning the plant's own beam-safety count (``{"samples", "violations",
-    "max_beams_on_target"}``). Defaults: wall time, no truth."""
+    "max_beams_on_target"}``); ``set_night(k)``: the plant is on night ``k`` now (a simulated
+    plant's drift); ``label`` shown in the page header. Defaults: no truth."""
 
-    clock: Callable[[], float] = time.monotonic
-    sleep: Callable[[float], None] = time.sleep
-    compute: Callable | None = None
-    meta: dict = field(default_factory=dict)
     safety: Callable[[], dict] | None = None
-    label: str = "field"  # shown in the page header ("simulated plant" for --simulate)
-    # Switches the target's fiducial lamps for the camera registration (camera.registration,
-    # docs/camera.md); None: none wired, campaigns and sessions then do not register.
-    fiducial_lamps: Callable[[bool], None] | None = None
+    set_night: Callable[[int], None] | None = None
+    label: str = "field"
 
 
 @dataclass
@@ -81,23 +80,25 @@ def status_json(st: DriveStatus) -> dict:
 
 
 class Console:
-    """The console's plant: ``cfg`` is the configuration whose links the ``pool`` opens (for a
-    simulated plant, its rewritten copy); ``config_path`` the file the campaigns name; ``store``
-    the writer :class:`controller.storage.db.CampaignStore`; ``camera`` the double-CCD camera."""
+    """The console's plant: the :class:`controller.calibration.field.Field` its campaigns, nights
+    and commissioning sessions run on (``field.cfg``: for a simulated plant, its rewritten copy;
+    ``field.store``: the writer :class:`controller.storage.db.CampaignStore`); the calibration
+    target's camera is the one commissioning looks through."""
 
-    def __init__(self, cfg: PlantConfig, config_path: str, store, pool, camera, *,
-                 heliostat_ids: list[str] | None = None, library=None, library_path: str | None = None,
+    def __init__(self, plant: Field, *, heliostat_ids: list[str] | None = None,
+                 library_path: str | None = None,
                  hooks: PlantHooks | None = None, work_dir: str | Path, reports_dir: str | None = None,
                  poll_s: float = STATUS_POLL_S, move_timeout_s: float = 300.0) -> None:
+        cfg = plant.cfg
+        self.field = plant
         self.cfg = cfg
-        self.config_path = str(config_path)
-        self.store = store
-        self.pool = pool
-        self.camera = camera
+        self.config_path = plant.config_path
+        self.store = plant.store
+        self.camera = plant.camera()
         self.ids = list(heliostat_ids) if heliostat_ids else [h.id for h in cfg.heliostats]
         for hid in self.ids:
             cfg.heliostat(hid)
-        self.library = library
+        self.library = plant.library
         self.library_path = library_path
         self.hooks = hooks or PlantHooks()
         self.work_dir = Path(work_dir)
@@ -109,12 +110,12 @@ class Console:
         self.health = {hid: LinkHealth() for hid in self.ids}
         self.sessions: dict[str, Commissioning] = {}
         self.logs: dict[str, list[dict]] = {hid: [] for hid in self.ids}
-        self._drives: dict[str, Drive] = {}
         self._busy = {hid: threading.Lock() for hid in self.ids}
         self._claim = threading.Lock()  # target claim + campaign lock decisions
         self._stop = threading.Event()
         self._poller: threading.Thread | None = None
         self.campaign = None  # controller.console.campaigns.CampaignControl, set by the app
+        self.night = None  # controller.console.nights.NightControl, set by the app
 
     # -- devices --------------------------------------------------------------------------------
     def known(self, hid: str) -> str:
@@ -123,10 +124,7 @@ class Console:
         return hid
 
     def drive(self, hid: str) -> Drive:
-        if hid not in self._drives:
-            h = self.cfg.heliostat(hid)
-            self._drives[hid] = self.pool.drive(h.link, DriveLimits.from_axes(h.axes))
-        return self._drives[hid]
+        return self.field.drive(hid)
 
     def session(self, hid: str) -> Commissioning:
         """The commissioning session of ``hid`` (opened on first use; reads the drive), aiming
@@ -136,7 +134,8 @@ class Console:
             self.sessions[hid] = Commissioning(self.cfg, hid, self.drive(hid), self.camera,
                                                library=self.library, model=model,
                                                move_timeout_s=self.move_timeout_s,
-                                               fiducial_lamps=self.hooks.fiducial_lamps)
+                                               fiducial_lamps=_plant_switches_them
+                                               if fiducials_wired(self.cfg) else None)
         self.sessions[hid].model = model
         return self.sessions[hid]
 
@@ -151,8 +150,9 @@ class Console:
         self._stop.set()
         if self._poller is not None:
             self._poller.join(timeout=5.0)
-        if self.campaign is not None:
-            self.campaign.shutdown()
+        for control in (self.campaign, self.night):
+            if control is not None:
+                control.shutdown()
         done = self.make_safe()
         self.bus.close()
         return done
@@ -200,9 +200,9 @@ class Console:
         ``moves``: the command moves the heliostat (takes the campaign lock); ``beam_safe``:
         its path keeps the beam off the target (park, stow), allowed while another holds it."""
         self.known(hid)
-        if self.campaign is not None and self.campaign.running:
-            raise Conflict("a campaign is running: its state machine drives the heliostats and uses the "
-                           "camera; pause or abort it first")
+        if self.driving() is not None:
+            raise Conflict(f"{self.driving()} is running: its state machines drive the heliostats and use "
+                           "the camera; pause, abort or stop it first")
         if not self._busy[hid].acquire(blocking=False):
             raise Conflict(f"{hid}: the previous command is still running")
         try:
@@ -219,12 +219,19 @@ class Console:
             self.release_lock_if_idle()
             self.poll(hid)
 
+    def driving(self) -> str | None:
+        """What drives the heliostats now ("campaign NAME", "night NAME"), or None."""
+        if self.campaign is not None and self.campaign.running:
+            return f"campaign {self.campaign.name}"
+        if self.night is not None and self.night.running:
+            return f"night {self.night.snapshot()['name']}"
+        return None
+
     def release_lock_if_idle(self) -> None:
         """Give the database's campaign lock back once nothing the console moved needs parking
         and no campaign runs, so a CLI campaign can start."""
         with self._claim:
-            running = self.campaign is not None and self.campaign.running
-            if not running and self.holder() is None and self.store.campaign_lock.held:
+            if self.driving() is None and self.holder() is None and self.store.campaign_lock.held:
                 self.store.campaign_lock.release()
 
     def log(self, hid: str, step: str, result: dict) -> dict:

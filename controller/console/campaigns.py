@@ -14,13 +14,12 @@ from __future__ import annotations
 
 import threading
 import time
-from pathlib import Path
 
+from controller.calibration.night import calibration_night
 from controller.calibration.runner import Campaign, CampaignObserver, CampaignOptions
-from controller.config import config_sha256
 from controller.console.backend import Conflict, Console
 from controller.errors import HeliocalError, InputError
-from controller.storage.images import ImageArchive
+from controller.storage.nights import NightBook
 
 # States in which a cycle's beam is (or is moving) on the target (controller.calibration.machine).
 ON_TARGET = ("slewing", "settling", "capturing", "merging", "analysing", "matching", "verifying",
@@ -62,6 +61,8 @@ class CampaignControl(CampaignObserver):
         with self._lock:
             if self.running:
                 raise Conflict(f"campaign {self.name} is running")
+            if c.night is not None and c.night.running:
+                raise Conflict(f"{c.driving()} is running: stop it first")
             if c.holder() is not None:
                 raise Conflict(f"{c.holder()} may have its beam on the target after a manual command: "
                                "park it first (one beam per target)")
@@ -71,14 +72,7 @@ class CampaignControl(CampaignObserver):
             # Sessions start afresh after the campaign (its moves change their standby side);
             # none needs parking here (checked above).
             c.sessions.clear()
-            cal = c.cfg.calibration
-            h = c.hooks
-            camp = Campaign(c.cfg, c.config_path, c.store, c.pool, c.camera,
-                            config_sha256=config_sha256(c.config_path), heliostat_ids=ids, library=c.library,
-                            options=CampaignOptions(name=name.strip(), pipeline_depth=cal.pipeline_depth,
-                                                    settle_s=cal.settle_s),
-                            images=ImageArchive(Path(c.store.path).parent / "images"), clock=h.clock,
-                            sleep=h.sleep, compute=h.compute, meta=dict(h.meta), observers=[self])
+            camp = Campaign(c.field, CampaignOptions(name=name.strip()), heliostat_ids=ids, observers=[self])
             self._campaign, self.name, self.campaign_id = camp, name.strip(), None
             self.queue, self.states, self.recorded = list(ids), {}, {}
             self.paused, self.outcome, self.started, self.max_on_target = False, None, time.monotonic(), 0
@@ -90,7 +84,7 @@ class CampaignControl(CampaignObserver):
 
     def _run(self, camp: Campaign) -> None:
         try:
-            r = camp.run()
+            r = calibration_night(NightBook(self.c.store), camp)
             self.outcome = {"status": r.status, "cause": r.cause, "campaign_id": r.campaign_id}
         except HeliocalError as exc:
             self.outcome = {"status": "error", "cause": str(exc), "campaign_id": self.campaign_id}
@@ -141,10 +135,6 @@ class CampaignControl(CampaignObserver):
         for hid in done:
             self.states[hid] = "recorded earlier"
         self._publish("queue")
-
-    def fiducial_lamps(self, on: bool) -> None:
-        if self.c.hooks.fiducial_lamps is not None:
-            self.c.hooks.fiducial_lamps(on)
 
     def state_changed(self, heliostat_id: str, state: str) -> None:
         self.states[heliostat_id] = state

@@ -7,12 +7,15 @@ controller, *before* anything is sent; the firmware checks them again.
 
 from __future__ import annotations
 
-import time
 from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+from controller.devices.plant_time import PlantTime
 from controller.errors import DeviceError, LimitError
+
+# Drive waits poll faster than the default plant time: a move's end is worth catching early.
+DRIVE_TIME = PlantTime(poll_s=0.02)
 
 
 class DriveError(DeviceError):
@@ -198,23 +201,22 @@ class Drive(ABC):
         self.limits.check(st.az_target + daz_steps, st.el_target + del_steps, "jog result")
         self._send_jog(daz_steps, del_steps)
 
-    def wait_in_position(self, timeout_s: float, poll_s: float = 0.02,
-                         sleep: Callable[[float], None] = time.sleep,
-                         clock: Callable[[], float] = time.monotonic,
+    def wait_in_position(self, timeout_s: float, time: PlantTime = DRIVE_TIME,
                          cancelled: Callable[[], bool] | None = None,
                          expect: tuple[int, int] | None = None) -> DriveStatus:
-        """Poll :meth:`status` every ``poll_s`` until both axes are in position.
+        """Poll :meth:`status` every ``time.poll_s`` until both axes are in position.
 
         One clock for the whole wait: the deadline ``timeout_s`` and the polling period are
-        both in ``clock``'s seconds (``sleep`` sleeps in the same unit; a simulated plant
-        passes its plant clock for both). ``expect``: the target this wait is for — a drive
-        that stopped elsewhere, or sits idle with another target, is an error.
+        both plant seconds of ``time`` (a simulated plant hands in its plant clock).
+        ``expect``: the target this wait is for — a drive that stopped elsewhere, or sits idle
+        with another target, is an error.
 
         Raises :class:`MoveCancelled` as soon as ``cancelled()`` returns True,
         :class:`ActuatorFault` on latched faults, :class:`DriveError` on timeout or an
         unexpected position, and :class:`LinkError` (outcome unknown) after
         ``MISSED_POLLS`` status polls in a row got no answer; fewer are tolerated.
         """
+        clock = time.now
         deadline = clock() + timeout_s
         missed = 0
         while True:
@@ -245,15 +247,12 @@ class Drive(ABC):
                 where = (f" (az {st.az_steps}->{st.az_target}, el {st.el_steps}->{st.el_target})"
                          if st is not None else "")
                 raise DriveError(f"unit {self.unit}: not in position after {timeout_s:g} s{where}")
-            sleep(poll_s)
+            time.sleep(time.poll_s)
 
-    def move_and_wait(self, az_steps: int, el_steps: int, *, timeout_s: float,
-                      clock: Callable[[], float] = time.monotonic,
-                      sleep: Callable[[float], None] = time.sleep, poll_s: float = 0.02,
+    def move_and_wait(self, az_steps: int, el_steps: int, *, timeout_s: float, time: PlantTime = DRIVE_TIME,
                       cancelled: Callable[[], bool] | None = None) -> DriveStatus:
         """Absolute move (soft limits checked before sending), then :meth:`wait_in_position`
         for exactly that target on one clock. The one move-and-wait of the controller: the
-        state machine, the CLI and commissioning all use it."""
+        state machine, the CLI, commissioning, the console and the lamp change all use it."""
         self.move_abs(az_steps, el_steps)
-        return self.wait_in_position(timeout_s, poll_s, sleep, clock, cancelled,
-                                     (int(az_steps), int(el_steps)))
+        return self.wait_in_position(timeout_s, time, cancelled, (int(az_steps), int(el_steps)))

@@ -5,14 +5,18 @@ from __future__ import annotations
 
 from pydantic import BaseModel
 
+# The discriminator tags pydantic puts into error locations (light sources, links, lamps
+# drivers; "command" is also a key of the command driver, so it is a tag only right after "lamps").
+_TAGS = ("sun", "lamp", "serial", "modbus-tcp", "modbus-rtu")
+
 
 def key_path(loc: tuple) -> str:
     """A pydantic error location as the key path the user wrote (``targets[0].camera``)."""
     out = ""
-    for part in loc:
+    for k, part in enumerate(loc):
         if isinstance(part, int):
             out += f"[{part}]"
-        elif part in ("sun", "lamp", "serial", "modbus-tcp", "modbus-rtu"):
+        elif part in _TAGS or (k == 1 and loc[0] == "lamps" and part == "command"):
             continue  # discriminator tags pydantic inserts; not part of the user's key path
         else:
             out += ("." if out else "") + str(part)

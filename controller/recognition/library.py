@@ -72,9 +72,11 @@ LIBRARY_VERSION = 1
 
 
 @dataclass(frozen=True)
-class LibraryMatch:
-    """The library's answer for one beam: nearest case and distance, the nearest other case,
-    whether it is too far to trust (``unknown``), and the entry's az/el correction (deg).
+class Match:
+    """The library's answer for one beam — the one match type of the product (the cycle, the
+    CLI, the reports): nearest case and distance, the nearest other case, whether it is too
+    far to trust (``unknown``), the entry's az/el correction (deg) and the library entry
+    (``index``; -1 when not from a library).
 
     Magnitude (:mod:`controller.recognition.estimate`): ``error_deg`` is the beam's pointing
     error (Δaz, Δel) in degrees interpolated over the nearest entries of the matched case that
@@ -89,11 +91,11 @@ class LibraryMatch:
 
     label: str
     distance: float
-    index: int
-    runner_up: str | None
-    runner_up_distance: float | None
-    unknown: bool
-    correction_deg: tuple[float, float] | None
+    runner_up: str | None = None
+    runner_up_distance: float | None = None
+    unknown: bool = False
+    correction_deg: tuple[float, float] | None = None
+    index: int = -1
     error_deg: tuple[float, float] | None = None
     coarse_correction_deg: tuple[float, float] | None = None
     magnitude: float | None = None
@@ -161,7 +163,7 @@ class Library:
             return describe(hdr, self.features, self.threshold)
         return hu_stack(hdr, (threshold,))
 
-    def match_hu(self, hu: np.ndarray) -> LibraryMatch:
+    def match_hu(self, hu: np.ndarray) -> Match:
         """The nearest entry to a beam's Hu moments and the nearest of another case (Euclidean
         distance of the library's features, Eq. 14), with that entry's correction and the
         interpolated magnitude estimate. ``hu``: (7,) at the library's threshold, or the
@@ -176,9 +178,9 @@ class Library:
         m = matcher.match(q)
         corr = self.entries[m.index].correction
         est = estimate(self, matcher, q, m)
-        return LibraryMatch(m.label, m.distance, m.index, m.runner_up_label, m.runner_up_distance, m.unknown,
-                            (float(corr["az_deg"]), float(corr["el_deg"])) if corr else None,
-                            est.error_deg, est.coarse_correction_deg, est.magnitude, est.confidence)
+        return Match(m.label, m.distance, m.runner_up_label, m.runner_up_distance, m.unknown,
+                     (float(corr["az_deg"]), float(corr["el_deg"])) if corr else None, m.index,
+                     est.error_deg, est.coarse_correction_deg, est.magnitude, est.confidence)
 
     def descriptors(self, hdr: np.ndarray, threshold: float | None = None) -> list[np.ndarray]:
         """The descriptor stack of a beam image (:meth:`describe`) and, when no case claims it
@@ -189,14 +191,14 @@ class Library:
             stacks += self._widened_stacks(hdr, threshold)
         return stacks
 
-    def match_stacks(self, stacks: Sequence[np.ndarray]) -> LibraryMatch:
+    def match_stacks(self, stacks: Sequence[np.ndarray]) -> Match:
         """The direct match of ``stacks[0]`` unless it is unknown; then the first widened
         stack (``stacks[i]`` widened by ``widen[i - 1]``) within :data:`WIDEN_ACCEPT` × its
         entry's unknown threshold, as a case without a size or correction
-        (:class:`LibraryMatch`); if none is, the direct (unknown) match."""
+        (:class:`Match`); if none is, the direct (unknown) match."""
         return self._widened_match(self.match_hu(stacks[0]), stacks[1:])
 
-    def match_image(self, hdr: np.ndarray, *, threshold: float | None = None) -> LibraryMatch:
+    def match_image(self, hdr: np.ndarray, *, threshold: float | None = None) -> Match:
         """:meth:`match_stacks` of a beam image (2-D HDR or grey, x = column, y = row), segmented
         at the library's threshold(s) (``threshold``, a fraction of the peak, overrides a
         single-threshold library's) with the background estimated
@@ -211,7 +213,7 @@ class Library:
         d90 = spot_d90(hdr)
         return [self.describe(widened(hdr, f, d90), threshold) for f in self.widen]
 
-    def _widened_match(self, direct: LibraryMatch, stacks: Sequence[np.ndarray]) -> LibraryMatch:
+    def _widened_match(self, direct: Match, stacks: Sequence[np.ndarray]) -> Match:
         if not direct.unknown:
             return direct
         for fraction, stack in zip(self.widen, stacks, strict=False):

@@ -32,8 +32,10 @@ import numpy as np
 
 
 @dataclass(frozen=True)
-class Match:
-    """Result of one query. Distances are in (scaled) feature units."""
+class Nearest:
+    """The matcher's answer to one query: the nearest entry (or segment) and the nearest entry
+    of another label. Distances are in (scaled) feature units. The library turns it into its
+    :class:`controller.recognition.library.Match`."""
 
     label: str
     distance: float
@@ -101,7 +103,7 @@ class Matcher:
         d = self.x[index] - q
         return float(np.sqrt(d @ d))
 
-    def match(self, query: np.ndarray) -> Match:
+    def match(self, query: np.ndarray) -> Nearest:
         """Nearest entry and nearest entry of another label (Eq. 14)."""
         q = np.asarray(query, dtype=np.float64) / self.scale
         qc = -2.0 * (q - self.center)
@@ -132,7 +134,7 @@ class Matcher:
         limit = self.unknown_distance[index]
         if toward is not None:
             limit = (1.0 - frac) * limit + frac * self.unknown_distance[toward]
-        return Match(
+        return Nearest(
             label=self.labels[index], distance=dist, index=index,
             runner_up_label=self.labels[self._end(ru, n)] if has_ru else None,
             runner_up_distance=ru_dist,

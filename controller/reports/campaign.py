@@ -198,8 +198,10 @@ def write_report(store: CampaignStore, out_dir: str | Path, campaign_id: int | N
               + (f": {camp.cause}" if camp.cause else ""),
               f"- configuration `{camp.config_path}` (sha256 {camp.config_sha256[:12]}…), "
               f"light source `{camp.light_source}`, target `{camp.target}`",
-              f"- heliostats {s['heliostats']}: calibrated **{s['calibrated']}**, failed or not converged "
-              f"**{s['failed']}**, recorded {len(runs)}",
+              f"- heliostats {s['heliostats']}: "
+              + (f"measured **{s['measured']}** (a planned night's pass), " if s["measured"] else "")
+              + f"calibrated **{s['calibrated']}**, failed or not converged **{s['failed']}**, "
+              f"recorded {len(runs)}",
               f"- measured pointing error before: mean {_fmt(s['error_before_mrad']['mean'])} / max "
               f"{_fmt(s['error_before_mrad']['max'])} mrad; after: mean {_fmt(s['error_after_mrad']['mean'])}"
               f" / max {_fmt(s['error_after_mrad']['max'])} mrad",

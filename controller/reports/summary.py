@@ -33,8 +33,9 @@ def summarize(store: CampaignStore, campaign_id: int, *,
     :class:`ReferenceTruth`) the reference's. ``heliostats_per_hour``: *calibrated* heliostats
     per plant hour, from the first run's start to the last run's end (plant clock);
     ``pipelined_speedup``: the sum of every run's own slew-to-standby and target time (what
-    one-after-another would take) over that span. ``failed`` counts every run not calibrated
-    (faults and runs out of iterations).
+    one-after-another would take) over that span. ``measured``: runs of a planned night's pass
+    that took their one measurement (what a pass is for); ``failed`` counts every run neither
+    calibrated nor measured (faults and runs out of iterations).
     """
     runs = store.runs(campaign_id)
     if truth is None:
@@ -46,6 +47,7 @@ def summarize(store: CampaignStore, campaign_id: int, *,
         after = [t.error_after_mrad for t in known]
     camp = store.campaign(campaign_id)
     calibrated = [r for r in runs if r.status == "calibrated"]
+    measured = [r for r in runs if r.status == "measured"]
     occ = [r.target_occupancy_s for r in runs if r.target_occupancy_s is not None]
     span = (max(r.end_s for r in runs) - min(r.start_s for r in runs)) if runs else 0.0
     seq = sum(r.sequential_share_s for r in runs)
@@ -54,7 +56,8 @@ def summarize(store: CampaignStore, campaign_id: int, *,
         "cause": camp.cause,
         "heliostats": len(camp.queue),
         "calibrated": len(calibrated),
-        "failed": len(runs) - len(calibrated),
+        "measured": len(measured),
+        "failed": len(runs) - len(calibrated) - len(measured),
         "error_before_mrad": _stats(before),
         "error_after_mrad": _stats(after),
         "iterations_mean": float(np.mean([r.iterations for r in runs])) if runs else None,

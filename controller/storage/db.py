@@ -323,6 +323,12 @@ class CampaignStore:
         with self._lock:
             return self._db.execute(sql, args).fetchall()
 
+    def backup(self, target: sqlite3.Connection) -> None:
+        """Copy the whole database into ``target`` (SQLite's online backup: a consistent snapshot,
+        also from a read-only store)."""
+        with self._lock:
+            self._db.backup(target)
+
     def count(self, table: str) -> int:
         if table not in ("campaigns", "heliostat_runs", "measurements", "corrections", "model_params",
                          "images"):

@@ -153,6 +153,23 @@ MIGRATIONS: tuple[str, ...] = (
                                       ON c.id = r.campaign_id WHERE r.id = measurements.run_id);
     ALTER TABLE plan ADD COLUMN target TEXT;
     """,
+    # v8: nights. The calibration campaign of a field is night 0, each planned night the next
+    # (its passes are the campaigns named "<night>/..."); the index drives nothing in the
+    # product but tells the operator, the report and a simulated plant which night it is.
+    """
+    CREATE TABLE nights (
+        id INTEGER PRIMARY KEY,
+        idx INTEGER NOT NULL UNIQUE,
+        name TEXT NOT NULL UNIQUE,
+        kind TEXT NOT NULL CHECK (kind IN ('calibration', 'planned')),
+        started_utc TEXT NOT NULL,
+        finished_utc TEXT,
+        status TEXT NOT NULL DEFAULT 'running',
+        cause TEXT,
+        summary_json TEXT NOT NULL DEFAULT '{}'
+    );
+    CREATE INDEX campaigns_name ON campaigns(name);
+    """,
 )
 
 SCHEMA_VERSION = len(MIGRATIONS)

@@ -28,6 +28,7 @@ from controller.calibration.observations import Observation, Step
 from controller.calibration.records import ModelRecord
 from controller.devices.camera import CameraError, FramePair
 from controller.devices.drive import Drive, DriveLimits, DriveStatus, FirmwareInfo, LinkError, NakError
+from controller.devices.plant_time import PlantTime
 from firmware_proto.faults import Reject, fault_names
 from simplant.clock import PlantClock
 from simplant.firmware.physics import AxisParams, SimController
@@ -230,7 +231,8 @@ def make_cycle():
             heliostat_id="H1", queue_index=0, ticket=ticket, drive=drive, camera=FakeCamera(plant),
             pointing=pointing, merge=lambda frame: frame, analyze=_observe,
             match=lambda hu: match, gate=gate or TargetGate(), model=model, tolerance_mrad=tolerance_mrad,
-            max_iterations=max_iterations, settle_s=0.2, poll_s=0.05, clock=clock, sleep=clock.sleep,
+            max_iterations=max_iterations, settle_s=0.2,
+            time=PlantTime(now=clock, sleep=clock.sleep, poll_s=0.05),
             timeouts=timeouts or {}, observer=PlantTruth(plant), move_timeout_s=scaled_s(60.0))
         made.append(plant)
         return CalibrationCycle(ctx), plant, drive

@@ -18,10 +18,10 @@ import time
 from pathlib import Path
 
 from controller.calibration.runner import Campaign, CampaignObserver, CampaignOptions
-from controller.config import config_sha256, load_config
+from controller.commands._field import plant_field
+from controller.config import load_config
 from controller.devices.factory import LinkPool
 from controller.storage.db import CampaignStore
-from simplant.harness import LampSwitch
 from simplant.plant import SimulatedPlant, load_config_data
 from simplant.settings import SimulationSettings
 from tests.calibration.conftest import FAST
@@ -132,10 +132,8 @@ class _OnState(CampaignObserver):
 
 
 def _campaign(plant, store, pcfg, small_config, pool, ids, name, observer):
-    return Campaign(pcfg, str(small_config), store, pool, plant.camera,
-                    config_sha256=config_sha256(small_config), heliostat_ids=ids,
-                    options=CampaignOptions(name=name), clock=plant.clock, sleep=plant.clock.sleep,
-                    observers=[LampSwitch(plant), observer])
+    return Campaign(plant_field(plant, small_config, store, pool), CampaignOptions(name=name),
+                    heliostat_ids=ids, observers=[observer])
 
 
 def test_serial_link_lost_mid_approach_halts_the_campaign(small_config, tmp_path):

@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 
 from controller.calibration.coarse import clipped_applies, correction_step
-from controller.calibration.observations import Match, Observation
+from controller.calibration.observations import Observation
 from controller.config import load_config
+from controller.recognition.library import Match
 
 
 class _Pointing:

@@ -11,6 +11,7 @@ import pytest
 import yaml
 
 from controller.calibration.planner import plan_night
+from controller.commands._cheap_night import run_cheap_night
 from controller.devices.drive import AxisLimits, DriveLimits
 from controller.errors import LimitError
 from controller.storage.db import CampaignStore
@@ -29,7 +30,7 @@ def test_small_field_night_one_beam_per_target(base, tmp_path):
     field = CheapField(field_data(base, 6, 2, 1), tmp_path, speedup=1000.0)
     plan = plan_night(field.cfg, {h.id: None for h in field.cfg.heliostats}, "n1")
     assert len(plan) == 6  # one geometry per heliostat
-    night = field.run_night(plan, "n1", budget_s=8 * 3600.0)
+    night = run_cheap_night(field, plan, "n1", budget_s=8 * 3600.0)
 
     assert not night.stopped_by_budget
     assert [r.status for r in night.results] == ["finished", "finished"]

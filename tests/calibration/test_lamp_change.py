@@ -5,20 +5,17 @@ in-process drives of simplant.cheap_night."""
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
 import yaml
 
-from controller.calibration.lamp_change import (
-    LampChangeError,
-    LampChanger,
-    Standby,
-    clear_targets,
-    night_drives,
-)
+from controller.calibration.lamp_change import LampChangeError, LampChanger, Standby, clear_targets
 from controller.calibration.planner import plan_night
+from controller.commands._cheap_night import cheap_field, run_cheap_night
 from controller.errors import LimitError
+from controller.storage.db import CampaignStore
 from simplant.cheap_night import CheapField, field_data
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -40,9 +37,9 @@ def test_night_with_lamp_changes_never_has_a_second_beam_in_view(base, tmp_path)
     plan = plan_night(cfg, {h.id: None for h in cfg.heliostats}, "n1")
     assert len({it.geometry.lamp for it in plan}) > 1  # the night changes lamps
 
-    unsafe = CheapField(data, tmp_path / "without").run_night(plan, "n1", 8 * 3600.0, change_lamp=False)
-    safe_field = CheapField(data, tmp_path / "with")
-    safe = safe_field.run_night(plan, "n1", 8 * 3600.0)
+    unsafe = run_cheap_night(CheapField(data, tmp_path / "without"), plan, "n1", 8 * 3600.0,
+                             unsafe_lamp_change=True)
+    safe = run_cheap_night(CheapField(data, tmp_path / "with"), plan, "n1", 8 * 3600.0)
 
     # Without the lamp change, heliostats parked for an earlier lamp throw the next one into a
     # target's view (the defect); with it, never — and the night still measures what it did.
@@ -54,6 +51,7 @@ def test_night_with_lamp_changes_never_has_a_second_beam_in_view(base, tmp_path)
 def _field(base, tmp_path, lamp: str = "L1", n: int = 6):
     field = CheapField(field_data(base, n, 3, 1), tmp_path)
     field.plant.set_light(lamp)
+    field.product = cheap_field(field, CampaignStore(tmp_path / "records.db"))  # the product's Field of it
     return field
 
 
@@ -64,16 +62,15 @@ def _beams_on_targets(field) -> dict[str, list[str]]:
 def test_lamp_change_in_the_dark_leaves_no_beam_on_any_target(base, tmp_path):
     field = _field(base, tmp_path, "L3", n=24)
     cfg, plant = field.cfg, field.plant
-    drive_of = night_drives(cfg, field.pool)
+    drive_of = field.product.drive
     # Every heliostat that can, parked at its standby beside T1 under L3 (as after L3's passes).
     for h in cfg.heliostats:
-        p = LampChanger(cfg, drive_of, lambda _: None, plant.lights_out, clock=plant.clock,
-                        sleep=plant.clock.sleep).pointing(h.id, "L3", Standby(), (0, 0))
+        p = LampChanger(field.product).pointing(h.id, "L3", Standby(), (0, 0))
         try:
             pose = p.standby_steps(None)
         except LimitError:
             continue
-        drive_of(h.id).move_and_wait(*pose, timeout_s=600, clock=plant.clock, sleep=plant.clock.sleep)
+        drive_of(h.id).move_and_wait(*pose, timeout_s=600, time=field.time)
     assert _beams_on_targets(field) == {"T1": [], "T2": [], "T3": []}  # safe under L3
     # The next lamp: one under which some of these poses put its light on a target.
     hits = {}
@@ -89,8 +86,7 @@ def test_lamp_change_in_the_dark_leaves_no_beam_on_any_target(base, tmp_path):
         events.append(("dark", [drive_of(h.id).status().moving for h in cfg.heliostats]))
         plant.lights_out()
 
-    changer = LampChanger(cfg, drive_of, lambda _: None, lights_out, clock=plant.clock,
-                          sleep=plant.clock.sleep)
+    changer = LampChanger(field.product, lights_out=lights_out)
     standbys = {h.id: Standby() for h in cfg.heliostats}
     centre = tuple(cfg.target("T2").center_enu_m)
     # One heliostat is in the next lamp's passes on T2 (a heliostat that can reflect it there).
@@ -123,8 +119,7 @@ def test_a_heliostat_that_cannot_be_made_safe_keeps_the_lamp_dark(base, tmp_path
     h = cfg.heliostats[2]
     dead = h.model_copy(update={"link": h.link.model_copy(update={"address": 99})})
     broken = cfg.model_copy(update={"heliostats": tuple(dead if x.id == h.id else x for x in cfg.heliostats)})
-    changer = LampChanger(broken, night_drives(broken, field.pool), lambda _: None, plant.lights_out,
-                          clock=plant.clock, sleep=plant.clock.sleep)
+    changer = LampChanger(replace(field.product, cfg=broken, _drives={}))
     with pytest.raises(LampChangeError, match=rf"^lamp L3 not lit: {h.id} could not be made safe for it"):
         changer("L3", {x.id: Standby() for x in broken.heliostats})
     assert plant.lit is None
@@ -136,49 +131,44 @@ def test_ctrl_c_during_a_lamp_change_leaves_every_lamp_dark_and_the_moves_finish
     and the moves already sent go on to their safe poses (nothing is left half-way by the stop)."""
     field = _field(base, tmp_path)  # L1, the night's previous lamp, is lit
     cfg, plant = field.cfg, field.plant
-    drives = night_drives(cfg, field.pool)
     commanded: dict[str, tuple[int, int]] = {}
     waits = {}
-
-    def drive_of(hid):
-        d = drives(hid)
+    for h in cfg.heliostats:
+        d = field.product.drive(h.id)
         move, wait = d.move_abs, d.wait_in_position
 
-        def move_abs(az, el):
+        def move_abs(az, el, hid=h.id, move=move):
             commanded[hid] = (az, el)
             return move(az, el)
 
         def wait_in_position(*args, **kw):
             raise KeyboardInterrupt  # the operator's Ctrl-C, while the first move is waited for
 
-        d.move_abs, d.wait_in_position, waits[hid] = move_abs, wait_in_position, wait
-        return d
+        d.move_abs, d.wait_in_position, waits[h.id] = move_abs, wait_in_position, wait
 
-    changer = LampChanger(cfg, drive_of, lambda _: None, plant.lights_out, clock=plant.clock,
-                          sleep=plant.clock.sleep)
+    changer = LampChanger(field.product)
     with pytest.raises(KeyboardInterrupt):
         changer("L3", {x.id: Standby(required=True) for x in cfg.heliostats})
     assert plant.lit is None and commanded
     for hid, pose in commanded.items():
-        st = waits[hid](60.0, 0.05, plant.clock.sleep, plant.clock, expect=pose)
+        st = waits[hid](60.0, replace(field.time, poll_s=0.05), expect=pose)
         assert (st.az_steps, st.el_steps) == pose
 
 
 def test_campaign_start_moves_a_beam_off_the_target_before_lighting(base, tmp_path):
     field = _field(base, tmp_path)
-    cfg, plant = field.cfg, field.plant
-    drive_of = night_drives(cfg, field.pool)
-    changer = LampChanger(cfg, drive_of, lambda _: None, plant.lights_out, clock=plant.clock,
-                          sleep=plant.clock.sleep)
+    cfg = field.cfg
+    drive_of = field.product.drive
+    changer = LampChanger(field.product)
     pointing = {h.id: changer.pointing(h.id, "L1", Standby(), (0, 0)) for h in cfg.heliostats}
     on, off = cfg.heliostats[0].id, cfg.heliostats[1].id
     for hid in (on, off):
         pose = pointing[hid].aim_steps(None) if hid == on else pointing[hid].standby_steps(None)
-        drive_of(hid).move_and_wait(*pose, timeout_s=600, clock=plant.clock, sleep=plant.clock.sleep)
+        drive_of(hid).move_and_wait(*pose, timeout_s=600, time=field.time)
     assert on in _beams_on_targets(field)["T1"]
 
     current = {hid: (drive_of(hid).status().az_steps, drive_of(hid).status().el_steps) for hid in (on, off)}
     moved = clear_targets({hid: pointing[hid] for hid in (on, off)}, current, drive_of, lambda _: None,
-                          timeout_s=600, clock=plant.clock, sleep=plant.clock.sleep, poll_s=0.1)
+                          timeout_s=600, time=field.time)
     assert moved == [on]
     assert all(not v for v in _beams_on_targets(field).values())

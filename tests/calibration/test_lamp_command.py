@@ -13,7 +13,7 @@ import pytest
 from controller.calibration.beam_chain import BeamChain
 from controller.calibration.registration_step import register_camera
 from controller.config import parse_config
-from controller.devices.lamps import LampCommandError
+from controller.devices.lamp_command import LampCommandError
 from controller.errors import ConfigError
 from simplant.plant import SimulatedPlant, load_config_data
 from simplant.plant_camera import PlantCamera

@@ -10,8 +10,8 @@ import numpy as np
 from controller.calibration.diagram import state_machine_markdown
 from controller.calibration.gate import TargetGate
 from controller.calibration.machine import FINAL_STATES, STATES, TRANSITIONS
-from controller.calibration.observations import Match
 from controller.calibration.runner import INTERRUPTED
+from controller.recognition.library import Match
 from simplant.clock import PlantClock
 from tests.calibration.conftest import SPEEDUP
 from tests.conftest import scaled_s

@@ -3,10 +3,11 @@ pass whose light source silently stays dark stops (controller/calibration/no_bea
 
 from __future__ import annotations
 
+from controller.calibration.field import LampLit
 from controller.calibration.no_beam import NO_BEAM, STOP_AFTER, NoBeamWatch
 from controller.calibration.records import MeasurementRecord, RunRecord
-from controller.calibration.runner import Campaign, CampaignObserver, CampaignOptions
-from controller.config import config_sha256
+from controller.calibration.runner import Campaign, CampaignOptions
+from controller.commands._field import plant_field
 from controller.devices.factory import LinkPool
 from controller.storage.db import CampaignStore
 from simplant.plant import SimulatedPlant, load_config_data
@@ -16,34 +17,21 @@ from tests.conftest import scaled_s
 IDS = ["H02", "H08", "H14", "H03"]
 
 
-class DeadLamp(CampaignObserver):
-    """A lamp controller that acknowledges "light it" while the lamp stays dark."""
-
-    def __init__(self, plant: SimulatedPlant) -> None:
-        self.plant = plant
-        self.asked: list[str] = []
-
-    def light_source_needed(self, source_id: str) -> None:
-        self.asked.append(source_id)
-        self.plant.lights_out()
-
-    def fiducial_lamps(self, on: bool) -> None:  # the registration's fiducial lamps do work
-        self.plant.set_fiducials(on)
-
-
 def test_a_lamp_that_silently_fails_gives_no_beam_and_no_correction(small_config, tmp_path):
+    """The lamp panel confirms the calibration lamp lit, the lamp gives no light (the simulated
+    panel's ``no_light``: a confirmation input that lies)."""
     plant = SimulatedPlant(load_config_data(small_config), tmp_path / "p", heliostat_ids=IDS, settings=FAST,
                            seed=4)
-    lamp = DeadLamp(plant)
     with plant, CampaignStore(tmp_path / "c.db") as store:
         pcfg = plant.start()
+        lamp = pcfg.calibration.light_source
+        plant.lamp_panel.no_light.add(lamp)
         with LinkPool(timeout_s=scaled_s(0.5), retries=2) as pool:
             start = {h: _steps(plant, h) for h in IDS}
-            result = Campaign(pcfg, str(small_config), store, pool, plant.camera,
-                              config_sha256=config_sha256(small_config), heliostat_ids=IDS,
-                              options=CampaignOptions(name="dark", pipeline_depth=1), clock=plant.clock,
-                              sleep=plant.clock.sleep, observers=[lamp]).run()
-        assert lamp.asked == [pcfg.calibration.light_source] and plant.lit is None
+            field = plant_field(plant, small_config, store, pool)
+            campaign = Campaign(field, CampaignOptions(name="dark", pipeline_depth=1), heliostat_ids=IDS)
+            result = campaign.run()
+        assert campaign.lamp.confirmed and plant.lit is None  # confirmed by the panel, and dark
         runs = {r.heliostat_id: r for r in store.runs(result.campaign_id)}
         assert set(runs) == set(IDS)
         assert {r.status for r in runs.values()} == {NO_BEAM}
@@ -59,10 +47,10 @@ def test_a_lamp_that_silently_fails_gives_no_beam_and_no_correction(small_config
         assert len(skipped) == len(IDS) - STOP_AFTER
         for r in skipped:
             assert r.final_state == "idle" and "not moved" in r.fault_cause
-            assert f"light source {pcfg.calibration.light_source} is lit and confirmed" in r.fault_cause
+            assert f"light source {lamp} was confirmed lit by the lamp panel" in r.fault_cause
             assert _steps(plant, r.heliostat_id) == start[r.heliostat_id]
         assert result.status == "partial" and result.exit_code == 3
-        assert f"{len(IDS)} of {len(IDS)} heliostats not calibrated" in result.cause
+        assert f"{len(IDS)} of {len(IDS)} heliostats" in result.cause
 
 
 def _steps(plant: SimulatedPlant, hid: str) -> tuple[int, int]:
@@ -91,4 +79,7 @@ def test_one_heliostat_without_a_beam_does_not_stop_the_pass():
     assert w.stopped
     r = w.not_measured("H07", 5, 12.0)
     assert r.status == NO_BEAM and r.queue_index == 5
-    assert "lamp-1" in r.fault_cause and "tower" in r.fault_cause
+    assert "lamp-1 is lit and confirmed (it was not confirmed by a lamp panel)" in r.fault_cause
+    w.lit = LampLit("lamp-1", True, "panel", "2026-01-01T20:00:00Z")
+    cause = w.not_measured("H07", 5, 1.0).fault_cause
+    assert "lamp-1 was confirmed lit by the lamp panel at 2026-01-01T20:00:00Z" in cause

@@ -4,17 +4,20 @@ slew, on the approach or at a planned aim point. Checked against the simulated p
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
 
-from controller.calibration.lamp_change import LampChanger, Standby, night_drives
+from controller.calibration.beam_safety import UnsafePath
+from controller.calibration.lamp_change import LampChanger, Standby
 from controller.calibration.planner import plan_night
-from controller.calibration.pointing import UnsafePath
+from controller.commands._cheap_night import cheap_field
 from controller.config import load_config
 from controller.errors import ConfigError, LimitError
+from controller.storage.db import CampaignStore
 from simplant.cheap_night import CheapField, field_data
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -38,9 +41,9 @@ def _park_all_at_standby(field, cfg, lamp="L1"):
     view of the plant) places it; the ids parked."""
     plant = field.plant
     plant.set_light(lamp)
-    drive_of = night_drives(cfg, field.pool)
-    changer = LampChanger(cfg, drive_of, lambda _: None, lambda: None, clock=plant.clock,
-                          sleep=plant.clock.sleep)
+    product = replace(cheap_field(field, CampaignStore(field.db_path)), cfg=cfg)
+    drive_of = product.drive
+    changer = LampChanger(product)
     parked = []
     for h in cfg.heliostats:
         st = drive_of(h.id).status()
@@ -48,7 +51,7 @@ def _park_all_at_standby(field, cfg, lamp="L1"):
             pose = changer.pointing(h.id, lamp, Standby(), (st.az_steps, st.el_steps)).standby_steps(None)
         except (LimitError, UnsafePath):
             continue
-        drive_of(h.id).move_and_wait(*pose, timeout_s=600, clock=plant.clock, sleep=plant.clock.sleep)
+        drive_of(h.id).move_and_wait(*pose, timeout_s=600, time=field.time)
         parked.append(h.id)
     return parked
 
@@ -95,8 +98,7 @@ def test_an_approach_through_a_person_zone_is_refused_before_anything_moves(base
                 "margin_m": 0.0}
     field = _field(base, tmp_path, [platform])
     cfg = field.cfg
-    changer = LampChanger(cfg, night_drives(cfg, field.pool), lambda _: None, lambda: None,
-                          clock=field.plant.clock, sleep=field.plant.clock.sleep)
+    changer = LampChanger(cheap_field(field, CampaignStore(field.db_path)))
     refused = 0
     for h in cfg.heliostats:
         p = changer.pointing(h.id, "L1", Standby(), (500, 500))
@@ -119,8 +121,7 @@ def test_slews_go_around_a_person_zone(base, tmp_path):
                 "margin_m": 0.0}
     field = _field(base, tmp_path, [platform])
     cfg = field.cfg
-    changer = LampChanger(cfg, night_drives(cfg, field.pool), lambda _: None, lambda: None,
-                          clock=field.plant.clock, sleep=field.plant.clock.sleep)
+    changer = LampChanger(cheap_field(field, CampaignStore(field.db_path)))
     crossing = detoured = 0
     for h in cfg.heliostats:
         p = changer.pointing(h.id, "L1", Standby(), (500, 500))

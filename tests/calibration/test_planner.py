@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 import yaml
 
+from controller.calibration.model_update import age_weights
 from controller.calibration.nights import night_passes
 from controller.calibration.planner import candidates, plan_heliostat, plan_night, planner_sun
-from controller.calibration.pointing import age_weights
 from controller.calibration.records import ModelRecord
 from controller.config import parse_config
 from controller.errors import ConfigError
@@ -105,7 +105,7 @@ def test_unknown_or_non_lamp_in_calibration_lamps_is_refused():
 def test_night_epochs_count_nights_back_from_the_newest():
     """Measurements without a 6 h gap are one night; nights are counted back from the newest
     (0) with their distance in days (at least 1); an unreadable stamp is of the newest night."""
-    from controller.calibration.pointing import night_epochs
+    from controller.calibration.model_update import night_epochs
 
     stamps = ["2026-03-01T20:10:00+00:00", "2026-03-02T01:50:00+00:00",  # one night across midnight
               "2026-03-02T21:00:00+00:00", "2026-03-04T20:30:00+00:00", "not a time"]

@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from controller.calibration.beam_safety import UnsafePath
 from controller.calibration.planning import order_queue, slew_time_s
-from controller.calibration.pointing import GeometryPointing, UnsafePath
+from controller.calibration.pointing import GeometryPointing
 from controller.config import load_config
 from controller.geometry.target_frame import TargetFrame
 from simplant.optics import TargetGrid

@@ -1,6 +1,8 @@
 """The campaign's registration step against the simulated plant (small camera, real drivers):
 recorded in the campaign's metadata when it succeeds; a refused one stops the campaign before
-it opens, and the fiducial lamps are off again either way."""
+it opens, and the fiducial lamps are off again either way. The plant's config has a lamp panel
+with the target's fiducials channel, so the fiducials are switched (and confirmed) through it,
+not through the campaign observer's hook."""
 
 from __future__ import annotations
 
@@ -9,7 +11,7 @@ import pytest
 
 from controller.calibration.registration_step import RegistrationError, nominal_camera
 from controller.calibration.runner import Campaign, CampaignObserver, CampaignOptions
-from controller.config import config_sha256
+from controller.commands._field import plant_field
 from controller.devices.factory import LinkPool
 from controller.imaging.registration import CameraModel
 from controller.storage.db import CampaignStore
@@ -18,27 +20,33 @@ from tests.calibration.conftest import FAST
 
 
 class _Lamps(CampaignObserver):
-    """Switches the plant's fiducial lamps (or, ``broken``, never lights them) and logs it."""
+    """Switches the plant's fiducial lamps and logs it (a hook the panel's channel overrides)."""
 
-    def __init__(self, plant, broken: bool = False) -> None:
-        self.plant, self.broken, self.calls = plant, broken, []
+    def __init__(self, plant) -> None:
+        self.plant, self.calls = plant, []
 
     def fiducial_lamps(self, on: bool) -> None:
         self.calls.append(on)
-        self.plant.set_fiducials(on and not self.broken)
+        self.plant.set_fiducials(on)
 
     def light_source_needed(self, source_id: str) -> None:
         self.plant.set_light(source_id)
 
 
-def _run(plant, small_config, tmp_path, lamps: _Lamps, ids: list[str]):
+def _fiducial_writes(plant, pcfg) -> list[bool]:
+    """What the lamp panel was told for the calibration target's fiducials, in order."""
+    channel = "fiducials:" + pcfg.calibration.target
+    return [on for name, on in plant.lamp_panel.writes if name == channel]
+
+
+def _run(plant, small_config, tmp_path, lamps: _Lamps, ids: list[str], no_light: bool = False):
     with plant, CampaignStore(tmp_path / "c.db") as store:
         pcfg = plant.start()
+        if no_light:  # the fiducials confirm lit but give no light
+            plant.lamp_panel.no_light.add("fiducials:" + pcfg.calibration.target)
         with LinkPool() as pool:
-            campaign = Campaign(pcfg, str(small_config), store, pool, plant.camera,
-                                config_sha256=config_sha256(small_config), heliostat_ids=ids,
-                                options=CampaignOptions(name="reg"), clock=plant.clock,
-                                sleep=plant.clock.sleep, observers=[lamps])
+            campaign = Campaign(plant_field(plant, small_config, store, pool), CampaignOptions(name="reg"),
+                                heliostat_ids=ids, observers=[lamps])
             result = campaign.run()
         return result, store.campaign(result.campaign_id), pcfg
 
@@ -55,7 +63,8 @@ def test_a_campaign_registers_the_camera_and_records_it(small_config, tmp_path):
     # 0.15-0.31 px (LOW) and 0.11-0.26 px (HIGH) with either shot-noise law of the simulated
     # sensors; the pose check below is the accuracy test.
     assert reg["low"]["rms_px"] < 0.4 and reg["high"]["rms_px"] < 0.4
-    assert lamps.calls == [False, True, False] and not plant.camera.fiducials_lit
+    assert _fiducial_writes(plant, pcfg) == [False, True, False] and not plant.camera.fiducials_lit
+    assert lamps.calls == []  # the panel's channel, not the observer's hook
     # the recorded pose, with the configured intrinsics, is the simulator's true camera
     nominal = nominal_camera(pcfg)
     truth = plant.camera.view.truth
@@ -74,10 +83,10 @@ def test_a_campaign_registers_the_camera_and_records_it(small_config, tmp_path):
 def test_unlit_fiducials_stop_the_campaign_before_it_opens(small_config, tmp_path):
     plant = SimulatedPlant(load_config_data(small_config), tmp_path / "p", heliostat_ids=["H02"],
                            settings=FAST, seed=2)
-    lamps = _Lamps(plant, broken=True)
+    lamps = _Lamps(plant)
     with pytest.raises(RegistrationError, match="LOW sensor sees 0 of 9 fiducials") as exc:
-        _run(plant, small_config, tmp_path, lamps, ["H02"])
+        _run(plant, small_config, tmp_path, lamps, ["H02"], no_light=True)
     assert exc.value.exit_code == 1
-    assert lamps.calls == [False, True, False]
+    assert _fiducial_writes(plant, plant.config) == [False, True, False]
     with CampaignStore(tmp_path / "c.db") as store:
         assert store.campaign_by_name("reg") is None  # nothing recorded

@@ -13,9 +13,10 @@ import numpy as np
 import pytest
 import yaml
 
+from controller.calibration.beam_safety import UnsafePath
 from controller.calibration.nights import run_night
 from controller.calibration.planner import plan_night
-from controller.calibration.pointing import GeometryPointing, UnsafePath
+from controller.calibration.pointing import GeometryPointing
 from controller.calibration.runner import CampaignResult
 from controller.config import load_config, parse_config
 from controller.errors import ConfigError
@@ -185,14 +186,14 @@ def _overlap(a, b) -> bool:
 
 
 def test_two_targets_work_in_parallel_on_the_simulated_plant(small_config, tmp_path):
-    from simplant.harness import run_simulated
+    from controller.commands._simulate import simulated_run
     from simplant.settings import SimulationSettings
     from tests.calibration.conftest import FAST
 
     cfg = load_config(small_config)
     ids = ["H01", "H02", "H07", "H13"]
     settings = SimulationSettings(clock_speedup=FAST.clock_speedup, seed=2)
-    sim = run_simulated(cfg, str(small_config), tmp_path / "run", tmp_path / "c.db", ids, settings=settings,
+    sim = simulated_run(cfg, str(small_config), tmp_path / "run", tmp_path / "c.db", ids, settings=settings,
                         name="t", nights=1)
     # The plant's truth, sampled on its own clock: never two beams on one target ...
     assert sim.safety["violations"] == 0 and sim.safety["max_beams_on_target"] == 1

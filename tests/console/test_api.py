@@ -10,6 +10,7 @@ import time
 import pytest
 from starlette.testclient import TestClient
 
+from controller.commands._field import plant_field
 from controller.console.app import TOKEN_HEADER, create_app
 from controller.console.backend import Console, PlantHooks
 from controller.console.events import EventBus
@@ -38,12 +39,10 @@ def plant_console(tmp_path_factory):
     ids = ["H02", "H14"]
     with SimulatedPlant(load_config_data(cfg_path), tmp / "run", heliostat_ids=ids,
                         settings=SimulationSettings(clock_speedup=50.0), source=str(cfg_path)) as plant:
-        pcfg = plant.start()
-        hooks = PlantHooks(clock=plant.clock, sleep=plant.clock.sleep, compute=plant.clock.realtime,
-                           safety=plant.safety.report, label="simulated plant",
-                           fiducial_lamps=plant.set_fiducials)
+        plant.start()
+        hooks = PlantHooks(safety=plant.safety.report, set_night=plant.set_night, label="simulated plant")
         with LinkPool(timeout_s=0.5, retries=2) as pool, CampaignStore(tmp / "c.db") as store:
-            console = Console(pcfg, str(cfg_path), store, pool, plant.camera, heliostat_ids=ids, hooks=hooks,
+            console = Console(plant_field(plant, cfg_path, store, pool), heliostat_ids=ids, hooks=hooks,
                               work_dir=tmp / "work")
             app = create_app(console, token=TOKEN)
             with TestClient(app, base_url="http://console.test") as client:
@@ -179,7 +178,7 @@ def test_campaign_abort_parks_and_records_interrupted(plant_console):
     r = _post(client, "/api/campaign/start", {"name": "api-abort"})
     assert r.status_code == 200 and r.json()["running"]
     r = _post(client, "/api/heliostats/H02/jog", {"az_steps": 10, "el_steps": 0})
-    assert r.status_code == 409 and "campaign is running" in r.json()["error"]
+    assert r.status_code == 409 and "campaign api-abort is running" in r.json()["error"]
     deadline = time.monotonic() + scaled_s(30.0)
     while not console.campaign.on_target() and time.monotonic() < deadline:
         time.sleep(0.02)  # abort while a beam is on the target
@@ -201,6 +200,24 @@ def test_campaign_abort_parks_and_records_interrupted(plant_console):
     assert not console.store.campaign_lock.held
 
 
+def test_a_planned_night_started_watched_and_stopped_from_the_console(plant_console):
+    console, client = plant_console
+    r = _post(client, "/api/night/start", {"heliostats": ["H02"]})
+    assert r.status_code == 200 and r.json()["running"] and r.json()["night"] >= 1
+    assert _post(client, "/api/campaign/start", {"name": "during-night"}).status_code == 409
+    assert _post(client, "/api/heliostats/H14/jog", {"az_steps": 10, "el_steps": 0}).status_code == 409
+    _wait_for(lambda: client.get("/api/night").json()["log"], 60, "the night's first progress line")
+    _wait_for(lambda: console.night.snapshot()["lamp"] is not None, 60, "the night's first lamp")
+    assert _post(client, "/api/night/stop").status_code == 200
+    _wait_for(lambda: not console.night.running, 60, "the end of the night")
+    snap = client.get("/api/night").json()
+    assert snap["outcome"]["status"] == "interrupted", snap
+    assert not any(s.lit for s in console.field.lamps.panel.states())  # every lamp off
+    st = console.drive("H02").status()
+    assert not st.moving and not console.store.campaign_lock.held
+    assert _post(client, "/api/night/stop").status_code == 409  # nothing running
+
+
 def test_pages_and_reading_endpoints(plant_console):
     console, client = plant_console
     for page in ("/field", "/campaign", "/reports", "/heliostat/H02", "/commission/H14"):
@@ -216,7 +233,7 @@ def test_pages_and_reading_endpoints(plant_console):
     assert h["limits"]["az"][0] < h["limits"]["az"][1] and h["status"]["faults"] == []
     assert client.get("/api/heliostats/H99").status_code == 400
     names = [c["name"] for c in client.get("/api/reports").json()["campaigns"]]
-    assert names == ["api-pause", "api-abort"]
+    assert names[:2] == ["api-pause", "api-abort"] and all("/night-" in n for n in names[2:])
     r = client.get(f"/reports/campaign/{console.store.campaign_by_name('api-abort').id}/report.html")
     assert r.status_code == 200 and "api-abort" in r.text
     assert client.get("/reports/campaign/1/../../etc/passwd").status_code in (400, 404)

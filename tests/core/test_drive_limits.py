@@ -11,6 +11,7 @@ from controller.devices.drive import (
     FirmwareInfo,
     LinkError,
 )
+from controller.devices.plant_time import PlantTime
 from controller.errors import LimitError
 
 
@@ -79,14 +80,14 @@ def _at(az, moving):
 
 def test_wait_tolerates_single_missed_polls():
     d = FlakyDrive([_at(10, True), None, _at(500, True), None, None, _at(990, False)])
-    st = d.wait_in_position(10.0, poll_s=0.0, sleep=lambda s: None, expect=(990, 0))
+    st = d.wait_in_position(10.0, PlantTime(sleep=lambda s: None, poll_s=0.0), expect=(990, 0))
     assert st.az_steps == 990 and d.script == []
 
 
 def test_wait_gives_up_after_three_missed_polls_with_outcome_unknown():
     d = FlakyDrive([_at(10, True), None, None, None, _at(990, False)])
     with pytest.raises(LinkError, match="3 status polls in a row unanswered") as exc:
-        d.wait_in_position(10.0, poll_s=0.0, sleep=lambda s: None)
+        d.wait_in_position(10.0, PlantTime(sleep=lambda s: None, poll_s=0.0))
     assert exc.value.outcome == "unknown"
 
 
@@ -95,7 +96,8 @@ def test_wait_deadline_uses_the_given_clock():
     t = [0.0]
     d = FlakyDrive([_at(10, True)] * 10)
     with pytest.raises(DriveError, match="not in position after 5 s"):
-        d.wait_in_position(5.0, poll_s=1.0, sleep=lambda s: t.__setitem__(0, t[0] + s), clock=lambda: t[0])
+        d.wait_in_position(5.0, PlantTime(now=lambda: t[0], sleep=lambda s: t.__setitem__(0, t[0] + s),
+                                          poll_s=1.0))
     assert len(d.script) == 10 - 6
 
 

@@ -1,0 +1,296 @@
+"""A planned night on a field: the operation behind ``heliocal campaign night``, the console's
+night and ``heliocal demo``.
+
+On a :class:`controller.calibration.field.Field` (real or simulated, it cannot tell):
+
+1. open (or resume) the night's record (:class:`NightStore`, the ``nights`` table);
+2. unless a plan is already stored for it, measure every heliostat that has no model yet at
+   the calibration lamp first (a closed-loop campaign ``<night>/calibration``: the planner
+   needs a model to plan from);
+3. plan from the models in the store (:func:`controller.calibration.planner.plan_night`), or
+   reload the plan stored for this night when it is resumed;
+4. run the passes (:func:`controller.calibration.nights.run_night`): lamps changed in the dark
+   (:class:`controller.calibration.lamp_change.LampChanger`), the targets of a lamp in
+   parallel, each pass a :class:`controller.calibration.runner.Campaign` whose every run
+   refits its heliostat's model; each lamp is confirmed lit before anything is measured under it;
+5. record and return the night's :class:`NightSummary`.
+
+A rerun after Ctrl-C or ``kill -9`` resumes the same night: its plan is stored, finished
+passes are not repeated and recorded heliostats are skipped. Ctrl-C parks every beam
+(each campaign's fault path) and, when the field has a lamp panel, leaves every lamp off.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Protocol
+
+from controller.calibration.daytime import predicted_daytime, sun_path
+from controller.calibration.field import Field
+from controller.calibration.lamp_change import LampChange, LampChangeError, LampChanger, Standby
+from controller.calibration.nights import Pass, run_night
+from controller.calibration.planner import PlanItem, plan_night
+from controller.calibration.records import NightRecord
+from controller.calibration.runner import Campaign, CampaignObserver, CampaignOptions, CampaignResult
+from controller.errors import HeliocalError
+
+STRATEGIES = ("design", "round-robin")
+
+
+class NightStore(Protocol):
+    """What a night keeps besides its campaigns (:class:`controller.storage.nights.NightBook`)."""
+
+    def open_night(self, name: str, kind: str) -> tuple[NightRecord, bool]: ...
+    def finish_night(self, night_id: int, status: str, cause: str | None, summary: dict) -> None: ...
+    def unfinished(self, kind: str = "planned") -> NightRecord | None: ...
+    def next_index(self) -> int: ...
+    def plan(self, night: str) -> list[PlanItem]: ...
+    def record_plan(self, items: list[PlanItem]) -> None: ...
+
+
+def calibration_night(book: NightStore, campaign: Campaign) -> CampaignResult:
+    """Run ``campaign`` (a closed-loop calibration campaign) as a night of its own: night 0 of a
+    new field, the next index otherwise; its record says how it ended."""
+    rec, _ = book.open_night(campaign.opt.name, "calibration")
+    try:
+        r = campaign.run()
+    except KeyboardInterrupt:
+        book.finish_night(rec.id, "interrupted", "interrupted by the operator; rerun to resume", {})
+        raise
+    except BaseException as exc:
+        book.finish_night(rec.id, "aborted", f"{type(exc).__name__}: {exc}", {})
+        raise
+    lamps = [campaign.lamp.to_json()] if campaign.lamp else []
+    book.finish_night(rec.id, r.status, r.cause, {"campaign": r.name, "status": r.status, "lamps": lamps})
+    return r
+
+
+def tonight(book: NightStore, base: str) -> tuple[str, int]:
+    """The name and index of tonight's planned night: the unfinished one to resume, else
+    ``<base>/night-<k>`` with the next index ``k``."""
+    open_ = book.unfinished("planned")
+    if open_ is not None:
+        return open_.name, open_.index
+    k = book.next_index()
+    return f"{base}/night-{k}", k
+
+
+@dataclass
+class NightSummary:
+    """What one planned night did (the ``campaign night --json`` keys): ``planned`` and
+    ``measured`` geometries, ``failed`` planned geometries not measured, the ``lamps`` lit
+    (each with its confirmation), the field's daytime error its models now predict (open
+    loop, from their covariance), ``status`` (finished / partial / aborted / interrupted)."""
+
+    night: int
+    name: str
+    heliostats: int
+    planned: int
+    measured: int
+    failed: int
+    lamps: list[dict]
+    daytime_error_predicted_mrad: dict
+    status: str
+    cause: str | None = None
+    first_calibrated: list[str] = field(default_factory=list)  # measured at the calibration lamp first
+    passes: list[dict] = field(default_factory=list)
+    lamp_changes: list[dict] = field(default_factory=list)
+
+    @property
+    def exit_code(self) -> int:
+        return {"finished": 0, "partial": 3, "interrupted": 130}.get(self.status, 1)
+
+    def to_json(self) -> dict:
+        return {"night": self.night, "name": self.name, "heliostats": self.heliostats,
+                "planned": self.planned,
+                "measured": self.measured, "failed": self.failed, "lamps": self.lamps,
+                "daytime_error_predicted_mrad": self.daytime_error_predicted_mrad, "status": self.status,
+                "cause": self.cause, "first_calibrated": self.first_calibrated, "passes": self.passes,
+                "lamp_changes": self.lamp_changes}
+
+
+class PlannedNight:
+    """Runs (or resumes) planned night ``name`` (index ``index``) on ``plant`` (module
+    docstring). ``heliostat_ids``: tonight's heliostats (default all); ``strategy``: the
+    planner's (:data:`STRATEGIES`); ``observers``: handed to every campaign of the night;
+    ``progress(text)``: told of each pass and how far the night is."""
+
+    def __init__(self, plant: Field, book: NightStore, name: str, index: int, *,
+                 heliostat_ids: list[str] | None = None, strategy: str = "design",
+                 observers: Sequence[CampaignObserver] = (), progress: Callable[[str], None] | None = None,
+                 ask_operator: Callable[[], None] | None = None) -> None:
+        if strategy not in STRATEGIES:
+            raise ValueError(f"planner strategy must be one of {STRATEGIES}, got {strategy!r}")
+        self.field = plant
+        self.book = book
+        self.name = name
+        self.index = index
+        self.ids = list(heliostat_ids) if heliostat_ids is not None else [h.id for h in plant.cfg.heliostats]
+        self.strategy = strategy
+        self.observers = list(observers)
+        self.progress = progress or (lambda text: None)
+        self._watched = progress is not None  # someone follows the night: tell them the field's state
+        self.changer = LampChanger(plant, lights_out=None if plant.lamps is not None else ask_operator)
+        self.path = sun_path(plant.cfg.site)
+        self._lock = threading.Lock()
+        self._live: set[Campaign] = set()
+        self._stopped = threading.Event()
+        self.plan: list[PlanItem] = []
+        self.results: list[CampaignResult] = []  # every campaign of this session, as they end
+        self.lamps: dict[str, dict] = {}
+        self.changes: list[LampChange] = []
+        self.measured: set[str] = set()  # "<pass>/<heliostat>" measured tonight
+        self.state: dict = {"pass": None, "lamp": None, "daytime_error_predicted_rms": None}
+
+    # -- control from another thread (Ctrl-C's path, the console) -----------------------------------
+    def request_stop(self) -> None:
+        """Stop the night: no further pass starts, every running campaign parks its beams and
+        records itself interrupted; rerun to resume."""
+        self._stopped.set()
+        with self._lock:
+            for c in list(self._live):
+                c.request_stop()
+
+    def snapshot(self) -> dict:
+        """Where the night stands: the pass and lamp now, geometries measured of those planned."""
+        with self._lock:
+            return {"night": self.index, "name": self.name, **self.state, "planned": len(self.plan),
+                    "measured": len(self.measured), "heliostats_measured": len({m.rsplit("/", 1)[1]
+                                                                                for m in self.measured})}
+
+    # -- the night -------------------------------------------------------------------------------
+    def run(self) -> NightSummary:
+        rec, _ = self.book.open_night(self.name, "planned")
+        results: list[CampaignResult] = []
+        first: list[str] = []
+        try:
+            # A stored plan (a resumed night, or one handed in) is run as it is; a new night
+            # first measures the heliostats the planner has no model of.
+            stored = self.book.plan(self.name)
+            first, calib = ([], []) if stored else self._calibrate_new()
+            results += calib
+            if all(r.status in ("finished", "partial") for r in calib) and not self._stopped.is_set():
+                self.plan = self._plan()
+                self.progress(f"{self.name}: {len(self.plan)} geometries planned for "
+                              f"{len({i.heliostat_id for i in self.plan})} heliostats")
+                results += run_night(self.plan, self.name, self._run_pass, self.request_stop,
+                                     self._change_lamp)
+        except KeyboardInterrupt:
+            self._end(rec, results, first, "interrupted", "interrupted by the operator; rerun to resume")
+            raise
+        except LampChangeError as exc:
+            return self._end(rec, results, first, "aborted", str(exc))
+        status, cause = _status(results, self._stopped.is_set())
+        return self._end(rec, results, first, status, cause)
+
+    def _calibrate_new(self) -> tuple[list[str], list[CampaignResult]]:
+        """Heliostats without a model: one closed-loop campaign at the calibration lamp first."""
+        new = [hid for hid in self.ids if self.field.model(hid) is None]
+        if not new:
+            return [], []
+        lamp = self.field.cfg.calibration.light_source
+        self.progress(f"{self.name}: {len(new)} heliostat(s) without a model, measured at {lamp} first")
+        standby = {hid: Standby(required=hid in new) for hid in self.ids}
+        if self.field.cfg.light_source(lamp).kind == "lamp":
+            self._change_lamp(lamp, standby)
+        r = self._campaign(CampaignOptions(name=f"{self.name}/calibration"), new)
+        return new, [r]
+
+    def _plan(self) -> list[PlanItem]:
+        plan = self.book.plan(self.name)
+        if not plan:
+            with self.field.time.computing():
+                models = {hid: self.field.model(hid) for hid in self.ids}
+                plan = plan_night(self.field.cfg, models, self.name, strategy=self.strategy,
+                                  night_index=self.index)
+            self.book.record_plan(plan)
+        return plan
+
+    def _change_lamp(self, lamp: str, standbys: dict[str, Standby]) -> LampChange:
+        self.state["lamp"] = lamp
+        done = self.changer(lamp, standbys)
+        self.changes.append(done)
+        self.progress(f"{self.name}: {lamp}: {len(done.parked)} heliostat(s) moved to its standby, "
+                      f"{len(done.stowed)} stowed, in the dark")
+        return done
+
+    def _run_pass(self, p: Pass) -> CampaignResult:
+        self.state["pass"] = p.name
+        self.progress(f"{p.name}: {len(p.aims)} heliostat(s) under {p.lamp}"
+                      + (f" on {p.target}" if p.target else ""))
+        r = self._campaign(CampaignOptions(name=p.name, light_source=p.lamp, aims=p.aims, observe=True,
+                                           target=p.target), list(p.aims))
+        with self._lock:
+            self.measured |= {f"{p.name}/{run.heliostat_id}" for run in r.runs if run.status == "measured"}
+        if self._watched:
+            # The operator's view of the field as the night goes: the controller's own computing.
+            with self.field.time.computing():
+                now = predicted_daytime(self.field.cfg, {hid: self.field.model(hid) for hid in self.ids},
+                                        self.path)
+            self.state["daytime_error_predicted_rms"] = now.rms
+            self.progress(f"{self.name}: {len(self.measured)}/{len(self.plan)} geometries measured; "
+                          f"field predicted daytime RMS {now.rms:.2f} mrad")
+        return r
+
+    def _campaign(self, options: CampaignOptions, ids: list[str]) -> CampaignResult:
+        c = Campaign(self.field, options, heliostat_ids=ids, observers=self.observers)
+        with self._lock:
+            self._live.add(c)
+            if self._stopped.is_set():  # stopped meanwhile: the campaign records itself interrupted
+                c.request_stop()
+        try:
+            r = c.run()
+        except HeliocalError as exc:
+            # A device that failed the whole campaign (a lamp that did not confirm, a camera gone):
+            # recorded aborted by the campaign; the night stops its passes with this cause.
+            rec = self.field.store.campaign_by_name(options.name)
+            r = CampaignResult(rec.id if rec else -1, options.name, False,
+                               self.field.store.runs(rec.id) if rec else [], 0.0, 0.0, "aborted", str(exc))
+        finally:
+            with self._lock:
+                self._live.discard(c)
+        with self._lock:
+            self.results.append(r)
+        if c.lamp is not None and c.lamp.lamp not in self.lamps:
+            self.lamps[c.lamp.lamp] = c.lamp.to_json()
+        return r
+
+    def _end(self, rec: NightRecord, results: list[CampaignResult], first: list[str], status: str,
+             cause: str | None) -> NightSummary:
+        if self.field.lamps is not None and status in ("interrupted", "aborted"):
+            self.field.lights_out()  # nothing further is measured tonight: every lamp off
+        measured = sum(1 for r in results if not r.name.endswith("/calibration") for run in r.runs
+                       if run.status == "measured")
+        models = {hid: self.field.model(hid) for hid in self.ids}
+        with self.field.time.computing():
+            predicted = predicted_daytime(self.field.cfg, models, self.path).to_json()
+        s = NightSummary(self.index, self.name, len(self.ids), len(self.plan), measured,
+                         len(self.plan) - measured,
+                         list(self.lamps.values()), predicted,
+                         status, cause, first,
+                         [{"name": r.name, "status": r.status, "cause": r.cause,
+                           "measured": sum(run.status in ("measured", "calibrated") for run in r.runs),
+                           "heliostats": len(r.runs)} for r in results],
+                         [c.to_json() for c in self.changes])
+        self.book.finish_night(rec.id, status, cause, s.to_json())
+        self.progress(f"{self.name}: {status}; {measured}/{len(self.plan)} geometries measured; "
+                      "field predicted "
+                      f"daytime RMS {s.daytime_error_predicted_mrad['rms']:.2f} mrad")
+        return s
+
+
+def _status(results: list[CampaignResult], stopped: bool) -> tuple[str, str | None]:
+    """The night's status from its campaigns': the first that did not run to its end decides."""
+    for r in results:
+        if r.status == "interrupted" or (stopped and r.status not in ("finished", "partial")):
+            return "interrupted", "stopped by the operator; rerun to resume"
+        if r.status == "aborted":
+            return "aborted", f"{r.name}: {r.cause}"
+    if stopped:
+        return "interrupted", "stopped by the operator; rerun to resume"
+    partial = [r for r in results if r.status == "partial"]
+    if partial:
+        return "partial", "; ".join(f"{r.name}: {r.cause}" for r in partial[:3])
+    return "finished", None

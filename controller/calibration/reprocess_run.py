@@ -1,0 +1,144 @@
+"""Archive reprocessing on Dask: the cluster, the tasks and the single writer (docs/reprocess.md).
+
+* **Cluster**: ``dask.distributed`` — a scheduler given by address (``tcp://HOST:PORT``, any
+  cluster whose workers run this project's environment and see the archive's paths), or a
+  local cluster of worker processes on 127.0.0.1.
+* **Tasks**: one per chunk of pairs (:func:`controller.calibration.reprocess.analyse_chunk`:
+  the worker reads the frames from their paths, only paths and small results travel through
+  the scheduler), then one per heliostat refit
+  (:func:`controller.calibration.reprocess.refit_heliostat`).
+* **One writer**: results come back to this process, which alone writes the output database
+  (a :class:`ReprocessSink`), one transaction per chunk or batch of refits. A worker that dies
+  loses only the task it held: the scheduler runs it again elsewhere; a rerun of the command
+  skips what was committed.
+"""
+
+from __future__ import annotations
+
+import re
+import uuid
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+from controller.calibration.records import ModelRecord
+from controller.calibration.reprocess import PairResult, RefitResult, analyse_chunk, refit_heliostat
+from controller.calibration.reprocess_plan import Archive, Configs, chunks, plan_pairs, refit_specs
+from controller.errors import HeliocalError, InputError
+
+SCHEDULER_ADDRESS = re.compile(r"^(tcp|tls)://[A-Za-z0-9.\-\[\]:]+:(\d{1,5})$")
+REFIT_BATCH = 64  # refits committed per transaction
+
+
+class ClusterError(HeliocalError):
+    """The Dask cluster cannot be reached or has no worker (exit 1: the plant's computers, not
+    the input)."""
+
+
+class ReprocessSink(Protocol):
+    """Where results go (:class:`controller.storage.reprocess_db.ReprocessDb`); called from the
+    client's thread only."""
+
+    def done_pairs(self) -> set[int]: ...
+    def record_pairs(self, results: list[PairResult], old: dict) -> None: ...
+    def pair_results(self) -> dict[int, PairResult]: ...
+    def done_models(self) -> set[str]: ...
+    def record_models(self, results: list[RefitResult], old: dict[str, ModelRecord]) -> None: ...
+
+
+@dataclass
+class Cluster:
+    """A connected Dask client: ``workers`` at the start, the scheduler's ``address``,
+    ``local`` when this process started it."""
+
+    client: Any
+    workers: int
+    address: str
+    local: bool
+
+
+def check_scheduler_address(address: str) -> str:
+    """``tcp://HOST:PORT`` (or ``tls://``) with a port in 1 … 65535; InputError otherwise."""
+    m = SCHEDULER_ADDRESS.match(address)
+    if m is None or not 1 <= int(m.group(2)) <= 65535:
+        raise InputError(f"--scheduler {address!r}: expected tcp://HOST:PORT")
+    return address
+
+
+@contextmanager
+def open_cluster(scheduler: str | None, workers: int, *, timeout_s: float = 60.0) -> Iterator[Cluster]:
+    """Connect to ``scheduler`` and wait (up to ``timeout_s``) for a worker, or start a local
+    cluster of ``workers`` single-threaded worker processes on 127.0.0.1; closed on exit."""
+    from dask.distributed import Client, LocalCluster
+
+    if scheduler:
+        try:
+            client = Client(scheduler, timeout=timeout_s, set_as_default=False)
+        except (OSError, TimeoutError) as exc:
+            raise ClusterError(f"--scheduler {scheduler}: no Dask scheduler answers ({exc})") from None
+        try:
+            try:
+                client.wait_for_workers(1, timeout=timeout_s)
+            except TimeoutError:
+                raise ClusterError(f"--scheduler {scheduler}: no Dask worker connected within "
+                                   f"{timeout_s:g} s") from None
+            yield Cluster(client, len(client.scheduler_info()["workers"]), scheduler, False)
+        finally:
+            client.close()
+        return
+    with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                      dashboard_address=None) as cluster, Client(cluster, set_as_default=False) as client:
+        client.wait_for_workers(workers, timeout=timeout_s)
+        yield Cluster(client, workers, cluster.scheduler_address, True)
+
+
+def reprocess(cluster: Cluster, archive: Archive, configs: Configs, scope: list, sink: ReprocessSink, *,
+              images_dir: str | None, progress: Callable[[str, int, int], None] = lambda *a: None) -> None:
+    """Re-analyse every pair of ``scope`` (measurements) not yet in ``sink``, then refit every
+    heliostat not yet refitted. ``progress(phase, done, total)`` after each commit."""
+    client = cluster.client
+    token = uuid.uuid4().hex[:12]
+    planned = plan_pairs(archive, configs, scope, images_dir)
+    done = sink.done_pairs()
+    todo = [(s, p) for s, p in planned if p.measurement_id not in done]
+    old = {m.id: m for m in archive.measurements}
+    progress("pairs", len(planned) - len(todo), len(planned))
+    n = len(planned) - len(todo)
+    futures = [client.submit(analyse_chunk, spec, pairs, key=f"reprocess-pairs-{token}-{i}", pure=False)
+               for i, (spec, pairs) in enumerate(chunks(todo, cluster.workers))]
+    for results in _completed(client, futures):
+        sink.record_pairs(results, old)
+        n += len(results)
+        progress("pairs", n, len(planned))
+
+    specs = refit_specs(archive, configs, sink.pair_results())
+    fitted = sink.done_models()
+    todo_fits = [s for s in specs if s.heliostat_id not in fitted]
+    k = len(specs) - len(todo_fits)
+    progress("refits", k, len(specs))
+    futures = [client.submit(refit_heliostat, s, key=f"reprocess-refit-{token}-{i}", pure=False)
+               for i, s in enumerate(todo_fits)]
+    batch: list[RefitResult] = []
+    for i, r in enumerate(_completed(client, futures)):
+        batch.append(r)
+        if len(batch) >= REFIT_BATCH or i == len(futures) - 1:
+            sink.record_models(batch, archive.models)
+            k += len(batch)
+            batch = []
+            progress("refits", k, len(specs))
+
+
+def _completed(client, futures: list) -> Iterator[Any]:
+    """Results as tasks finish; on any failure the remaining tasks are cancelled and the task's
+    exception is raised here (what was committed stays)."""
+    from dask.distributed import as_completed
+
+    try:
+        for fut in as_completed(futures, loop=client.loop):
+            if fut.status == "error":
+                fut.result()  # raises the worker's exception
+            yield fut.result()
+            fut.release()
+    finally:
+        client.cancel([f for f in futures if not f.done()])

@@ -1,0 +1,112 @@
+"""The one place that builds a :class:`controller.calibration.field.Field`: for the real plant
+from its configuration (drives through the link pool, each target's camera, the lamp panel,
+wall time), for the simulated plant from the devices ``simplant`` provides (firmware on ptys
+and Modbus TCP, simulated cameras, its lamp panel on Modbus TCP, the plant clock). Both keep
+records in the same store and frames in ``images/`` beside the database.
+
+Used by ``heliocal campaign run|night``, ``heliocal demo`` and the console.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from contextlib import ExitStack, closing, contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from controller.calibration.field import Field, PanelLamps
+from controller.config import PlantConfig, config_sha256
+from controller.devices.factory import LinkPool, open_camera
+from controller.devices.plant_time import PlantTime
+from controller.storage.db import CampaignStore
+from controller.storage.images import ImageArchive
+from controller.storage.nights import NightBook
+
+BUILD = object()  # simulated_field(library=BUILD): the simulated plant's own error library
+
+
+@dataclass
+class FieldSession:
+    """An open field with its night book; ``plant``: the simulated plant (its truth) or None."""
+
+    field: Field
+    book: NightBook
+    plant: Any = None
+
+
+def open_store(db: str | Path) -> CampaignStore:
+    """The writer store of ``db`` with its campaign lock taken (DatabaseBusy names the owner),
+    before any slow work."""
+    store = CampaignStore(db)
+    try:
+        store.campaign_lock.acquire()
+    except BaseException:
+        store.close()
+        raise
+    return store
+
+
+@contextmanager
+def real_field(cfg: PlantConfig, config_path: str, store: CampaignStore, *,
+               camera_manifest: str | None = None) -> Iterator[FieldSession]:
+    """The configured field: ``camera_manifest`` replays recorded pairs for the calibration
+    target, else each target's configured camera driver."""
+    from controller.recognition.library_io import load_library
+
+    lib = load_library(cfg.calibration.library) if cfg.calibration.library else None
+    with ExitStack() as stack:
+        if camera_manifest:
+            cameras = {cfg.calibration.target: stack.enter_context(closing(open_camera(cfg.camera,
+                                                                                       camera_manifest)))}
+        else:
+            cameras = {t: stack.enter_context(closing(open_camera(cfg.camera_of(t))))
+                       for t in cfg.calibration.parallel_targets()}
+        pool = stack.enter_context(LinkPool())
+        time = PlantTime()
+        lamps = None
+        if cfg.lamps is not None:
+            lamps = PanelLamps.open(cfg.lamps, time)
+            stack.callback(lamps.close)
+        images = ImageArchive(Path(store.path).parent / "images")
+        yield FieldSession(Field(cfg, str(config_path), config_sha256(config_path), store, pool, cameras,
+                                 time, lamps, images, lib), NightBook(store))
+
+
+@contextmanager
+def simulated_field(cfg: PlantConfig, config_path: str, store: CampaignStore, out: Path, ids: list[str],
+                    settings, *, night: int, library_dir: Path | None = None, clock_start: float = 0.0,
+                    progress=None, library: Any = BUILD) -> Iterator[FieldSession]:
+    """The embedded simulated plant in ``out`` on night ``night`` (its drift and repeatability
+    draws), its heliostats ``ids``. ``library``: the error library, or :data:`BUILD` (the
+    default): the simulated plant's own, built once into ``library_dir`` (default ``out``) and
+    reused."""
+    from simplant.harness import demo_library
+    from simplant.plant import SimulatedPlant, load_config_data
+
+    out.mkdir(parents=True, exist_ok=True)
+    lib = demo_library(cfg, config_path, library_dir or out, ids, settings.seed, progress) \
+        if library is BUILD else library
+    plant = SimulatedPlant(load_config_data(config_path), out / "plant", heliostat_ids=ids, settings=settings,
+                           source=str(config_path), clock_start=clock_start)
+    plant.set_night(night)
+    with plant, LinkPool(timeout_s=0.5, retries=2) as pool:
+        plant.start()
+        f = plant_field(plant, config_path, store, pool, library=lib, images=ImageArchive(out / "images"))
+        try:
+            yield FieldSession(f, NightBook(store), plant)
+        finally:
+            f.lamps.close()
+
+
+def plant_field(plant, config_path: str | Path, store, pool, *, library=None, images=None) -> Field:
+    """The :class:`Field` of a started simulated plant (``plant.start()`` done): its rewritten
+    configuration and links through ``pool``, its cameras, its lamp panel over Modbus TCP, its
+    clock. Close ``field.lamps`` when done."""
+    clock = plant.clock
+    time = PlantTime(now=clock, sleep=clock.sleep, utc=plant.utc, computing=clock.realtime)
+    s = plant.settings
+    return Field(plant.config, str(config_path), config_sha256(config_path), store, pool, plant.cameras, time,
+                 PanelLamps.open(plant.config.lamps, time), images, library,
+                 meta={"plant": "simulated", "seed": plant.seed, "clock_speedup": s.clock_speedup},
+                 label="simulated plant")

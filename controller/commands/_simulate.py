@@ -1,0 +1,175 @@
+"""``--simulate``: the product's campaign and planned nights on the embedded simulated plant,
+scored against the plant's truth.
+
+Nothing here runs a campaign or a night of its own: ``campaign run --simulate`` is the
+product's :class:`controller.calibration.runner.Campaign` and ``campaign night --simulate``
+its :class:`controller.calibration.night.PlannedNight`, each on the simulated
+:class:`controller.calibration.field.Field` (:func:`controller.commands._field.simulated_field`),
+each its own plant session whose night index is the number of nights recorded in the
+database (the calibration campaign is night 0, the k-th planned night is night k: the plant's
+drift and repeatability draws follow). What only the simulator knows — the true error at each
+measurement (``sim_truth``), the beam-safety monitor, the true daytime error — is added by
+its observers and scoring (``simplant.harness``, ``simplant.daytime``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from controller.calibration.daytime import PredictedDaytime, predicted_daytime, sun_path
+from controller.calibration.night import NightSummary, PlannedNight, calibration_night, tonight
+from controller.calibration.outcome import CampaignResult
+from controller.calibration.runner import Campaign, CampaignOptions
+from controller.commands._field import open_store, simulated_field
+from controller.config import PlantConfig
+from controller.storage.db import CampaignStore
+from controller.storage.nights import NightBook
+
+
+@dataclass(frozen=True)
+class NightReport:
+    """A simulated planned night: the product's :class:`NightSummary` and the field's true
+    daytime error after it (open loop, sun path, against the plant's truth of that night)."""
+
+    summary: NightSummary
+    daytime: Any  # simplant.daytime.DaytimeError
+    predicted: PredictedDaytime
+
+    @property
+    def night(self) -> int:
+        return self.summary.night
+
+    @property
+    def measured(self) -> int:
+        return self.summary.measured
+
+    @property
+    def planned(self) -> int:
+        return self.summary.planned
+
+    def to_json(self) -> dict:
+        s = self.summary
+        return {"night": s.night, "name": s.name, "planned": s.planned, "measured": s.measured,
+                "daytime_error_mrad": self.daytime.to_json(),
+                "daytime_error_predicted_mrad": self.predicted.to_json(),
+                "lamp_changes": s.lamp_changes, "lamps": s.lamps, "status": s.status}
+
+
+@dataclass
+class SimulatedRun:
+    """A calibration campaign and its planned nights on the simulated plant, with the truth."""
+
+    result: CampaignResult
+    truth: dict
+    safety: dict  # the beam-safety monitor over every session (samples, violations, max beams)
+    settings: Any
+    db: Path
+    out: Path
+    daytime: Any  # open loop over the sun path, latest models, plant truth of the last night
+    daytime_uncalibrated: Any
+    predicted: PredictedDaytime
+    nights: list[NightReport]
+    on_target: dict[str, list[tuple[float, float, str]]] = field(default_factory=dict)
+
+
+def _merge_safety(plant, into: dict | None, on_target: dict | None) -> None:
+    """Add a plant session's beam-safety monitor (counts; spans with a beam on each target) to
+    those of the sessions before it."""
+    r = plant.safety.report()
+    if into is not None:
+        into["samples"] = into.get("samples", 0) + r["samples"]
+        into["violations"] = into.get("violations", 0) + r["violations"]
+        into["max_beams_on_target"] = max(into.get("max_beams_on_target", 0), r["max_beams_on_target"])
+    if on_target is not None:
+        for tid, spans in plant.safety.intervals.items():
+            on_target.setdefault(tid, []).extend(spans)
+
+
+def calibrate(cfg: PlantConfig, config_path: str, store: CampaignStore, out: Path, ids: list[str],
+              settings, name: str, *, sequential: bool = False, observers=(), progress=None,
+              library_dir: Path | None = None, safety: dict | None = None,
+              on_target: dict | None = None) -> CampaignResult:
+    """``campaign run --simulate``: campaign ``name`` (night 0 of a fresh database) on the
+    simulated plant, with the plant's truth recorded per run."""
+    from simplant.harness import TruthRecorder
+
+    book = NightBook(store)
+    with simulated_field(cfg, config_path, store, out, ids, settings, night=book.index_for(name),
+                         library_dir=library_dir, clock_start=store.last_end_s(name) or 0.0,
+                         progress=progress) as fs:
+        opts = CampaignOptions(name=name, pipeline_depth=1 if sequential else None)
+        campaign = Campaign(fs.field, opts, heliostat_ids=ids,
+                            observers=[TruthRecorder(fs.plant, store.path), *observers])
+        result = calibration_night(book, campaign)
+        _merge_safety(fs.plant, safety, on_target)
+    return result
+
+
+def planned_night(cfg: PlantConfig, config_path: str, store: CampaignStore, out: Path, ids: list[str],
+                  settings, base: str, *, observers=(), progress=None, library_dir: Path | None = None,
+                  strategy: str = "design", safety: dict | None = None,
+                  on_target: dict | None = None) -> NightReport:
+    """``campaign night --simulate``: tonight's planned night (or the unfinished one) on the
+    simulated plant of that night, scored against its truth."""
+    from simplant.daytime import daytime_error
+    from simplant.harness import TruthRecorder
+
+    book = NightBook(store)
+    name, index = tonight(book, base)
+    with simulated_field(cfg, config_path, store, out, ids, settings, night=index, library_dir=library_dir,
+                         clock_start=book.last_end_s(name) or 0.0, progress=progress) as fs:
+        night = PlannedNight(fs.field, book, name, index, heliostat_ids=ids, strategy=strategy,
+                             observers=[TruthRecorder(fs.plant, store.path), *observers], progress=progress)
+        summary = night.run()
+        models = {hid: store.latest_model(hid) for hid in ids}
+        path = sun_path(cfg.site)
+        report = NightReport(summary, daytime_error(fs.plant, cfg, models, path),
+                             predicted_daytime(cfg, models, path))
+        book.add_to_summary(name, {"truth": {"daytime_error_mrad": report.daytime.to_json()}})
+        _merge_safety(fs.plant, safety, on_target)
+    if progress is not None:
+        progress(f"{name}: field daytime error now {report.predicted.rms:.2f} mrad RMS predicted, "
+                 f"{report.daytime.rms:.2f} true (plant truth)")
+    return report
+
+
+def simulated_run(cfg: PlantConfig, config_path: str, out: Path, db: Path, ids: list[str], *, settings,
+                  name: str, sequential: bool = False, library_dir: Path | None = None, observers=(),
+                  progress=None, nights: int = 0) -> SimulatedRun:
+    """Calibration campaign ``name`` then ``nights`` planned nights, each its own plant session
+    as separate ``campaign run|night --simulate`` processes would be, and the field's daytime
+    error against the plant's truth of the last night."""
+    from simplant.daytime import daytime_error
+    from simplant.harness import read_truth
+    from simplant.plant import SimulatedPlant, load_config_data
+
+    safety: dict = {}
+    on_target: dict = {}
+    store = open_store(db)
+    try:
+        result = calibrate(cfg, config_path, store, out, ids, settings, name, sequential=sequential,
+                           observers=observers, progress=progress, library_dir=library_dir, safety=safety,
+                           on_target=on_target)
+        reports = []
+        for _ in range(nights if result.status in ("finished", "partial") else 0):
+            reports.append(planned_night(cfg, config_path, store, out, ids, settings, name, progress=progress,
+                                         library_dir=library_dir, safety=safety, on_target=on_target))
+        models = {hid: store.latest_model(hid) for hid in ids}
+        path = sun_path(cfg.site)
+        truth = SimulatedPlant(load_config_data(config_path), out / "plant", heliostat_ids=ids,
+                               settings=settings, source=str(config_path))
+        truth.set_night(NightBook(store).next_index() - 1)
+        daytime = reports[-1].daytime if reports else daytime_error(truth, cfg, models, path)
+        predicted = reports[-1].predicted if reports else predicted_daytime(cfg, models, path)
+        uncalibrated = daytime_error(truth, cfg, dict.fromkeys(ids), path)
+        store.update_meta(result.campaign_id, {"beam_safety_last_session": safety,
+                                               "daytime_error_mrad": daytime.to_json(),
+                                               "daytime_error_predicted_mrad": predicted.to_json(),
+                                               "daytime_error_uncalibrated_mrad": uncalibrated.to_json(),
+                                               "nights": [r.to_json() for r in reports]})
+    finally:
+        store.close()
+    return SimulatedRun(result, read_truth(db, result.campaign_id), safety, settings, db, out, daytime,
+                        uncalibrated, predicted, reports, on_target)

@@ -1,0 +1,102 @@
+"""The ``nights`` table and the night's plan: what :class:`controller.calibration.night.PlannedNight`
+and ``heliocal campaign run`` keep of a night besides its campaigns.
+
+A field's calibration campaign is night 0; each planned night is the next index. A night that
+did not finish (killed, interrupted, a lamp that did not confirm) is resumed by the next
+``heliocal campaign night`` under the same name and index, with the plan stored for it.
+"""
+
+from __future__ import annotations
+
+import json
+
+from controller.calibration.planner import PlanItem
+from controller.calibration.records import NIGHT_KINDS, NightRecord, utc_now
+from controller.storage.db import CampaignStore
+from controller.storage.plans import load_plan, record_plan
+
+NIGHTS_SCHEMA = 8  # the schema version that added the nights table
+
+
+class NightBook:
+    """Nights and plans of one :class:`CampaignStore` (the orchestration's ``NightStore``)."""
+
+    def __init__(self, store: CampaignStore) -> None:
+        self.store = store
+
+    def open_night(self, name: str, kind: str) -> tuple[NightRecord, bool]:
+        """The night ``name`` — ``(record, resumed)``: resumed when it exists (its status set back
+        to running unless it finished), else a new one with the next index."""
+        if kind not in NIGHT_KINDS:
+            raise ValueError(f"night kind must be one of {NIGHT_KINDS}, got {kind!r}")
+        with self.store.tx() as db:
+            row = db.execute("SELECT * FROM nights WHERE name=?", (name,)).fetchone()
+            if row is not None:
+                db.execute("UPDATE nights SET status='running', cause=NULL WHERE id=? AND status!='finished'",
+                           (row["id"],))
+                return self._get(db, row["id"]), True
+            idx = db.execute("SELECT COUNT(*) FROM nights").fetchone()[0]
+            cur = db.execute("INSERT INTO nights (idx, name, kind, started_utc) VALUES (?,?,?,?)",
+                             (idx, name, kind, utc_now()))
+            return self._get(db, cur.lastrowid), False
+
+    def finish_night(self, night_id: int, status: str, cause: str | None, summary: dict) -> None:
+        with self.store.tx() as db:
+            db.execute("UPDATE nights SET status=?, cause=?, finished_utc=?, summary_json=? WHERE id=?",
+                       (status, cause, utc_now(), json.dumps(summary), night_id))
+
+    def add_to_summary(self, name: str, extra: dict) -> None:
+        """Merge ``extra`` into night ``name``'s summary (e.g. a simulated plant's true daytime
+        error, under ``truth``), in one transaction."""
+        with self.store.tx() as db:
+            row = db.execute("SELECT id, summary_json FROM nights WHERE name=?", (name,)).fetchone()
+            summary = {**json.loads(row["summary_json"]), **extra}
+            db.execute("UPDATE nights SET summary_json=? WHERE id=?", (json.dumps(summary), row["id"]))
+
+    def nights(self) -> list[NightRecord]:
+        """Every night, by index (none in a database older than nights, opened read-only)."""
+        if self.store.schema_version < NIGHTS_SCHEMA:
+            return []
+        return [_night(r) for r in self.store.query("SELECT * FROM nights ORDER BY idx")]
+
+    def unfinished(self, kind: str = "planned") -> NightRecord | None:
+        """The latest night of ``kind`` when it did not finish (to be resumed), else None."""
+        rows = self.store.query("SELECT * FROM nights ORDER BY idx DESC LIMIT 1")
+        if not rows or rows[0]["kind"] != kind or rows[0]["status"] in ("finished", "partial"):
+            return None
+        return _night(rows[0])
+
+    def next_index(self) -> int:
+        return int(self.store.query("SELECT COUNT(*) AS n FROM nights")[0]["n"])
+
+    def index_for(self, name: str) -> int:
+        """The index night ``name`` has, or would get if opened now."""
+        rows = self.store.query("SELECT idx FROM nights WHERE name=?", (name,))
+        return int(rows[0]["idx"]) if rows else self.next_index()
+
+    def base_name(self) -> str | None:
+        """The name of night 0 (the field's calibration campaign), which planned nights are named after."""
+        rows = self.store.query("SELECT name FROM nights WHERE idx=0")
+        return rows[0]["name"] if rows else None
+
+    def last_end_s(self, night: str) -> float | None:
+        """The latest plant time (``end_s``) recorded in night ``night``'s campaigns, or None."""
+        rows = self.store.query("SELECT MAX(r.end_s) AS t FROM heliostat_runs r JOIN campaigns c "
+                                "ON r.campaign_id=c.id WHERE c.name=? OR substr(c.name, 1, ?)=?",
+                                (night, len(night) + 1, night + "/"))
+        return None if rows[0]["t"] is None else float(rows[0]["t"])
+
+    def plan(self, night: str) -> list[PlanItem]:
+        return load_plan(self.store, night)
+
+    def record_plan(self, items: list[PlanItem]) -> None:
+        record_plan(self.store, items)
+
+    @staticmethod
+    def _get(db, night_id: int) -> NightRecord:
+        return _night(db.execute("SELECT * FROM nights WHERE id=?", (night_id,)).fetchone())
+
+
+def _night(row) -> NightRecord:
+    return NightRecord(int(row["id"]), int(row["idx"]), row["name"], row["kind"], row["started_utc"],
+                       row["finished_utc"], row["status"], row["cause"], json.loads(row["summary_json"]))

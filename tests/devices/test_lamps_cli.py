@@ -1,0 +1,99 @@
+"""``heliocal lamps`` against the simulated plant's lamp panel: the plant's lamps (what its
+cameras render with) are the truth the output is checked against."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+import yaml
+
+from controller.cli import main
+from simplant.plant import SimulatedPlant, load_config_data
+from tests.calibration.conftest import REPO
+from tests.conftest import scaled_s
+
+
+@pytest.fixture(scope="module")
+def field(tmp_path_factory):
+    """The running plant and its rewritten config file (short confirmation timeout)."""
+    run = tmp_path_factory.mktemp("lamps-cli")
+    plant = SimulatedPlant(load_config_data(REPO / "configs" / "demo.yaml"), run / "plant",
+                           heliostat_ids=["H01"], seed=6)
+    plant.start()
+    data = dict(plant.data, lamps={**plant.data["lamps"], "confirm_timeout_s": scaled_s(0.5)})
+    path = run / "plant.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    yield plant, path
+    plant.stop()
+
+
+def _lamps(capsys, path, *args: str) -> tuple[int, str, str]:
+    code = main(["lamps", "--config", str(path), *args])
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def test_status_on_off_and_all_off(field, capsys):
+    plant, path = field
+    plant.lamp_panel.no_confirm.clear()
+    code, out, _ = _lamps(capsys, path, "all-off", "--json")
+    assert code == 0 and plant.lit is None
+    assert not any(s["lit"] or s["commanded"] for s in json.loads(out)["lamps"])
+    code, out, _ = _lamps(capsys, path, "on", "lamp-west", "--json")
+    doc = json.loads(out)
+    assert code == 0 and plant.lit == "lamp-west"
+    assert doc["ok"] and doc["action"] == "on" and doc["channel"] == "lamp-west"
+    assert doc["panel"] == f"lamp panel modbus-tcp 127.0.0.1:{plant.lamp_panel.port} unit 1"
+    lit = {s["channel"]: (s["commanded"], s["lit"]) for s in doc["lamps"]}
+    assert lit["lamp-west"] == (True, True) and lit["lamp-east"] == (False, False)
+    assert list(lit) == list(yaml.safe_load(path.read_text())["lamps"]["channels"])
+    # on switches only that lamp: lamp-west stays lit beside lamp-east
+    assert _lamps(capsys, path, "on", "lamp-east")[0] == 0
+    assert plant.lamp_lit("lamp-west") and plant.lamp_lit("lamp-east")
+    code, out, _ = _lamps(capsys, path, "off", "lamp-west")
+    assert code == 0 and not plant.lamp_lit("lamp-west") and plant.lamp_lit("lamp-east")
+    code, out, _ = _lamps(capsys, path)  # status is the default
+    lines = {line.split()[0]: line.split()[1] for line in out.splitlines()}
+    assert code == 0 and lines["lamp-east"] == "lit" and lines["lamp-west"] == "dark"
+    assert _lamps(capsys, path, "all-off")[0] == 0 and plant.lit is None
+
+
+def test_a_lamp_that_does_not_confirm_exits_1_naming_it(field, capsys):
+    plant, path = field
+    plant.lamp_panel.no_confirm.add("lamp-far-east")
+    try:
+        code, out, err = _lamps(capsys, path, "on", "lamp-far-east")
+        assert code == 1 and err.strip() == (
+            f"heliocal lamps: error: lamp lamp-far-east did not confirm lit within {scaled_s(0.5):g} s")
+        code, out, _ = _lamps(capsys, path, "on", "lamp-far-east", "--json")
+        assert code == 1 and json.loads(out) == {
+            "ok": False, "error": f"lamp lamp-far-east did not confirm lit within {scaled_s(0.5):g} s"}
+    finally:
+        plant.lamp_panel.no_confirm.clear()
+        assert _lamps(capsys, path, "all-off")[0] == 0
+
+
+@pytest.mark.parametrize("args, said", [
+    (("on", "lamp-north"), "no lamp channel 'lamp-north' in lamps.channels (known: lamp, lamp-west"),
+    (("on",), "lamps on: name the LAMP to switch"),
+    (("status", "lamp"), "lamps status: takes no LAMP"),
+])
+def test_bad_input_exits_2_before_anything_is_switched(field, capsys, args, said):
+    plant, path = field
+    before = len(plant.lamp_panel.writes)
+    code, _, err = _lamps(capsys, path, *args)
+    assert code == 2 and said in err and len(err.strip().splitlines()) == 1
+    assert len(plant.lamp_panel.writes) == before
+
+
+def test_a_config_without_a_lamp_panel_exits_2(capsys):
+    code, _, err = _lamps(capsys, REPO / "configs" / "demo.yaml", "status")
+    assert code == 2 and "demo.yaml: no lamps: section" in err
+
+
+def test_an_unknown_action_is_a_usage_error(field, capsys):
+    _, path = field
+    with pytest.raises(SystemExit) as e:
+        main(["lamps", "--config", str(path), "blink", "lamp"])
+    assert e.value.code == 2
