@@ -27,6 +27,7 @@ from controller.camera_config import Camera, Gige, Sensor  # noqa: F401 - the ca
 from controller.config_rules import INT32_MAX, Direction, Position, PriorSigma, Section, Steps
 from controller.errors import ConfigError, InputError
 from controller.io.config_keys import did_you_mean, key_path
+from controller.io.files import read_bytes
 from controller.io.yaml_files import parse_yaml, read_text
 from controller.link_config import Link, ModbusRtuLink, ModbusTcpLink, SerialLink  # noqa: F401 - the links section
 
@@ -337,11 +338,10 @@ def parse_config(data: object, source: str = "<config>") -> PlantConfig:
 
 def config_sha256(path: str | Path) -> str:
     """SHA-256 of a configuration file's bytes: which configuration a campaign was started with."""
-    p = Path(path)
     try:
-        return hashlib.sha256(p.read_bytes()).hexdigest()
-    except OSError as exc:
-        raise ConfigError(f"{p}: cannot read configuration: {exc.strerror or exc}") from None
+        return hashlib.sha256(read_bytes(path, "configuration")).hexdigest()
+    except InputError as exc:
+        raise ConfigError(str(exc)) from None
 
 
 def load_config(path: str | Path) -> PlantConfig:

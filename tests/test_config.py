@@ -116,8 +116,8 @@ def test_unreadable_file(tmp_path, capsys):
     assert main(["demo", "--config", str(missing)]) == 2
     err = capsys.readouterr().err.strip()
     assert f"{missing}: cannot read configuration" in err and len(err.splitlines()) == 1
-    with pytest.raises(ConfigError, match="cannot read configuration"):
-        load_config(tmp_path)  # a directory
+    with pytest.raises(ConfigError, match="is a directory, not a regular file"):
+        load_config(tmp_path)
 
 
 def test_bad_config_json_error(tmp_path, capsys):

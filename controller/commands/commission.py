@@ -91,11 +91,9 @@ def run(args: argparse.Namespace) -> int:
     steps = _steps(args)
     if not args.simulate and not args.camera_manifest:
         raise InputError("commission: no camera; pass --camera-manifest FILE or --simulate")
-    library = None
-    if args.library and Path(args.library).is_file():
-        from controller.recognition.library_io import load_library
+    from controller.recognition.library_io import load_library_if_present
 
-        library = load_library(args.library)
+    library = load_library_if_present(args.library)
     if args.simulate:
         return _with_simulated(cfg, args, steps, library)
     from controller.devices.drive import DriveLimits

@@ -115,11 +115,9 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("console: no camera; pass --camera-manifest FILE or --simulate")
     if args.reports and not Path(args.reports).is_dir():
         raise InputError(f"--reports {args.reports}: not a folder")
-    library = None
-    if args.library and Path(args.library).is_file():
-        from controller.recognition.library_io import load_library
+    from controller.recognition.library_io import load_library_if_present
 
-        library = load_library(args.library)
+    library = load_library_if_present(args.library)
     sock = _listen(args.host, args.port)
     try:
         if args.simulate:
