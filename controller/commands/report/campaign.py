@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
-from controller.commands._common import add_json_option, output_dir, print_json
+from controller.commands._common import add_json_option, print_json, staged_output_dir
 
 
 def register(subparsers) -> None:
@@ -22,9 +23,8 @@ def run(args: argparse.Namespace) -> int:
     from controller.reports.campaign import write_report
     from controller.storage.db import open_existing
 
-    output_dir(args.out)
-    with open_existing(args.db) as store:
-        path = write_report(store, args.out, store.find_campaign(args.campaign).id)
+    with staged_output_dir(args.out) as stage, open_existing(args.db) as store:
+        path = Path(args.out) / write_report(store, stage, store.find_campaign(args.campaign).id).name
     if args.json:
         print_json({"report": str(path), "html": str(path.with_suffix(".html"))})
     else:
