@@ -20,6 +20,7 @@ from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
 from controller.commands._common import add_config_option, add_json_option, output_dir, print_json
+from controller.commands._numbers import SEED
 from controller.errors import InputError
 
 
@@ -35,7 +36,7 @@ def register(subparsers) -> None:
     r.add_argument("--heliostats", default=None, metavar="IDS", help="comma-separated ids (default: all)")
     r.add_argument("--camera-manifest", default=None, metavar="FILE", help="replay frame pairs (FileCamera)")
     r.add_argument("--simulate", action="store_true", help="run against the embedded simulated plant")
-    r.add_argument("--seed", type=int, default=0, help="simulation seed (with --simulate; default 0)")
+    r.add_argument("--seed", type=SEED, default=0, help="simulation seed (with --simulate; default 0)")
     r.add_argument("--report", default=None, metavar="DIR", help="also write the morning report into DIR")
     r.add_argument("--notify", default=None, metavar="CMD",
                    help="run CMD (a shell command) at the end with the summary JSON on its standard input")

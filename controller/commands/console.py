@@ -18,6 +18,7 @@ import tempfile
 from pathlib import Path
 
 from controller.commands._common import add_config_option
+from controller.commands._numbers import SEED, Number
 from controller.errors import InputError
 from controller.io.yaml_files import read_text
 
@@ -30,8 +31,8 @@ def register(subparsers) -> None:
     add_config_option(p)
     p.add_argument("--db", required=True, metavar="DB", help="campaign database (SQLite, created if missing)")
     p.add_argument("--simulate", action="store_true", help="run the console on the embedded simulated plant")
-    p.add_argument("--seed", type=int, default=0, help="simulation seed (with --simulate; default 0)")
-    p.add_argument("--clock-speedup", type=float, default=20.0, metavar="X",
+    p.add_argument("--seed", type=SEED, default=0, help="simulation seed (with --simulate; default 0)")
+    p.add_argument("--clock-speedup", type=Number(0, 1000, lo_open=True), default=20.0, metavar="X",
                    help="plant seconds per wall second of the simulated plant (with --simulate; default 20)")
     p.add_argument("--heliostats", default=None, metavar="IDS",
                    help="comma-separated heliostat ids the console shows and drives (default: all)")
@@ -42,7 +43,8 @@ def register(subparsers) -> None:
     p.add_argument("--reports", default=None, metavar="DIR",
                    help="folder with confusion reports (heliocal report confusion) to show")
     p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1)")
-    p.add_argument("--port", type=int, default=8080, help="TCP port (default 8080; 0 picks a free one)")
+    p.add_argument("--port", type=Number(0, 65535, integer=True), default=8080,
+                   help="TCP port (default 8080; 0 picks a free one)")
     tok = p.add_mutually_exclusive_group()
     tok.add_argument("--token", default=None, metavar="T",
                      help="token every state-changing request must send as X-Heliocal-Token")
