@@ -41,10 +41,13 @@ class HeliocalParser(argparse.ArgumentParser):
     json_errors = False  # set by main() when --json was given: usage errors answer in JSON too
 
     def error(self, message: str):
-        if HeliocalParser.json_errors:  # {"ok": false, "error": ...} on stdout, as every other error
+        """One line, as every other bad input (``--help`` shows the usage): on stderr, or as
+        ``{"ok": false, "error": ...}`` on stdout with ``--json``; exit status 2."""
+        if HeliocalParser.json_errors:
             print(json.dumps({"ok": False, "error": message}))
-            sys.exit(2)
-        super().error(message)
+        else:
+            print(f"{self.prog}: error: {message} (see {self.prog} --help)", file=sys.stderr)
+        sys.exit(2)
 
 
 def plain_text(text: str) -> str:
@@ -102,9 +105,9 @@ def _main(argv: list[str] | None) -> int:
     try:
         args = parser.parse_args(argv)
     except SystemExit as exc:
-        if json_mode:  # the JSON error is printed; return its status as every other error does
-            return int(exc.code or 0)
-        raise
+        if exc.code:  # a usage error, already printed: its status, as every other error returns
+            return int(exc.code)
+        raise  # --help, --version
     finally:
         HeliocalParser.json_errors = False
     if not getattr(args, "func", None):

@@ -40,7 +40,8 @@ def register(subparsers) -> None:
                         "chosen for the daytime error; default 3, 0: the calibration only)")
     p.add_argument("--sequential", action="store_true",
                    help="no pipelining: one heliostat after another (for the speedup comparison)")
-    p.add_argument("--uncalibrated", type=Number(0, 1000, lo_open=True), default=None, metavar="MRAD",
+    p.add_argument("--uncalibrated", type=Number(0, UNCALIBRATED_MAX_MRAD, lo_open=True), default=None,
+                   metavar="MRAD",
                    help="then calibrate the same heliostats on a plant whose hidden errors have this "
                         "scale (a newly installed field, first spots at the view's edge), with the "
                         "coarse correction and centroid only (make demo: 12)")
