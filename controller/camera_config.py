@@ -7,13 +7,20 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import Field, field_validator, model_validator
+
+from controller.config_rules import (
+    MAX_SENSOR_PX,
+    Pixel,
+    PixelOffset,
+    Position,
+    RadialDistortion,
+    Section,
+    TangentialDistortion,
+)
 
 Vec3 = tuple[float, float, float]
-
-
-class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)  # as every configuration section
+_Model = Section  # as every configuration section (controller.config_rules)
 
 
 class Sensor(_Model):
@@ -31,9 +38,10 @@ class Gige(_Model):
     high: str = Field(min_length=1, description="device id, serial or IP address of the HIGH imager")
     pixel_format: Literal["Mono8", "Mono12", "Mono16"] | None = Field(
         default=None, description="None: Mono<bit_depth>")
-    gain: float | None = Field(default=None, ge=0, description="device gain of both imagers "
+    gain: float | None = Field(default=None, ge=0, le=100, description="device gain of both imagers "
                                "(device units, usually dB); None: leave as set")
-    roi_offset_px: tuple[int, int] = Field(default=(0, 0), description="OffsetX, OffsetY of the ROI")
+    roi_offset_px: tuple[PixelOffset, PixelOffset] = Field(default=(0, 0),
+                                                           description="OffsetX, OffsetY of the ROI")
     trigger: str = Field(default="software", description="software, free (free-running) or LineN")
     frame_rate_hz: float = Field(default=30.0, gt=0, le=1000, description="with trigger: free")
     max_skew_ms: float = Field(default=1.0, gt=0, le=10000,
@@ -50,13 +58,6 @@ class Gige(_Model):
             raise ValueError(f"{v!r}: must be software, free or LineN (a hardware input, e.g. Line1)")
         return v
 
-    @field_validator("roi_offset_px")
-    @classmethod
-    def _offset(cls, v: tuple[int, int]) -> tuple[int, int]:
-        if min(v) < 0:
-            raise ValueError("offsets must be >= 0")
-        return v
-
     @model_validator(mode="after")
     def _two_imagers(self) -> Gige:
         if self.low == self.high:
@@ -71,13 +72,14 @@ class CameraRegistration(_Model):
     calibration target's centre), image x (column) level, ``roll_mrad`` about the line of sight."""
 
     focal_px: float = Field(gt=0, le=1e6, description="focal length, px (fx = fy)")
-    principal_point_px: tuple[float, float] | None = Field(
+    principal_point_px: tuple[Pixel, Pixel] | None = Field(
         default=None, description="(cx, cy) px; None: the image centre")
-    distortion: tuple[float, float, float, float] = Field(
+    distortion: tuple[RadialDistortion, RadialDistortion, TangentialDistortion, TangentialDistortion] = Field(
         default=(0.0, 0.0, 0.0, 0.0), description="Brown-Conrady k1, k2, p1, p2 (OpenCV)")
-    look_at_enu_m: Vec3 | None = Field(default=None, description="None: the calibration target's centre")
+    look_at_enu_m: Position | None = Field(default=None, description="None: the calibration target's centre")
     roll_mrad: float = Field(default=0.0, ge=-3142, le=3142)
-    fiducials_enu_m: tuple[Vec3, ...] = Field(min_length=4, description="surveyed fiducials, m ENU")
+    fiducials_enu_m: tuple[Position, ...] = Field(min_length=4, max_length=1000,
+                                                  description="surveyed fiducials, m ENU")
     max_rms_px: float = Field(default=0.5, gt=0, le=10, description="refuse a registration above this")
     search_radius_px: float = Field(default=100.0, ge=5, le=2000,
                                     description="how far from its nominal pixel a fiducial is looked for")
@@ -97,14 +99,14 @@ class Camera(_Model):
     """The double-CCD prism camera. ``sensors[0]`` is the shorter exposure (LOW)."""
 
     sensors: tuple[Sensor, Sensor]
-    width_px: int = Field(default=1024, gt=0, le=16384)
-    height_px: int = Field(default=768, gt=0, le=16384)
+    width_px: int = Field(default=1024, gt=0, le=MAX_SENSOR_PX)
+    height_px: int = Field(default=768, gt=0, le=MAX_SENSOR_PX)
     bit_depth: int = Field(default=8, ge=8, le=16)
     crf_file: str | None = None
     dark_offset_counts: float = Field(default=8.0, ge=0, le=255)
     read_noise_counts: float = Field(default=0.8, ge=0, le=50)
-    full_well_electrons: float = Field(default=20000.0, gt=0)
-    position_enu_m: Vec3 | None = Field(default=None, description="camera position, m ENU")
+    full_well_electrons: float = Field(default=20000.0, gt=0, le=1e7)
+    position_enu_m: Position | None = Field(default=None, description="camera position, m ENU")
     driver: Literal["gige"] | None = Field(default=None, description="the field camera's driver "
                                            "(gige: section gige); None: recorded pairs only")
     gige: Gige | None = None

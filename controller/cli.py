@@ -23,6 +23,7 @@ import threading
 
 from controller import __version__, commands
 from controller.commands._common import resolve_config
+from controller.commands._numbers import Number
 from controller.errors import HeliocalError
 
 
@@ -36,6 +37,17 @@ class HeliocalParser(argparse.ArgumentParser):
 
     def format_usage(self) -> str:
         return plain_text(super().format_usage())
+
+    json_errors = False  # set by main() when --json was given: usage errors answer in JSON too
+
+    def error(self, message: str):
+        """One line, as every other bad input (``--help`` shows the usage): on stderr, or as
+        ``{"ok": false, "error": ...}`` on stdout with ``--json``; exit status 2."""
+        if HeliocalParser.json_errors:
+            print(json.dumps({"ok": False, "error": message}))
+        else:
+            print(f"{self.prog}: error: {message} (see {self.prog} --help)", file=sys.stderr)
+        sys.exit(2)
 
 
 def plain_text(text: str) -> str:
@@ -56,7 +68,18 @@ def build_parser() -> argparse.ArgumentParser:
             continue
         module = importlib.import_module(f"{commands.__name__}.{info.name}")
         module.register(sub)
+    _state_ranges(parser)
     return parser
+
+
+def _state_ranges(parser: argparse.ArgumentParser) -> None:
+    """Append each numeric option's range to its help (the range its type checks)."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                _state_ranges(sub)
+        elif isinstance(action.type, Number) and action.help != argparse.SUPPRESS:
+            action.help = f"{action.help or ''} [range {action.type.range_text()}]".strip()
 
 
 def _terminate(signum, frame) -> None:
@@ -77,7 +100,16 @@ def main(argv: list[str] | None = None) -> int:
 
 def _main(argv: list[str] | None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    json_mode = "--json" in (sys.argv[1:] if argv is None else argv)
+    HeliocalParser.json_errors = json_mode
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:
+        if exc.code:  # a usage error, already printed: its status, as every other error returns
+            return int(exc.code)
+        raise  # --help, --version
+    finally:
+        HeliocalParser.json_errors = False
     if not getattr(args, "func", None):
         parser.print_help()
         return 2

@@ -21,20 +21,19 @@ import math
 from pathlib import Path
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import Field, ValidationError, field_validator, model_validator
 
 from controller.camera_config import Camera, Gige, Sensor  # noqa: F401 - the camera section
+from controller.config_rules import INT32_MAX, Direction, Position, PriorSigma, Section, Steps
 from controller.errors import ConfigError, InputError
 from controller.io.config_keys import did_you_mean, key_path
+from controller.io.files import read_bytes
 from controller.io.yaml_files import parse_yaml, read_text
 from controller.lamp_config import CommandLamps, Lamps, ModbusRtuLamps, ModbusTcpLamps, check_channels  # noqa: F401
 from controller.link_config import Link, ModbusRtuLink, ModbusTcpLink, SerialLink  # noqa: F401 - the links section
 
 Vec3 = tuple[float, float, float]
-
-
-class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+_Model = Section  # every section: unknown keys refused, only finite numbers (controller.config_rules)
 
 
 def _unit(v: Vec3) -> Vec3:
@@ -51,15 +50,16 @@ class Site(_Model):
     elevation_m: float = Field(ge=-500, le=9000)
     pressure_mbar: float = Field(gt=0, le=1200)
     temperature_c: float = Field(ge=-90, le=70)
-    delta_t_s: float | None = Field(default=None, description="TT-UT1 in s; None: estimated")
+    delta_t_s: float | None = Field(default=None, ge=-100, le=300,
+                                    description="TT-UT1 in s; None: estimated")
 
 
 class Target(_Model):
     id: str
-    center_enu_m: Vec3
-    normal: Vec3
-    width_m: float = Field(gt=0)
-    height_m: float = Field(gt=0)
+    center_enu_m: Position
+    normal: Direction
+    width_m: float = Field(gt=0, le=100)
+    height_m: float = Field(gt=0, le=100)
     camera: Camera | None = Field(default=None, description="this target's camera (schema of the "
                                   "top-level camera); None: the top-level camera")
 
@@ -72,8 +72,8 @@ class PersonZone(_Model):
     error). No reflected beam may enter it — at a pose, on a slew or on the approach."""
 
     id: str
-    min_enu_m: Vec3
-    max_enu_m: Vec3
+    min_enu_m: Position
+    max_enu_m: Position
     margin_m: float = Field(default=2.0, ge=0, le=50)
 
     @model_validator(mode="after")
@@ -93,7 +93,7 @@ class SunSource(_Model):
 class LampSource(_Model):
     kind: Literal["lamp"]
     id: str
-    position_enu_m: Vec3
+    position_enu_m: Position
     diameter_m: float = Field(gt=0, le=10)
 
 
@@ -101,8 +101,8 @@ LightSource = Annotated[SunSource | LampSource, Field(discriminator="kind")]
 
 
 class SoftLimits(_Model):
-    min_steps: int
-    max_steps: int
+    min_steps: Steps
+    max_steps: Steps
 
     @model_validator(mode="after")
     def _ordered(self) -> SoftLimits:
@@ -114,15 +114,15 @@ class SoftLimits(_Model):
 class AxisConfig(_Model):
     """One linear-actuator axis. Names and units as in the PAINT/ARTIST heliostat records."""
 
-    increment: float = Field(gt=0, description="motor steps per metre of stroke")
-    initial_stroke_length: float = Field(gt=0, description="stroke L0 at step 0, m")
-    offset: float = Field(gt=0, description="actuator mount offset from the pivot, m")
-    pivot_radius: float = Field(gt=0, description="lever arm from pivot to actuator rod end, m")
+    increment: float = Field(gt=0, le=1e9, description="motor steps per metre of stroke")
+    initial_stroke_length: float = Field(gt=0, le=10, description="stroke L0 at step 0, m")
+    offset: float = Field(gt=0, le=10, description="actuator mount offset from the pivot, m")
+    pivot_radius: float = Field(gt=0, le=10, description="lever arm from pivot to actuator rod end, m")
     initial_angle: float = Field(ge=-math.pi, le=math.pi, description="axis angle at step 0, rad")
     clockwise_axis_movement: bool = False
     # Steps travel as int32 on both wire protocols (PROTOCOL.md, MODBUS.md).
-    min_increment: int = Field(ge=0, le=2**31 - 1, description="hard range start, steps")
-    max_increment: int = Field(gt=0, le=2**31 - 1, description="hard range end, steps")
+    min_increment: int = Field(ge=0, le=INT32_MAX, description="hard range start, steps")
+    max_increment: int = Field(gt=0, le=INT32_MAX, description="hard range end, steps")
     soft_limits: SoftLimits
     speed_steps_per_s: float = Field(default=1500.0, gt=0, le=100000)
     acceleration_steps_per_s2: float = Field(default=3000.0, gt=0, le=1000000)
@@ -149,14 +149,14 @@ class Axes(_Model):
 class Mirror(_Model):
     width_m: float = Field(gt=0, le=30)
     height_m: float = Field(gt=0, le=30)
-    focal_length_m: float = Field(gt=0, description="on-axis focal length, m")
+    focal_length_m: float = Field(gt=0, le=10000, description="on-axis focal length, m")
     slope_error_mrad: float = Field(default=1.5, ge=0, le=20)
     reflectivity: float = Field(default=0.93, gt=0, le=1)
 
 
 class Heliostat(_Model):
     id: str
-    position_enu_m: Vec3
+    position_enu_m: Position
     mirror: Mirror
     axes: Axes
     link: Link
@@ -167,7 +167,7 @@ class ModelSettings(_Model):
 
     noise_mrad: float = Field(default=0.3, gt=0, le=50,
                               description="1-σ noise of one measured mirror normal, mrad")
-    prior_sigma: dict[str, float] = Field(
+    prior_sigma: dict[str, PriorSigma] = Field(
         default_factory=dict,
         description="prior 1-σ of tracking-model terms, by key (e.g. base_yaw_mrad, az_stroke0_mm); "
                     "terms not listed keep the documented defaults")
@@ -177,12 +177,10 @@ class ModelSettings(_Model):
 
     @field_validator("prior_sigma")
     @classmethod
-    def _positive(cls, v: dict[str, float]) -> dict[str, float]:
-        for key, sigma in v.items():
+    def _term_keys(cls, v: dict[str, float]) -> dict[str, float]:
+        for key in v:
             if not (key.endswith("_mrad") or key.endswith("_mm")):
                 raise ValueError(f"{key}: a term key ends in _mrad or _mm")
-            if not (math.isfinite(sigma) and 0 < sigma <= 1000):
-                raise ValueError(f"{key}: prior σ must be in (0, 1000], got {sigma}")
         return v
 
 
@@ -350,11 +348,10 @@ def parse_config(data: object, source: str = "<config>") -> PlantConfig:
 
 def config_sha256(path: str | Path) -> str:
     """SHA-256 of a configuration file's bytes: which configuration a campaign was started with."""
-    p = Path(path)
     try:
-        return hashlib.sha256(p.read_bytes()).hexdigest()
-    except OSError as exc:
-        raise ConfigError(f"{p}: cannot read configuration: {exc.strerror or exc}") from None
+        return hashlib.sha256(read_bytes(path, "configuration")).hexdigest()
+    except InputError as exc:
+        raise ConfigError(str(exc)) from None
 
 
 def load_config(path: str | Path) -> PlantConfig:

@@ -13,7 +13,9 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import Field, field_validator
+
+from controller.config_rules import Section
 
 FIDUCIALS = "fiducials:"  # channel-name prefix of a target's fiducial lamps
 MAX_CHANNELS = 256
@@ -23,8 +25,7 @@ MAX_INDEX = 65535  # Modbus coil / discrete-input addresses are 16 bit
 Index = Annotated[int, Field(strict=True, ge=0, le=MAX_INDEX)]  # strict: true/false are no index
 
 
-class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)  # as every configuration section
+_Model = Section  # as every configuration section (controller.config_rules)
 
 
 class _Lamps(_Model):

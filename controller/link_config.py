@@ -8,18 +8,18 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
+from controller.config_rules import Baud, Section
 
-class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)  # as every configuration section
+_Model = Section  # as every configuration section (controller.config_rules)
 
 
 class SerialLink(_Model):
     kind: Literal["serial"]
     device: str
     address: int = Field(ge=1, le=247)
-    baud: int = Field(default=115200, gt=0)
+    baud: Baud = 115200
 
     @property
     def bus_key(self) -> tuple:
@@ -52,7 +52,7 @@ class ModbusRtuLink(_Model):
     kind: Literal["modbus-rtu"]
     device: str
     unit: int = Field(ge=1, le=247)
-    baud: int = Field(default=115200, gt=0)
+    baud: Baud = 115200
 
     @property
     def bus_key(self) -> tuple:

@@ -65,7 +65,7 @@ CASES = [
     ("duplicate id", _set("heliostats.1.id", "H01"), "heliostats[1].id", "duplicate id 'H01'"),
     ("soft limits outside hard range", _set("heliostats.0.axes.azimuth.soft_limits.max_steps", 80000),
      "heliostats[0].axes.azimuth", "must lie inside the hard range [0, 75308]"),
-    ("non-unit normal", _set("targets.0.normal", [0, 2, 0]), "targets[0].normal", "must be a unit vector"),
+    ("non-unit normal", _set("targets.0.normal", [0, 0.8, 0]), "targets[0].normal", "must be a unit vector"),
     ("unknown source kind", _set("light_sources.1.kind", "laser"), "light_sources[1]", "'laser'"),
     ("typo", _set("calibration.tolerence_mrad", 1.0), "calibration.tolerence_mrad",
      "unknown key (did you mean 'tolerance_mrad'?)"),
@@ -116,8 +116,8 @@ def test_unreadable_file(tmp_path, capsys):
     assert main(["demo", "--config", str(missing)]) == 2
     err = capsys.readouterr().err.strip()
     assert f"{missing}: cannot read configuration" in err and len(err.splitlines()) == 1
-    with pytest.raises(ConfigError, match="cannot read configuration"):
-        load_config(tmp_path)  # a directory
+    with pytest.raises(ConfigError, match="is a directory, not a regular file"):
+        load_config(tmp_path)
 
 
 def test_bad_config_json_error(tmp_path, capsys):

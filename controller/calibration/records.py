@@ -129,6 +129,8 @@ class RunRecord:
 # but some failed or did not converge; stopped by a fault (a beam may be left on the target, a
 # device is missing); stopped by the operator (Ctrl-C, SIGTERM). ``running`` while it runs.
 CAMPAIGN_STATUSES = ("finished", "partial", "aborted", "interrupted")
+# A heliostat run's outcome (RunRecord.status); records are refused on reading with another.
+RUN_STATUSES = ("calibrated", "not_converged", "measured", "failed")
 
 
 @dataclass

@@ -6,6 +6,8 @@ import argparse
 import json
 import math
 import os
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -95,6 +97,30 @@ def output_dir(path: str | Path, option: str = "--out") -> Path:
     if not os.access(parent, os.W_OK | os.X_OK):
         raise InputError(f"{option} {p}: cannot create it, {parent} is not writable")
     return p
+
+
+@contextmanager
+def staged_output_dir(path: str | Path, option: str = "--out") -> Iterator[Path]:
+    """A temporary folder beside ``path`` to write into; on success its files move into ``path``
+    (created, or kept with its other files), on any failure it is removed — so a command that
+    stops half-way (a damaged record, Ctrl-C) leaves nothing half-written."""
+    import shutil
+    import tempfile
+
+    p = output_dir(path, option)
+    stage = Path(tempfile.mkdtemp(prefix=f".{p.name}.", dir=p.parent))
+    try:
+        yield stage
+        if not p.exists():
+            stage.rename(p)
+            return
+        for item in sorted(stage.iterdir()):
+            target = p / item.name
+            if target.is_dir() and item.is_dir():
+                shutil.rmtree(target)
+            os.replace(item, target)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
 
 
 def output_file(path: str | Path, option: str = "--out") -> Path:

@@ -23,6 +23,7 @@ from datetime import UTC, datetime
 import numpy as np
 
 from controller.commands._common import add_config_option, add_json_option, print_json
+from controller.commands._numbers import Number
 from controller.errors import InputError
 
 
@@ -34,8 +35,9 @@ def register(subparsers) -> None:
     p.add_argument("--heliostat", required=True, metavar="H", help="heliostat id")
     p.add_argument("--time", metavar="ISO8601", help="instant with its UTC offset, or 'now'")
     p.add_argument("--utc", action="store_true", help="read a --time without an offset as UTC")
-    p.add_argument("--sun-az", type=float, metavar="DEG", help="sun azimuth, clockwise from north, degrees")
-    p.add_argument("--sun-el", type=float, metavar="DEG", help="sun elevation, degrees")
+    p.add_argument("--sun-az", type=Number(-360, 360), metavar="DEG",
+                   help="sun azimuth, clockwise from north, degrees")
+    p.add_argument("--sun-el", type=Number(-90, 90), metavar="DEG", help="sun elevation, degrees")
     add_json_option(p)
     p.set_defaults(func=run)
 

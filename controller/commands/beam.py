@@ -22,13 +22,14 @@ from pathlib import Path
 import numpy as np
 
 from controller.commands._common import add_json_option, existing_file, output_dir, print_json
+from controller.commands._numbers import fraction
 from controller.errors import InputError, NoBeamError
 from controller.imaging.beam import BeamResult, analyze
 from controller.io.images import pyplot, read_image, save_figure
 
 
 def add_threshold_option(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--threshold", type=float, default=0.5, metavar="F",
+    parser.add_argument("--threshold", type=fraction(), default=0.5, metavar="F",
                         help="segmentation threshold as a fraction of the peak (default 0.5)")
 
 
@@ -59,6 +60,9 @@ def run(args: argparse.Namespace) -> int:
     if args.plot:
         output_dir(args.plot, "--plot")
     image = read_image(existing_file(args.image, "image"))
+    if image.size and float(image.max()) < 0:  # (all zeros is analyze's own message)
+        raise InputError(f"{args.image}: no positive signal (maximum {float(image.max()):g}): a beam image "
+                         "has counts above zero; is it negated or background-subtracted twice?")
     background = args.background
     if background not in ("auto", "local", "fit", "none"):
         background = read_image(existing_file(background, "background image"))

@@ -23,7 +23,10 @@ from pathlib import Path
 
 from controller.commands._campaign_list import list_campaigns
 from controller.commands._common import add_config_option, add_json_option, output_dir, print_json
+from controller.commands._numbers import SEED, Number
 from controller.errors import InputError
+
+SPEEDUP = Number(0, 1000, lo_open=True)  # the simulated plant clock's speedup (SimulationSettings)
 
 
 def register(subparsers) -> None:
@@ -38,8 +41,8 @@ def register(subparsers) -> None:
     r.add_argument("--heliostats", default=None, metavar="IDS", help="comma-separated ids (default: all)")
     r.add_argument("--camera-manifest", default=None, metavar="FILE", help="replay frame pairs (FileCamera)")
     r.add_argument("--simulate", action="store_true", help="run against the embedded simulated plant")
-    r.add_argument("--seed", type=int, default=0, help="simulation seed (with --simulate; default 0)")
-    r.add_argument("--clock-speedup", type=float, default=20.0, metavar="X",
+    r.add_argument("--seed", type=SEED, default=0, help="simulation seed (with --simulate; default 0)")
+    r.add_argument("--clock-speedup", type=SPEEDUP, default=20.0, metavar="X",
                    help="simulated plant seconds per wall second (with --simulate; default 20)")
     r.add_argument("--report", default=None, metavar="DIR", help="also write the morning report into DIR")
     r.add_argument("--notify", default=None, metavar="CMD",
@@ -57,8 +60,8 @@ def register(subparsers) -> None:
     n.add_argument("--camera-manifest", default=None, metavar="FILE",
                    help="replay frame pairs for the calibration target (FileCamera)")
     n.add_argument("--simulate", action="store_true", help="run against the embedded simulated plant")
-    n.add_argument("--seed", type=int, default=0, help="simulation seed (with --simulate; default 0)")
-    n.add_argument("--clock-speedup", type=float, default=20.0, metavar="X",
+    n.add_argument("--seed", type=SEED, default=0, help="simulation seed (with --simulate; default 0)")
+    n.add_argument("--clock-speedup", type=SPEEDUP, default=20.0, metavar="X",
                    help="simulated plant seconds per wall second (with --simulate; default 20)")
     n.add_argument("--strategy", default="design", choices=("design", "round-robin"),
                    help="planner strategy (default design: the daytime variance reduction)")

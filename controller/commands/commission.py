@@ -15,6 +15,7 @@ import sys
 from pathlib import Path
 
 from controller.commands._common import add_config_option, add_json_option, print_json
+from controller.commands._numbers import SEED, STEPS
 from controller.errors import HeliocalError, InputError
 
 HELP = """steps:
@@ -40,10 +41,10 @@ def register(subparsers) -> None:
     add_config_option(p)
     p.add_argument("--heliostat", required=True, metavar="H", help="heliostat id")
     p.add_argument("--status", action="store_true", help="print the drive status")
-    p.add_argument("--move", nargs=2, type=int, metavar=("AZ", "EL"), help="absolute move in steps")
+    p.add_argument("--move", nargs=2, type=STEPS, metavar=("AZ", "EL"), help="absolute move in steps")
     p.add_argument("--aim", action="store_true", help="approach from standby and aim at the target centre")
-    p.add_argument("--jog-az", type=int, default=0, metavar="STEPS", help="jog azimuth by STEPS")
-    p.add_argument("--jog-el", type=int, default=0, metavar="STEPS", help="jog elevation by STEPS")
+    p.add_argument("--jog-az", type=STEPS, default=0, metavar="STEPS", help="jog azimuth by STEPS")
+    p.add_argument("--jog-el", type=STEPS, default=0, metavar="STEPS", help="jog elevation by STEPS")
     p.add_argument("--capture", metavar="PNG", help="capture a frame pair and write the HDR frame as PNG")
     p.add_argument("--store-reference", metavar="LABEL", help="store the frame as reference case LABEL")
     p.add_argument("--library", metavar="LIB", help="error library YAML for --store-reference / matching")
@@ -51,7 +52,7 @@ def register(subparsers) -> None:
     p.add_argument("--park", action="store_true", help="move to the standby point")
     p.add_argument("--camera-manifest", metavar="FILE", help="replay frame pairs (FileCamera)")
     p.add_argument("--simulate", action="store_true", help="use the embedded simulated plant")
-    p.add_argument("--seed", type=int, default=0, help="simulation seed (with --simulate; default 0)")
+    p.add_argument("--seed", type=SEED, default=0, help="simulation seed (with --simulate; default 0)")
     p.add_argument("--run-dir", default=None, metavar="DIR", help="simulation run directory (ptys)")
     p.add_argument("--leave-in-place", action="store_true",
                    help="do not park at standby when the session ends (by default every exit parks a "
@@ -91,11 +92,9 @@ def run(args: argparse.Namespace) -> int:
     steps = _steps(args)
     if not args.simulate and not args.camera_manifest:
         raise InputError("commission: no camera; pass --camera-manifest FILE or --simulate")
-    library = None
-    if args.library and Path(args.library).is_file():
-        from controller.recognition.library_io import load_library
+    from controller.recognition.library_io import load_library_if_present
 
-        library = load_library(args.library)
+    library = load_library_if_present(args.library)
     if args.simulate:
         return _with_simulated(cfg, args, steps, library)
     from controller.devices.drive import DriveLimits

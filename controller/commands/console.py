@@ -19,6 +19,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from controller.commands._common import add_config_option
+from controller.commands._numbers import SEED, Number
 from controller.errors import InputError
 from controller.io.yaml_files import read_text
 
@@ -31,8 +32,8 @@ def register(subparsers) -> None:
     add_config_option(p)
     p.add_argument("--db", required=True, metavar="DB", help="campaign database (SQLite, created if missing)")
     p.add_argument("--simulate", action="store_true", help="run the console on the embedded simulated plant")
-    p.add_argument("--seed", type=int, default=0, help="simulation seed (with --simulate; default 0)")
-    p.add_argument("--clock-speedup", type=float, default=20.0, metavar="X",
+    p.add_argument("--seed", type=SEED, default=0, help="simulation seed (with --simulate; default 0)")
+    p.add_argument("--clock-speedup", type=Number(0, 1000, lo_open=True), default=20.0, metavar="X",
                    help="plant seconds per wall second of the simulated plant (with --simulate; default 20)")
     p.add_argument("--heliostats", default=None, metavar="IDS",
                    help="comma-separated heliostat ids the console shows and drives (default: all)")
@@ -43,7 +44,8 @@ def register(subparsers) -> None:
     p.add_argument("--reports", default=None, metavar="DIR",
                    help="folder with confusion reports (heliocal report confusion) to show")
     p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1)")
-    p.add_argument("--port", type=int, default=8080, help="TCP port (default 8080; 0 picks a free one)")
+    p.add_argument("--port", type=Number(0, 65535, integer=True), default=8080,
+                   help="TCP port (default 8080; 0 picks a free one)")
     tok = p.add_mutually_exclusive_group()
     tok.add_argument("--token", default=None, metavar="T",
                      help="token every state-changing request must send as X-Heliocal-Token")
@@ -116,24 +118,22 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("console: no camera; pass --camera-manifest FILE or --simulate")
     if args.reports and not Path(args.reports).is_dir():
         raise InputError(f"--reports {args.reports}: not a folder")
+    from controller.recognition.library_io import load_library_if_present
+
+    library = load_library_if_present(args.library)
     sock = _listen(args.host, args.port)
     try:
-        return serve(cfg, args, ids, token, sock)
+        return serve(cfg, args, ids, token, sock, library)
     finally:
         sock.close()
 
 
 @contextmanager
-def _field(cfg, args, ids, store):
+def _field(cfg, args, ids, store, library):
     """The console's field (controller.commands._field) and its plant hooks."""
     from controller.commands._field import real_field, simulated_field
     from controller.console.backend import PlantHooks
 
-    library = None
-    if args.library and Path(args.library).is_file():
-        from controller.recognition.library_io import load_library
-
-        library = load_library(args.library)
     if not args.simulate:
         with real_field(cfg, args.config, store, camera_manifest=args.camera_manifest) as fs:
             fs.field.library = library
@@ -151,7 +151,7 @@ def _field(cfg, args, ids, store):
                                    label=f"simulated plant (seed {settings.seed})")
 
 
-def serve(cfg, args, ids, token, sock) -> int:
+def serve(cfg, args, ids, token, sock, library) -> int:
     """Run the console until Ctrl-C / SIGTERM; then stop a running campaign (beams parked),
     park what the console moved and release the database."""
     import uvicorn
@@ -161,7 +161,7 @@ def serve(cfg, args, ids, token, sock) -> int:
     from controller.storage.db import CampaignStore
 
     with CampaignStore(args.db) as store, tempfile.TemporaryDirectory(prefix="heliocal-console-") as work, \
-            _field(cfg, args, ids, store) as (plant, hooks):
+            _field(cfg, args, ids, store, library) as (plant, hooks):
         console = Console(plant, heliostat_ids=ids, library_path=args.library, hooks=hooks, work_dir=work,
                           reports_dir=args.reports)
         app = create_app(console, token=token)

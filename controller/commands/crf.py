@@ -15,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from controller.commands._common import add_json_option, existing_file, output_file, print_json
+from controller.commands._numbers import Number
 from controller.errors import InputError
 from controller.imaging.crf_io import fit_crf_file, read_sphere_csv, save_crf
 
@@ -29,7 +30,8 @@ def register(subparsers) -> None:
     f.add_argument("data", metavar="DATA.csv",
                    help="integrating-sphere data: CSV with columns sensor,exposure_value,pixel_mean")
     f.add_argument("--out", required=True, metavar="crf.yaml", help="CRF file to write (YAML)")
-    f.add_argument("--bit-depth", type=int, default=8, help="sensor bit depth (default 8)")
+    f.add_argument("--bit-depth", type=Number(8, 16, integer=True), default=8,
+                   help="sensor bit depth (default 8)")
     f.add_argument("--plot", metavar="PNG", default=None,
                    help="plot of the fitted responses against the data (default: beside --out, .png)")
     add_json_option(f)

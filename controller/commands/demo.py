@@ -12,7 +12,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from controller.commands._common import add_config_option, add_json_option, print_json
+from controller.commands._common import add_config_option, add_json_option, output_dir, print_json
 from controller.commands._demo_coarse import (
     UNCALIBRATED_MAX_MRAD,
     centroid_only_twin,
@@ -20,6 +20,7 @@ from controller.commands._demo_coarse import (
     print_uncalibrated,
     uncalibrated_field,
 )
+from controller.commands._numbers import SEED, Number
 from controller.config import load_config
 from controller.errors import InputError
 
@@ -28,18 +29,19 @@ def register(subparsers) -> None:
     p = subparsers.add_parser("demo", help="nightly calibration run of the embedded simulated plant",
                               description=__doc__.splitlines()[0])
     add_config_option(p)
-    p.add_argument("--heliostats", type=int, default=12, metavar="N",
+    p.add_argument("--heliostats", type=Number(1, 10000, integer=True), default=12, metavar="N",
                    help="calibrate N heliostats, taken round-robin over the links (default 12)")
-    p.add_argument("--seed", type=int, default=0, metavar="S",
+    p.add_argument("--seed", type=SEED, default=0, metavar="S",
                    help="seed of the hidden errors and noise (default 0)")
     p.add_argument("--out", default="demo-out", metavar="DIR",
                    help="run directory: database, report, images, ptys (default demo-out/)")
-    p.add_argument("--nights", type=int, default=3, metavar="N",
+    p.add_argument("--nights", type=Number(0, 100, integer=True), default=3, metavar="N",
                    help="planned nights after the first calibration (several lamps and aim points, "
                         "chosen for the daytime error; default 3, 0: the calibration only)")
     p.add_argument("--sequential", action="store_true",
                    help="no pipelining: one heliostat after another (for the speedup comparison)")
-    p.add_argument("--uncalibrated", type=float, default=None, metavar="MRAD",
+    p.add_argument("--uncalibrated", type=Number(0, UNCALIBRATED_MAX_MRAD, lo_open=True), default=None,
+                   metavar="MRAD",
                    help="then calibrate the same heliostats on a plant whose hidden errors have this "
                         "scale (a newly installed field, first spots at the view's edge), with the "
                         "coarse correction and centroid only (make demo: 12)")
@@ -53,6 +55,7 @@ def run(args: argparse.Namespace) -> int:
     from controller.calibration.model_update import model_prior
     from simplant.plant import field_selection
 
+    output_dir(args.out)  # an existing file there is refused before any work
     cfg = load_config(args.config)
     model_prior(cfg.calibration.model, str(args.config))  # refused before any slow work
     if not 1 <= args.heliostats <= len(cfg.heliostats):

@@ -21,6 +21,7 @@ import sys
 
 from controller.commands._common import DEFAULT_CONFIG, add_json_option, print_json
 from controller.commands._links import add_link_options, heliostat_for, link_model, load_plant
+from controller.commands._numbers import STEPS, Number
 from controller.devices.drive import AxisLimits, DriveError, DriveLimits, MoveResult
 from controller.errors import DeviceError, HeliocalError, InputError
 
@@ -31,11 +32,13 @@ def register(subparsers) -> None:
     p = subparsers.add_parser("drive", help="status, move or jog one heliostat drive",
                               description=__doc__.split("\n\n")[0])
     add_link_options(p, "--serial")
-    p.add_argument("--unit", type=int, required=True, help="bus address / Modbus unit id (1..247)")
-    p.add_argument("--baud", type=int, default=115200, help="serial baud rate (default 115200)")
-    p.add_argument("--timeout", type=float, default=0.2, metavar="S",
+    p.add_argument("--unit", type=Number(1, 247, integer=True), required=True,
+                   help="bus address / Modbus unit id (1..247)")
+    p.add_argument("--baud", type=Number(300, 4_000_000, integer=True), default=115200,
+                   help="serial baud rate (default 115200)")
+    p.add_argument("--timeout", type=Number(0, 60, lo_open=True), default=0.2, metavar="S",
                    help="reply timeout per attempt, s (default 0.2)")
-    p.add_argument("--retries", type=int, default=3, metavar="K",
+    p.add_argument("--retries", type=Number(0, 100, integer=True), default=3, metavar="K",
                    help="retransmissions after the first attempt (default 3)")
     p.add_argument("--config", default=None, metavar="FILE",
                    help=f"plant configuration for the soft limits (default {DEFAULT_CONFIG} if present)")
@@ -52,10 +55,10 @@ def register(subparsers) -> None:
     for name, help_text, unit in (("move", "absolute move, motor steps", "steps"),
                                   ("jog", "relative move, motor steps", "steps to add")):
         a = sub.add_parser(name, help=help_text)
-        a.add_argument("--az-steps", type=int, required=True, help=f"azimuth {unit}")
-        a.add_argument("--el-steps", type=int, required=True, help=f"elevation {unit}")
+        a.add_argument("--az-steps", type=STEPS, required=True, help=f"azimuth {unit}")
+        a.add_argument("--el-steps", type=STEPS, required=True, help=f"elevation {unit}")
         a.add_argument("--wait", action="store_true", help="wait until in position and verify it")
-        a.add_argument("--wait-timeout", type=float, default=120.0, metavar="S",
+        a.add_argument("--wait-timeout", type=Number(0, 86400, lo_open=True), default=120.0, metavar="S",
                        help="give up waiting after S seconds (default 120)")
         a.add_argument("--leave-in-place", action="store_true",
                        help="on Ctrl-C/SIGTERM while waiting, do not stop the axes (default: stop them)")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from controller.commands._common import add_json_option, output_dir, print_json
+from controller.commands._common import add_json_option, print_json, staged_output_dir
 
 
 def register(subparsers) -> None:
@@ -39,10 +39,9 @@ def run(args: argparse.Namespace) -> int:
 
         s = load_config(args.config).site
         site = (s.latitude_deg, s.longitude_deg, s.elevation_m)
-    output_dir(args.out)
-    with open_existing(args.db) as store:
+    with staged_output_dir(args.out) as stage, open_existing(args.db) as store:
         cid = None if args.campaign is None else store.find_campaign(args.campaign).id
-        paths = export_paint(store, args.out, site, cid)
+        paths = export_paint(store, stage, site, cid)
     if args.json:
         print_json({"records": len(paths), "out": args.out})
     else:

@@ -26,6 +26,15 @@ from pathlib import Path
 import numpy as np
 
 from controller.commands._common import add_json_option, existing_file, output_file, print_json
+from controller.commands._numbers import (
+    DNI,
+    EXPOSURE_S,
+    PIXELS,
+    POSITIVE_RATIO,
+    SUN_ANGLE_MRAD,
+    Number,
+    fraction,
+)
 from controller.errors import InputError
 from controller.flux import phlux
 from controller.flux.sun_disc import SunDiscError, find_sun_disc
@@ -44,45 +53,48 @@ def register(subparsers) -> None:
                     "same camera (Ho & Khalsa 2012). See docs/flux.md.")
     p.add_argument("receiver", nargs="?", metavar="RECEIVER", help="target image (beam on)")
     p.add_argument("--sun", required=True, metavar="SUN", help="sun image, same camera, through an ND filter")
-    p.add_argument("--dni", required=True, type=float, metavar="W_M2", help="DNI at the sun image, W/m²")
-    p.add_argument("--reflectivity", required=True, type=float, metavar="RHO",
+    p.add_argument("--dni", required=True, type=DNI, metavar="W_M2", help="DNI at the sun image, W/m²")
+    p.add_argument("--reflectivity", required=True, type=fraction(closed=True), metavar="RHO",
                    help="Lambertian reflectivity of the target (0-1]")
     p.add_argument("--ambient", metavar="AMBIENT", help="same view with the beam off, subtracted")
-    p.add_argument("--dark-offset", type=float, default=0.0, metavar="DN",
+    p.add_argument("--dark-offset", type=Number(0, 65535), default=0.0, metavar="DN",
                    help="dark level subtracted from RECEIVER when no --ambient is given (default 0)")
-    p.add_argument("--sun-transmittance", type=float, default=1.0, metavar="T",
+    p.add_argument("--sun-transmittance", type=fraction(closed=True), default=1.0, metavar="T",
                    help="ND transmittance in front of the camera for the sun image (default 1)")
-    p.add_argument("--receiver-transmittance", type=float, default=1.0, metavar="T",
+    p.add_argument("--receiver-transmittance", type=fraction(closed=True), default=1.0, metavar="T",
                    help="ND transmittance for the receiver image (default 1)")
-    p.add_argument("--exposure-ratio", type=float, default=None, metavar="R",
+    p.add_argument("--exposure-ratio", type=POSITIVE_RATIO, default=None, metavar="R",
                    help="(receiver exposure) / (sun exposure) (default 1)")
-    p.add_argument("--sun-angle-mrad", type=float, default=phlux.SUN_ANGLE_RAD * 1e3, metavar="MRAD",
+    p.add_argument("--sun-angle-mrad", type=SUN_ANGLE_MRAD, default=phlux.SUN_ANGLE_RAD * 1e3, metavar="MRAD",
                    help="full angle subtended by the Sun (default 9.3)")
-    p.add_argument("--sun-center", type=float, nargs=2, metavar=("X", "Y"),
+    p.add_argument("--sun-center", type=PIXELS, nargs=2, metavar=("X", "Y"),
                    help="manual sun disc centre, pixels (with --sun-radius)")
-    p.add_argument("--sun-radius", type=float, metavar="PX", help="manual sun disc radius, pixels")
-    p.add_argument("--saturation-level", type=float, metavar="DN",
+    p.add_argument("--sun-radius", type=Number(0, 65535, lo_open=True), metavar="PX",
+                   help="manual sun disc radius, pixels")
+    p.add_argument("--saturation-level", type=Number(0, 1e12, lo_open=True), metavar="DN",
                    help="sun-image clipping level (default: dtype maximum; needed for float images)")
-    p.add_argument("--distance", type=float, metavar="M",
+    p.add_argument("--distance", type=Number(0, 1e5, lo_open=True), metavar="M",
                    help="camera-target distance, m (gives total power)")
-    p.add_argument("--view-angle-deg", type=float, metavar="A",
+    p.add_argument("--view-angle-deg", type=Number(0, 90, hi_open=True), metavar="A",
                    help="angle between target normal and line of sight, degrees (default 0)")
-    p.add_argument("--tube-axes-px", type=float, nargs="+", metavar="X",
+    p.add_argument("--tube-axes-px", type=PIXELS, nargs="+", metavar="X",
                    help="tube panel: x (column) of each tube axis, px; power uses tube surface areas")
-    p.add_argument("--tube-radius-px", type=float, metavar="R", help="tube panel: tube radius as imaged, px")
-    p.add_argument("--known-power-w", type=float, metavar="P",
+    p.add_argument("--tube-radius-px", type=Number(0, 65535, lo_open=True), metavar="R",
+                   help="tube panel: tube radius as imaged, px")
+    p.add_argument("--known-power-w", type=Number(0, 1e10, lo_open=True), metavar="P",
                    help="beam power on the target (DNI·A·ρ_mirror·cos i, no spillage): adds "
                         "reflectivity_calibrated to the JSON")
     p.add_argument("--receiver-pair", nargs=2, metavar=("LOW", "HIGH"), help="double-CCD receiver pair")
     p.add_argument("--ambient-pair", nargs=2, metavar=("LOW", "HIGH"), help="double-CCD ambient pair")
-    p.add_argument("--exposures", type=float, nargs=2, metavar=("T_LOW", "T_HIGH"),
+    p.add_argument("--exposures", type=EXPOSURE_S, nargs=2, metavar=("T_LOW", "T_HIGH"),
                    help="pair exposure times, seconds")
-    p.add_argument("--sun-exposure", type=float, metavar="S", help="sun exposure time, seconds (with pairs)")
+    p.add_argument("--sun-exposure", type=EXPOSURE_S, metavar="S",
+                   help="sun exposure time, seconds (with pairs)")
     p.add_argument("--crf", metavar="CRF.yaml",
                    help="camera response: linearise the images (default: linear, I(z) = z)")
     p.add_argument("--allow-saturated", action="store_true",
                    help="accept a receiver with saturated pixels (the flux there is a lower bound)")
-    p.add_argument("--hotspots", type=int, default=5, metavar="N",
+    p.add_argument("--hotspots", type=Number(0, 1000, integer=True), default=5, metavar="N",
                    help="number of hot spots listed (default 5)")
     p.add_argument("--out", required=True, metavar="FLUX.npy",
                    help="irradiance map, W/m², float32 (.npy/.tiff)")
@@ -202,6 +214,7 @@ def _target_values(args: argparse.Namespace, crf: Crf | None
             shapes[args.ambient_pair[0]] = ambient
             _same_shape(shapes)
             merged = merged - ambient
+            _beam_left(merged, args.receiver_pair[0], args.ambient_pair[0])
         return merged, shapes, n_sat
     receiver = read_image(existing_file(args.receiver, "receiver image"))
     shapes = {args.receiver: receiver}
@@ -211,9 +224,18 @@ def _target_values(args: argparse.Namespace, crf: Crf | None
         shapes[args.ambient] = ambient
         _same_shape(shapes)
         values -= _linear(ambient, crf, args.ambient)
+        _beam_left(values, args.receiver, args.ambient)
     else:
         values -= args.dark_offset
     return values, shapes, _saturated(receiver, crf)
+
+
+def _beam_left(values: np.ndarray, receiver: str, ambient: str) -> None:
+    """Refuse a receiver no brighter than its ambient: the flux would come out negative."""
+    net = float(values.sum())
+    if not net > 0:
+        raise InputError(f"{receiver}: the ambient {ambient} is as bright or brighter than the receiver "
+                         f"(net {net:.4g} counts summed over the image): swapped files, or no beam on")
 
 
 def _sun_disc(args: argparse.Namespace, sun_path: Path, sun: np.ndarray, crf: Crf | None):

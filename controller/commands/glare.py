@@ -19,6 +19,7 @@ from dataclasses import asdict
 import numpy as np
 
 from controller.commands._common import add_json_option, existing_file, output_file, print_json
+from controller.commands._numbers import DNI, POSITIVE_RATIO, SUN_ANGLE_MRAD, Number, fraction
 from controller.errors import InputError
 from controller.flux import glare
 from controller.flux.phlux import SUN_ANGLE_RAD
@@ -35,56 +36,67 @@ def register(subparsers) -> None:
                     "corneal irradiance, from a sun image and a source image, or from geometry. "
                     "See docs/glare.md.")
     m = p.add_argument_group("direct")
-    m.add_argument("--corneal-irradiance-w-m2", type=float, metavar="E", help="corneal irradiance, W/m²")
-    m.add_argument("--subtended-angle-mrad", type=float, metavar="W", help="source angle, mrad")
+    m.add_argument("--corneal-irradiance-w-m2", type=Number(0, 1e6, lo_open=True), metavar="E",
+                   help="corneal irradiance, W/m²")
+    m.add_argument("--subtended-angle-mrad", type=Number(0, 1000, lo_open=True), metavar="W",
+                   help="source angle, mrad")
     i = p.add_argument_group("from images (same camera)")
     i.add_argument("--sun", metavar="SUN", help="sun image through an ND filter")
     i.add_argument("--source", metavar="IMAGE", help="image of the glare source")
-    i.add_argument("--sun-transmittance", type=float, default=1.0, metavar="T",
+    i.add_argument("--sun-transmittance", type=fraction(closed=True), default=1.0, metavar="T",
                    help="ND transmittance for the sun image (default 1)")
-    i.add_argument("--source-transmittance", type=float, default=1.0, metavar="T",
+    i.add_argument("--source-transmittance", type=fraction(closed=True), default=1.0, metavar="T",
                    help="ND transmittance for the source image (default 1)")
-    i.add_argument("--exposure-ratio", type=float, default=1.0, metavar="R",
+    i.add_argument("--exposure-ratio", type=POSITIVE_RATIO, default=1.0, metavar="R",
                    help="(source exposure) / (sun exposure) (default 1)")
-    i.add_argument("--threshold-fraction", type=float, default=0.1, metavar="F",
+    i.add_argument("--threshold-fraction", type=fraction(), default=0.1, metavar="F",
                    help="source region: pixels above background + F·(peak - background) (default 0.1)")
     g = p.add_argument_group("from geometry")
     g.add_argument("--geometry", choices=("heliostat", "trough", "receiver"),
                    help="specular heliostat beam, trough beam, or diffuse receiver")
-    g.add_argument("--distance-range", type=float, nargs=2, metavar=("MIN", "MAX"),
+    g.add_argument("--distance-range", type=Number(0, 1e6, lo_open=True), nargs=2, metavar=("MIN", "MAX"),
                    help="distances from the source, m")
-    g.add_argument("--points", type=int, default=200, metavar="N", help="log-spaced distances (default 200)")
-    g.add_argument("--mirror-area-m2", type=float, metavar="A", help="heliostat area A_h, m²")
-    g.add_argument("--aperture-width-m", type=float, metavar="W", help="trough aperture width W_h, m")
-    g.add_argument("--focal-length-m", type=float, default=math.inf, metavar="F",
+    g.add_argument("--points", type=Number(2, 100_000, integer=True), default=200, metavar="N",
+                   help="log-spaced distances (default 200)")
+    g.add_argument("--mirror-area-m2", type=Number(0, 1e4, lo_open=True), metavar="A",
+                   help="heliostat area A_h, m²")
+    g.add_argument("--aperture-width-m", type=Number(0, 100, lo_open=True), metavar="W",
+                   help="trough aperture width W_h, m")
+    g.add_argument("--focal-length-m", type=Number(0, 1e6, lo_open=True, infinite=True),
+                   default=math.inf, metavar="F",
                    help="focal length, m (default: flat mirror)")
-    g.add_argument("--slope-error-mrad", type=float, default=2.0, metavar="S",
+    g.add_argument("--slope-error-mrad", type=Number(0, 100), default=2.0, metavar="S",
                    help="mirror slope error, mrad RMS (default 2)")
-    g.add_argument("--reflectivity", type=float, default=0.9, metavar="RHO",
+    g.add_argument("--reflectivity", type=fraction(closed=True), default=0.9, metavar="RHO",
                    help="mirror reflectivity (default 0.9)")
-    g.add_argument("--reflected-power-w", type=float, metavar="P",
+    g.add_argument("--reflected-power-w", type=Number(0, 1e10, lo_open=True), metavar="P",
                    help="receiver: diffusely reflected power P_d, W")
-    g.add_argument("--reflecting-area-m2", type=float, metavar="A", help="receiver: reflecting area A_d, m²")
-    g.add_argument("--seen-area-m2", type=float, metavar="A",
+    g.add_argument("--reflecting-area-m2", type=Number(0, 1e6, lo_open=True), metavar="A",
+                   help="receiver: reflecting area A_d, m²")
+    g.add_argument("--seen-area-m2", type=Number(0, 1e6, lo_open=True), metavar="A",
                    help="receiver: area seen by the observer A_s, m²")
-    g.add_argument("--view-angle-deg", type=float, default=0.0, metavar="A",
+    g.add_argument("--view-angle-deg", type=Number(0, 90, hi_open=True), default=0.0, metavar="A",
                    help="receiver: angle between its normal and the observer, degrees (default 0)")
-    p.add_argument("--dni", type=float, metavar="W_M2", help="direct normal irradiance, W/m²")
-    p.add_argument("--sun-angle-mrad", type=float, default=SUN_ANGLE_RAD * 1e3, metavar="MRAD",
+    p.add_argument("--dni", type=DNI, metavar="W_M2", help="direct normal irradiance, W/m²")
+    p.add_argument("--sun-angle-mrad", type=SUN_ANGLE_MRAD, default=SUN_ANGLE_RAD * 1e3, metavar="MRAD",
                    help="full angle subtended by the Sun (default 9.3)")
     e = p.add_argument_group("eye and thresholds")
-    e.add_argument("--pupil-diameter-mm", type=float, default=2.0, help="pupil diameter (default 2)")
-    e.add_argument("--eye-focal-length-mm", type=float, default=17.0, help="eye focal length (default 17)")
-    e.add_argument("--ocular-transmittance", type=float, default=0.5,
+    e.add_argument("--pupil-diameter-mm", type=Number(0, 10, lo_open=True), default=2.0,
+                   help="pupil diameter (default 2)")
+    e.add_argument("--eye-focal-length-mm", type=Number(0, 50, lo_open=True), default=17.0,
+                   help="eye focal length (default 17)")
+    e.add_argument("--ocular-transmittance", type=fraction(closed=True), default=0.5,
                    help="ocular transmittance (default 0.5)")
     defaults = glare.HazardThresholds()
-    e.add_argument("--burn-coefficient", type=float, default=defaults.burn_coefficient,
+    e.add_argument("--burn-coefficient", type=Number(0, 1e3, lo_open=True), default=defaults.burn_coefficient,
                    help=f"retinal burn threshold C in C·ω^-n W/cm² (default {defaults.burn_coefficient})")
-    e.add_argument("--burn-exponent", type=float, default=defaults.burn_exponent,
+    e.add_argument("--burn-exponent", type=Number(0, 10, lo_open=True), default=defaults.burn_exponent,
                    help=f"retinal burn threshold n (default {defaults.burn_exponent})")
-    e.add_argument("--afterimage-coefficient", type=float, default=defaults.afterimage_coefficient,
+    e.add_argument("--afterimage-coefficient", type=Number(0, 1, lo_open=True),
+                   default=defaults.afterimage_coefficient,
                    help=f"after-image threshold C (default {defaults.afterimage_coefficient})")
-    e.add_argument("--afterimage-exponent", type=float, default=defaults.afterimage_exponent,
+    e.add_argument("--afterimage-exponent", type=Number(0, 10, lo_open=True),
+                   default=defaults.afterimage_exponent,
                    help=f"after-image threshold n (default {defaults.afterimage_exponent})")
     p.add_argument("--png", metavar="PLOT.png", help="draw the hazard plot")
     add_json_option(p)

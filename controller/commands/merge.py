@@ -16,6 +16,7 @@ import sys
 import numpy as np
 
 from controller.commands._common import add_json_option, existing_file, output_file, print_json
+from controller.commands._numbers import EXPOSURE_S, Number
 from controller.errors import InputError
 from controller.imaging.crf_io import load_crf
 from controller.imaging.hdr import HdrMerger, pair_bit_depth
@@ -28,11 +29,11 @@ def register(subparsers) -> None:
                               description="HDR merge of a double-CCD pair (Eq. (1), known response).")
     p.add_argument("low", metavar="LOW", help="shorter exposure image (8/16-bit PNG/TIFF or .npy)")
     p.add_argument("high", metavar="HIGH", help="longer exposure image, same size")
-    p.add_argument("--exposures", nargs=2, type=float, required=True, metavar=("T_LOW", "T_HIGH"),
+    p.add_argument("--exposures", nargs=2, type=EXPOSURE_S, required=True, metavar=("T_LOW", "T_HIGH"),
                    help="exposure times in seconds, LOW first")
     p.add_argument("--crf", metavar="CRF.yaml", help="camera response file (default: linear I(z) = z)")
     p.add_argument("--weighting", default="raised-cosine", choices=NAMES, help="weighting function")
-    p.add_argument("--dark-offset", type=float, default=8.0, metavar="COUNTS",
+    p.add_argument("--dark-offset", type=Number(0, 65535), default=8.0, metavar="COUNTS",
                    help="dark-signal offset in counts (default 8)")
     p.add_argument("--out", required=True, metavar="HDR.npy", help="output .npy or .tiff (32-bit float)")
     add_json_option(p)

@@ -30,6 +30,7 @@ from controller.console.nights import NightControl
 from controller.console.steps import STEPS, run_step
 from controller.devices.drive import DriveError, LinkError, NakError
 from controller.errors import HeliocalError, InputError, LimitError
+from controller.io.json_files import parse_json
 from controller.storage.lock import DatabaseBusy
 
 STATIC = Path(__file__).resolve().parent / "static"
@@ -62,6 +63,29 @@ def error_response(exc: HeliocalError) -> JSONResponse:
     return _json({"ok": False, "error": str(exc), "kind": kind, "outcome": exc.outcome}, status)
 
 
+MAX_BODY_BYTES = 64 << 10  # a command to the console is a few hundred bytes
+MAX_BODY_DEPTH = 8  # and nests two levels
+
+
+async def _bounded_json(request: Request):
+    """The request's JSON body, refused (413, 400) before parsing when it is too large, nested
+    too deep, not UTF-8, not JSON or has a key twice — never a 500."""
+    declared = request.headers.get("content-length", "")
+    if declared.isdigit() and int(declared) > MAX_BODY_BYTES:
+        raise _Refused(413, f"request body of {declared} bytes is too large (at most {MAX_BODY_BYTES})")
+    data = bytearray()
+    async for chunk in request.stream():
+        data += chunk
+        if len(data) > MAX_BODY_BYTES:
+            raise _Refused(413, f"request body is too large (at most {MAX_BODY_BYTES} bytes)")
+    try:
+        return parse_json(data.decode("utf-8"), "the request body", MAX_BODY_DEPTH)
+    except UnicodeDecodeError:
+        raise _Refused(400, "the request body is not UTF-8 text") from None
+    except InputError as exc:
+        raise _Refused(400, str(exc)) from None
+
+
 def create_app(console: Console, *, token: str | None = None) -> Starlette:
     """The app over ``console``. ``token``: required on every POST when given."""
     if console.campaign is None:
@@ -81,10 +105,7 @@ def create_app(console: Console, *, token: str | None = None) -> Starlette:
             raise _Refused(403, f"cross-origin request from {origin} refused")
         if request.headers.get("content-type", "").split(";")[0].strip() != "application/json":
             raise _Refused(415, "send the request body as application/json")
-        try:
-            body = await request.json()
-        except ValueError:
-            raise _Refused(400, "the request body is not valid JSON") from None
+        body = await _bounded_json(request)
         if not isinstance(body, dict):
             raise _Refused(400, "the request body must be a JSON object")
         return body

@@ -50,8 +50,9 @@ class FileCamera(DoubleCcdCamera):
         base = self.manifest.parent
         low, high = base / str(item["low"]), base / str(item["high"])
         for k, p in (("low", low), ("high", high)):
-            if not p.is_file():
-                raise InputError(f"{key}.{k}: image file not found: {p}")
+            if not p.is_file():  # a FIFO or a device would block or never end when read
+                state = "not a regular file" if p.exists() else "not found"
+                raise InputError(f"{key}.{k}: image file {state}: {p}")
         meta = item.get("metadata", {})
         if not isinstance(meta, dict):
             raise InputError(f"{key}.metadata: must be a mapping")

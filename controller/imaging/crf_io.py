@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import io
 from pathlib import Path
 
 import numpy as np
@@ -11,9 +12,10 @@ import yaml
 from controller.errors import InputError
 from controller.imaging.crf import Crf, SensorFit, fit_crf
 from controller.io.images import write_atomic
-from controller.io.yaml_files import load_yaml
+from controller.io.yaml_files import load_yaml, read_text
 
 MAX_SPHERE_ROWS = 1_000_000
+MAX_CSV_BYTES = 64 << 20  # a million rows of "sensor,exposure_value,pixel_mean"
 
 
 def load_crf(path: str | Path) -> Crf:
@@ -32,7 +34,7 @@ def read_sphere_csv(path: str | Path) -> dict[str, tuple[np.ndarray, np.ndarray]
     """Read ``sensor,exposure_value,pixel_mean`` rows; returns {sensor: (X, z)} in file order."""
     p = Path(path)
     try:
-        with p.open(newline="", encoding="utf-8") as fh:
+        with io.StringIO(read_text(p, "CSV file", MAX_CSV_BYTES), newline="") as fh:
             reader = csv.DictReader(fh)
             need = {"sensor", "exposure_value", "pixel_mean"}
             if reader.fieldnames is None or not need <= {f.strip() for f in reader.fieldnames}:

@@ -5,9 +5,11 @@ from __future__ import annotations
 
 from pydantic import BaseModel
 
-# The discriminator tags pydantic puts into error locations (light sources, links, lamps
-# drivers; "command" is also a key of the command driver, so it is a tag only right after "lamps").
-_TAGS = ("sun", "lamp", "serial", "modbus-tcp", "modbus-rtu")
+# The discriminator tags pydantic puts into error locations: right after the entry of a
+# discriminated union — a light source (after its list index), a heliostat's ``link``, the
+# ``lamps`` section. Elsewhere the same words are the user's keys ("lamp" is also a channel
+# name of lamps.channels, "command" a key of the command driver).
+_TAGS = ("sun", "lamp", "serial", "modbus-tcp", "modbus-rtu", "command")
 
 
 def key_path(loc: tuple) -> str:
@@ -16,8 +18,8 @@ def key_path(loc: tuple) -> str:
     for k, part in enumerate(loc):
         if isinstance(part, int):
             out += f"[{part}]"
-        elif part in _TAGS or (k == 1 and loc[0] == "lamps" and part == "command"):
-            continue  # discriminator tags pydantic inserts; not part of the user's key path
+        elif part in _TAGS and k > 0 and (isinstance(loc[k - 1], int) or loc[k - 1] in ("link", "lamps")):
+            continue  # a discriminator tag pydantic inserts; not part of the user's key path
         else:
             out += ("." if out else "") + str(part)
     return out or "(top level)"

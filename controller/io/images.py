@@ -18,6 +18,7 @@ import cv2
 import numpy as np
 
 from controller.errors import InputError
+from controller.io.files import read_bytes
 from controller.io.image_headers import MAX_FILE_BYTES, check_header, image_header
 
 
@@ -66,16 +67,10 @@ def read_image(path: str | Path) -> np.ndarray:
 
 
 def _read_bytes(p: Path) -> bytes:
-    """The file's bytes, refusing a missing file or one over :data:`MAX_FILE_BYTES`."""
-    try:
-        if not p.is_file():
-            raise InputError(f"{p}: image file not found")
-        size = p.stat().st_size
-        if size > MAX_FILE_BYTES:
-            raise InputError(f"{p}: {size} bytes is too large for an image file (limit {MAX_FILE_BYTES})")
-        return p.read_bytes()
-    except OSError as exc:
-        raise InputError(f"{p}: cannot read image: {exc.strerror or exc}") from None
+    """The file's bytes: a regular file of at most :data:`MAX_FILE_BYTES` (controller.io.files)."""
+    if not p.exists() and not p.is_symlink():
+        raise InputError(f"{p}: image file not found")
+    return read_bytes(p, "image file", MAX_FILE_BYTES)
 
 
 def write_atomic(path: str | Path, writer) -> None:

@@ -1,6 +1,7 @@
 """Reading JSON files that may be anything, with the checks of :mod:`controller.io.yaml_files`:
-size and UTF-8 (:func:`read_text`), then the nesting depth, counted without recursion before
-the document is built, so a hostile or broken file ends in one line naming it (exit 2)."""
+a regular file, size and UTF-8 (:func:`read_text`), then the nesting depth, counted without
+recursion before the document is built, and no key twice in one object (``json`` would keep the
+last silently), so a hostile or broken file ends in one line naming it (exit 2)."""
 
 from __future__ import annotations
 
@@ -34,9 +35,53 @@ def parse_json(text: str, source: str, max_depth: int = MAX_DEPTH) -> Any:
     if depth > max_depth:
         raise InputError(f"{source}: nested {depth} levels deep (at most {max_depth})")
     try:
-        return json.loads(text)
+        return json.loads(text, object_pairs_hook=_unique)
+    except _DuplicateKey as dup:
+        line, first = _duplicate_lines(text, dup.key)
+        raise InputError(f"{source}: line {line}: duplicate key {dup.key!r} "
+                         f"(first at line {first})") from None
     except ValueError as exc:  # JSONDecodeError says line and column
         raise InputError(f"{source}: invalid JSON: {str(exc)[:120]}") from None
+
+
+class _DuplicateKey(Exception):
+    def __init__(self, key: str) -> None:
+        self.key = key
+
+
+def _unique(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    out = dict(pairs)
+    if len(out) != len(pairs):
+        seen = set()
+        key = next(k for k, _ in pairs if k in seen or seen.add(k))
+        raise _DuplicateKey(key)
+    return out
+
+
+_TOKEN = re.compile(r'"(?:[^"\\]|\\.)*"|[\[\]{}:,]', re.DOTALL)
+
+
+def _duplicate_lines(text: str, key: str) -> tuple[int, int]:
+    """(line of the second occurrence of ``key`` in one object, line of the first), found by a
+    scan of the tokens, run only once the parser found the duplicate."""
+    stack: list[dict[str, int] | None] = []  # per open bracket: an object's keys and their lines
+    previous, line, counted = None, 1, 0
+    for m in _TOKEN.finditer(text):
+        tok = m.group()
+        if tok in "{[":
+            stack.append({} if tok == "{" else None)
+        elif tok in "}]":
+            if stack:
+                stack.pop()
+        elif tok == ":" and previous is not None and stack and stack[-1] is not None:
+            name, at = previous
+            line += text.count("\n", counted, at)
+            counted = at
+            if name == key and name in stack[-1]:
+                return line, stack[-1][name]
+            stack[-1].setdefault(name, line)
+        previous = (json.loads(tok), m.start()) if tok.startswith('"') else None
+    return 0, 0  # not reached: the parser found the duplicate
 
 
 def load_json(path: str | Path, what: str = "JSON file", max_bytes: int = MAX_BYTES) -> Any:

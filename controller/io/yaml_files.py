@@ -1,5 +1,7 @@
-"""Reading YAML files that may be anything: size, encoding and nesting are checked before the
-document is built, so a hostile or broken file ends in one clear line naming it (exit 2)."""
+"""Reading YAML files that may be anything: a regular file only, size, encoding and nesting are
+checked before the document is built, and a key given twice in one mapping is refused naming
+both lines (YAML would silently keep the last), so a hostile or broken file ends in one clear
+line naming it (exit 2)."""
 
 from __future__ import annotations
 
@@ -9,6 +11,7 @@ from typing import Any
 import yaml
 
 from controller.errors import InputError
+from controller.io.files import read_bytes
 
 MAX_BYTES = 8 << 20  # configs, libraries and CRFs are kilobytes; anything this big is not one
 MAX_DEPTH = 32  # the deepest legitimate heliocal YAML nests 5 levels
@@ -22,13 +25,7 @@ def read_text(path: str | Path, what: str = "file", max_bytes: int = MAX_BYTES) 
     """The UTF-8 text of ``path``; InputError naming the file when it is missing, too large or
     not text."""
     p = Path(path)
-    try:
-        size = p.stat().st_size
-        if size > max_bytes:
-            raise InputError(f"{p}: {size} bytes is too large for a {what} (at most {max_bytes})")
-        data = p.read_bytes()
-    except OSError as exc:
-        raise InputError(f"{p}: cannot read {what}: {exc.strerror or exc}") from None
+    data = read_bytes(p, what, max_bytes)
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError as exc:
@@ -48,13 +45,43 @@ def parse_yaml(text: str, source: str, max_depth: int = MAX_DEPTH) -> Any:
                     raise InputError(f"{source}: line {line}: nested deeper than {max_depth} levels")
             elif isinstance(token, _CLOSE):
                 depth -= 1
-        return yaml.safe_load(text)
+        loader = _UniqueKeyLoader(text)
+        loader.source = source
+        try:
+            return loader.get_single_data()
+        finally:
+            loader.dispose()
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark else ""
         problem = (getattr(exc, "problem", None) or str(exc)).splitlines()[0]  # one line, even for a
         # ReaderError (a control character), whose text goes on to a second line
         raise InputError(f"{source}: {where}invalid YAML: {problem}") from None
+
+
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """``yaml.SafeLoader`` refusing a key written twice in one mapping (merge keys ``<<`` may
+    still be overridden, as YAML intends)."""
+
+    source = "<yaml>"
+
+    def construct_mapping(self, node, deep=False):
+        if isinstance(node, yaml.MappingNode):
+            lines: dict = {}
+            for key_node, _ in node.value:
+                if key_node.tag == "tag:yaml.org,2002:merge":
+                    continue
+                key = self.construct_object(key_node, deep=True)
+                line = key_node.start_mark.line + 1
+                try:
+                    first = lines.get(key)
+                except TypeError:
+                    continue  # an unhashable key: the base constructor reports it
+                if first is not None:
+                    raise InputError(f"{self.source}: line {line}: duplicate key {key!r} "
+                                     f"(first at line {first})")
+                lines[key] = line
+        return super().construct_mapping(node, deep)
 
 
 def load_yaml(path: str | Path, what: str = "YAML file", max_bytes: int = MAX_BYTES) -> Any:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import csv
 import hashlib
+import io
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -21,11 +22,12 @@ import yaml
 
 from controller.errors import InputError
 from controller.io.images import read_image, write_atomic
-from controller.io.yaml_files import load_yaml
+from controller.io.yaml_files import load_yaml, read_text
 from controller.recognition.library import Library, build_library
 from controller.recognition.library_doc import library_from_dict, library_to_dict
 
 MAX_MANIFEST_ROWS = 100_000
+MAX_MANIFEST_BYTES = 64 << 20  # 100 000 rows of a path, a label and two angles
 
 
 @dataclass(frozen=True)
@@ -79,10 +81,10 @@ def write_manifest(path: str | Path, rows: list[tuple[str, ...]] | list[list[str
 def read_manifest(path: str | Path) -> list[ManifestRow]:
     """Read a manifest CSV; errors name the file and line."""
     p = Path(path)
-    if not p.is_file():
+    if not p.exists() and not p.is_symlink():
         raise InputError(f"{p}: manifest not found")
     try:
-        with open(p, newline="", encoding="utf-8") as f:
+        with io.StringIO(read_text(p, "manifest", MAX_MANIFEST_BYTES), newline="") as f:
             reader = csv.DictReader(f)
             fields = [c.strip() for c in (reader.fieldnames or [])]
             missing = {"image", "label"} - set(fields)
@@ -158,9 +160,18 @@ def save_library(lib: Library, path: str | Path) -> None:
 def load_library(path: str | Path) -> Library:
     """Read and validate a library YAML; errors name the file and key."""
     p = Path(path)
-    if not p.is_file():
+    if not p.exists() and not p.is_symlink():
         raise InputError(f"{p}: library not found")
     return library_from_dict(load_yaml(p, "library"), str(p))
+
+
+def load_library_if_present(path: str | Path | None) -> Library | None:
+    """The library at ``path``, or None when no path is given or no file is there yet (storing a
+    reference case creates it); anything else there (a FIFO, a folder) is refused, naming it."""
+    if not path:
+        return None
+    p = Path(path)
+    return load_library(p) if p.exists() or p.is_symlink() else None
 
 
 def add_reference(library_path: str | Path, label: str, hdr, hu, *, source: str, threshold: float) -> dict:

@@ -19,11 +19,13 @@ ISO-8601 UTC strings (wall clock) and plant seconds (``*_s``, the plant clock).
 from __future__ import annotations
 
 import json
+import os
 import sqlite3
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from urllib.parse import quote
 
 from controller.calibration.records import (
     CAMPAIGN_STATUSES,
@@ -36,7 +38,18 @@ from controller.calibration.records import (
     utc_now,
 )
 from controller.errors import InputError
+from controller.io.files import check_regular
+from controller.storage.checks import (
+    CheckedConnection,
+    check_pages,
+    check_schema,
+    enum_column,
+    json_column,
+    resolved_image_path,
+    stored_image_path,
+)
 from controller.storage.lock import CampaignLock
+from controller.storage.rows import campaign_from_row, measurement_from_row, run_from_row
 from controller.storage.schema import MIGRATIONS, SCHEMA_VERSION
 
 
@@ -49,8 +62,10 @@ class CampaignStore:
     (:class:`controller.storage.lock.CampaignLock`) until :meth:`close`.
 
     Raises :class:`InputError` naming the file when it is not a heliocal database (another
-    program's SQLite file is refused, never written into) or its schema is newer than this
-    program understands.
+    program's SQLite file is refused, never written into), its schema is newer than this
+    program understands, or a table or column of the schema is missing; records read later are
+    checked on the way out (:mod:`controller.storage.checks`). A read-only database file (or
+    folder) is opened immutable for reading: no one with our rights can be writing it.
     """
 
     def __init__(self, path: str | Path, *, readonly: bool = False) -> None:
@@ -58,14 +73,15 @@ class CampaignStore:
         self.readonly = readonly
         self._lock = threading.RLock()
         self.campaign_lock = CampaignLock(self.path)
+        check_regular(self.path, "database")  # a FIFO would block sqlite's first read
         try:
             if readonly:
-                self._db = sqlite3.connect(f"file:{self.path}?mode=ro", uri=True, isolation_level=None,
-                                           check_same_thread=False, timeout=10.0)
+                self._db = self._open_readonly()
             else:
                 self.path.parent.mkdir(parents=True, exist_ok=True)
-                self._db = sqlite3.connect(str(self.path), isolation_level=None,
-                                           check_same_thread=False, timeout=10.0)
+                self._db = sqlite3.connect(str(self.path), isolation_level=None, check_same_thread=False,
+                                           timeout=10.0, factory=CheckedConnection)
+                self._db.path = self.path
             self._db.row_factory = sqlite3.Row
             self._check_foreign()
             if not readonly:
@@ -76,8 +92,33 @@ class CampaignStore:
             elif self.schema_version > SCHEMA_VERSION:
                 raise InputError(f"{self.path}: database schema v{self.schema_version} is newer than this "
                                  f"heliocal understands (v{SCHEMA_VERSION})")
+            if not readonly or self.schema_version == SCHEMA_VERSION:
+                check_schema(self._db, self.path, MIGRATIONS)
+            if readonly:
+                check_pages(self._db, self.path)
         except sqlite3.DatabaseError as exc:
             raise InputError(f"{self.path}: not a usable heliocal database ({exc})") from None
+
+    def _open_readonly(self) -> sqlite3.Connection:
+        try:
+            return self._connect_readonly("")
+        except InputError:
+            if os.access(self.path, os.W_OK) and os.access(self.path.parent, os.W_OK):
+                raise
+        # A WAL database needs its -shm file; without write access to create it, read the file as
+        # it is (nobody with our rights can be writing it).
+        return self._connect_readonly("&immutable=1")
+
+    def _connect_readonly(self, options: str) -> sqlite3.Connection:
+        db = sqlite3.connect(f"file:{quote(str(self.path))}?mode=ro{options}", uri=True, isolation_level=None,
+                             check_same_thread=False, timeout=10.0, factory=CheckedConnection)
+        db.path = self.path
+        try:
+            db.execute("PRAGMA user_version").fetchone()
+        except BaseException:
+            db.close()
+            raise
+        return db
 
     def _check_foreign(self) -> None:
         """Refuse a database that another program made (tables but no heliocal schema version),
@@ -144,7 +185,7 @@ class CampaignStore:
                 if row["config_sha256"] != config_sha256:
                     raise InputError(f"{self.path}: campaign {name!r} was started with a different "
                                      f"configuration ({row['config_path']}); use another --db or name")
-                if json.loads(row["queue_json"]) != list(queue):
+                if json_column(self.path, "campaigns", row, "queue_json", list) != list(queue):
                     raise InputError(f"{self.path}: campaign {name!r} was started with a different "
                                      "heliostat queue; use another --db or name")
                 db.execute("UPDATE campaigns SET status='running', cause=NULL "
@@ -168,8 +209,8 @@ class CampaignStore:
     def update_meta(self, campaign_id: int, meta: dict) -> None:
         """Merge ``meta`` into the campaign's metadata (one transaction)."""
         with self.tx() as db:
-            old = json.loads(db.execute("SELECT meta_json FROM campaigns WHERE id=?",
-                                        (campaign_id,)).fetchone()[0])
+            row = db.execute("SELECT id, meta_json FROM campaigns WHERE id=?", (campaign_id,)).fetchone()
+            old = json_column(self.path, "campaigns", row, "meta_json", dict, {})
             old.update(meta)
             db.execute("UPDATE campaigns SET meta_json=? WHERE id=?", (json.dumps(old), campaign_id))
 
@@ -183,13 +224,13 @@ class CampaignStore:
         if row is None:
             raise InputError(f"{self.path}: no campaign recorded"
                              + (f" with id {campaign_id}" if campaign_id is not None else ""))
-        return _campaign(row)
+        return campaign_from_row(row, self.path)
 
     def campaigns(self) -> list[CampaignRecord]:
         """Every campaign, oldest first."""
         with self._lock:
             rows = self._db.execute("SELECT * FROM campaigns ORDER BY id").fetchall()
-        return [_campaign(r) for r in rows]
+        return [campaign_from_row(r, self.path) for r in rows]
 
     def find_campaign(self, ref: str | int | None) -> CampaignRecord:
         """A campaign by name or id (a name wins over an id of the same text); the latest for
@@ -206,7 +247,7 @@ class CampaignStore:
     def campaign_by_name(self, name: str) -> CampaignRecord | None:
         with self._lock:
             row = self._db.execute("SELECT * FROM campaigns WHERE name=?", (name,)).fetchone()
-        return None if row is None else _campaign(row)
+        return None if row is None else campaign_from_row(row, self.path)
 
     def last_end_s(self, name: str) -> float | None:
         """Latest recorded plant time (``end_s``) of campaign ``name``, or None."""
@@ -254,7 +295,8 @@ class CampaignStore:
                 for im in m.images:
                     db.execute("INSERT INTO images (measurement_id, kind, path, sha256, exposure_low_s, "
                                "exposure_high_s) VALUES (?,?,?,?,?,?)",
-                               (mcur.lastrowid, im.kind, im.path, im.sha256, *im.exposures))
+                               (mcur.lastrowid, im.kind, stored_image_path(self.path, im.path), im.sha256,
+                                *im.exposures))
             for k in run.corrections:
                 db.execute("INSERT INTO corrections (run_id, iteration, kind, daz_deg, del_deg, daz_steps, "
                            "del_steps) VALUES (?,?,?,?,?,?,?)",
@@ -275,7 +317,7 @@ class CampaignStore:
         with self._lock:
             rows = self._db.execute("SELECT * FROM heliostat_runs WHERE campaign_id=? ORDER BY queue_index",
                                     (campaign_id,)).fetchall()
-        return [_run(r) for r in rows]
+        return [run_from_row(r, self.path) for r in rows]
 
     def measurements(self, campaign_id: int | None = None, heliostat_id: str | None = None
                      ) -> list[MeasurementRecord]:
@@ -291,21 +333,24 @@ class CampaignStore:
             args.append(heliostat_id)
         with self._lock:
             rows = self._db.execute(sql + " ORDER BY m.id", args).fetchall()
-        return [_measurement(r) for r in rows]
+        return [measurement_from_row(r) for r in rows]
 
     def corrections(self, run_id: int) -> list[CorrectionRecord]:
         with self._lock:
             rows = self._db.execute("SELECT * FROM corrections WHERE run_id=? ORDER BY id",
                                     (run_id,)).fetchall()
-        return [CorrectionRecord(r["iteration"], r["kind"], r["daz_deg"], r["del_deg"], r["daz_steps"],
+        return [CorrectionRecord(r["iteration"],
+                                 enum_column(self.path, "corrections", r, "kind", ("coarse", "fine")),
+                                 r["daz_deg"], r["del_deg"], r["daz_steps"],
                                  r["del_steps"]) for r in rows]
 
     def images(self, measurement_id: int) -> list[ImageRecord]:
         with self._lock:
             rows = self._db.execute("SELECT * FROM images WHERE measurement_id=? ORDER BY id",
                                     (measurement_id,)).fetchall()
-        return [ImageRecord(r["kind"], r["path"], r["sha256"], (r["exposure_low_s"], r["exposure_high_s"]))
-                for r in rows]
+        return [ImageRecord(enum_column(self.path, "images", r, "kind", ("low", "high")),
+                            resolved_image_path(self.path, r["path"]), r["sha256"],
+                            (r["exposure_low_s"], r["exposure_high_s"])) for r in rows]
 
     def latest_model(self, heliostat_id: str) -> ModelRecord | None:
         """The most recent fitted tracking-error parameters of a heliostat, or None."""
@@ -314,9 +359,10 @@ class CampaignStore:
                                    (heliostat_id,)).fetchone()
         if row is None:
             return None
-        return ModelRecord(json.loads(row["params_json"]), json.loads(row["sigma_json"]),
+        return ModelRecord(json_column(self.path, "model_params", row, "params_json", dict),
+                           json_column(self.path, "model_params", row, "sigma_json", dict),
                            row["residual_mrad"], row["n_measurements"],
-                           json.loads(row["detail_json"] or "{}"))
+                           json_column(self.path, "model_params", row, "detail_json", dict, {}))
 
     def query(self, sql: str, args: tuple = ()) -> list[sqlite3.Row]:
         """Rows of one read-only SELECT (for the storage modules beside this one)."""
@@ -337,42 +383,10 @@ class CampaignStore:
             return int(self._db.execute(f"SELECT COUNT(*) FROM {table}").fetchone()[0])
 
 
-def _campaign(row: sqlite3.Row) -> CampaignRecord:
-    return CampaignRecord(int(row["id"]), row["name"], row["config_path"], row["config_sha256"],
-                          row["light_source"], row["target"], json.loads(row["queue_json"]),
-                          row["started_utc"], row["finished_utc"], row["status"],
-                          json.loads(row["meta_json"] or "{}"), row["cause"])
-
-
-def _run(row: sqlite3.Row) -> RunRecord:
-    return RunRecord(
-        row["heliostat_id"], row["queue_index"], row["status"], row["final_state"], row["iterations"],
-        row["start_s"], row["end_s"], error_before_mrad=row["error_before_mrad"],
-        error_after_mrad=row["error_after_mrad"], matched_label=row["matched_label"],
-        fault_cause=row["fault_cause"], fault_state=row["fault_state"], at_standby_s=row["at_standby_s"],
-        on_target_s=row["on_target_s"], off_target_s=row["off_target_s"], id=int(row["id"]),
-        finished_utc=row["finished_utc"])
-
-
-def _measurement(row: sqlite3.Row) -> MeasurementRecord:
-    def xyz(prefix: str):
-        v = (row[f"{prefix}_e"], row[f"{prefix}_n"], row[f"{prefix}_u"])
-        return None if v[0] is None else v
-
-    px = None if row["centroid_x_px"] is None else (row["centroid_x_px"], row["centroid_y_px"])
-    return MeasurementRecord(
-        row["iteration"], row["az_steps"], row["el_steps"], xyz("source"), row["source_az_deg"],
-        row["source_el_deg"], xyz("aim"), row["plant_time_s"], centroid_enu=xyz("centroid"), centroid_px=px,
-        error_mrad=row["error_mrad"], matched_label=row["matched_label"],
-        match_distance=row["match_distance"],
-        runner_up_label=row["runner_up_label"], runner_up_distance=row["runner_up_distance"],
-        measured_utc=row["measured_utc"], source_pos_enu=xyz("source_pos"), id=int(row["id"]),
-        run_id=int(row["run_id"]), campaign_id=int(row["campaign_id"]), heliostat_id=row["heliostat_id"])
-
-
 def open_existing(path: str | Path) -> CampaignStore:
     """Open a database that must already exist, read-only (reports, export): InputError otherwise."""
     p = Path(path)
+    check_regular(p, "database")  # a FIFO, a folder, a device; unreadable: named
     if not p.is_file():
         raise InputError(f"database not found: {p}")
     return CampaignStore(p, readonly=True)

@@ -11,11 +11,13 @@ from __future__ import annotations
 import json
 
 from controller.calibration.planner import PlanItem
-from controller.calibration.records import NIGHT_KINDS, NightRecord, utc_now
+from controller.calibration.records import CAMPAIGN_STATUSES, NIGHT_KINDS, NightRecord, utc_now
+from controller.storage.checks import enum_column, json_column
 from controller.storage.db import CampaignStore
 from controller.storage.plans import load_plan, record_plan
 
 NIGHTS_SCHEMA = 8  # the schema version that added the nights table
+NIGHT_STATUSES = ("running", *CAMPAIGN_STATUSES)
 
 
 class NightBook:
@@ -50,21 +52,21 @@ class NightBook:
         error, under ``truth``), in one transaction."""
         with self.store.tx() as db:
             row = db.execute("SELECT id, summary_json FROM nights WHERE name=?", (name,)).fetchone()
-            summary = {**json.loads(row["summary_json"]), **extra}
+            summary = {**json_column(self.store.path, "nights", row, "summary_json", dict), **extra}
             db.execute("UPDATE nights SET summary_json=? WHERE id=?", (json.dumps(summary), row["id"]))
 
     def nights(self) -> list[NightRecord]:
         """Every night, by index (none in a database older than nights, opened read-only)."""
         if self.store.schema_version < NIGHTS_SCHEMA:
             return []
-        return [_night(r) for r in self.store.query("SELECT * FROM nights ORDER BY idx")]
+        return [_night(r, self.store.path) for r in self.store.query("SELECT * FROM nights ORDER BY idx")]
 
     def unfinished(self, kind: str = "planned") -> NightRecord | None:
         """The latest night of ``kind`` when it did not finish (to be resumed), else None."""
         rows = self.store.query("SELECT * FROM nights ORDER BY idx DESC LIMIT 1")
         if not rows or rows[0]["kind"] != kind or rows[0]["status"] in ("finished", "partial"):
             return None
-        return _night(rows[0])
+        return _night(rows[0], self.store.path)
 
     def next_index(self) -> int:
         return int(self.store.query("SELECT COUNT(*) AS n FROM nights")[0]["n"])
@@ -92,11 +94,15 @@ class NightBook:
     def record_plan(self, items: list[PlanItem]) -> None:
         record_plan(self.store, items)
 
-    @staticmethod
-    def _get(db, night_id: int) -> NightRecord:
-        return _night(db.execute("SELECT * FROM nights WHERE id=?", (night_id,)).fetchone())
+    def _get(self, db, night_id: int) -> NightRecord:
+        return _night(db.execute("SELECT * FROM nights WHERE id=?", (night_id,)).fetchone(), self.store.path)
 
 
-def _night(row) -> NightRecord:
-    return NightRecord(int(row["id"]), int(row["idx"]), row["name"], row["kind"], row["started_utc"],
-                       row["finished_utc"], row["status"], row["cause"], json.loads(row["summary_json"]))
+def _night(row, path) -> NightRecord:
+    """A ``nights`` row as its record; RecordError naming the database, table and row when a
+    column was tampered with (an unknown kind or status, a summary that is not JSON)."""
+    return NightRecord(int(row["id"]), int(row["idx"]), row["name"],
+                       enum_column(path, "nights", row, "kind", NIGHT_KINDS), row["started_utc"],
+                       row["finished_utc"],
+                       enum_column(path, "nights", row, "status", NIGHT_STATUSES), row["cause"],
+                       json_column(path, "nights", row, "summary_json", dict))

@@ -62,6 +62,35 @@ def _post(client, path, body=None, token=TOKEN, **headers):
     return client.post(path, json=body or {}, headers=h)
 
 
+@pytest.mark.parametrize("body,status,words", [
+    (b"[" * 100_000 + b"]" * 100_000, 413, "too large"),  # 200 kB, deeply nested
+    (b'{"a": ' * 5000 + b"1" + b"}" * 5000, 400, "nested 5000 levels deep"),  # within the size limit
+    (b'{"az_steps": 100, "az_steps": 0, "el_steps": 0}', 400, "duplicate key 'az_steps'"),
+    (b'{"az_steps": 100, "el_steps": ', 400, "invalid JSON"),
+    (b"\xff\xfe{}", 400, "not UTF-8"),
+    (b'{"az_steps": 1e999, "el_steps": 0}', 400, ""),
+])
+def test_request_bodies_are_bounded_and_refused_with_json(plant_console, body, status, words):
+    """Size, nesting, duplicate keys and encoding are checked before the body is parsed: a 4xx
+    with a JSON message, never a 500 (the jog is not sent)."""
+    console, client = plant_console
+    before = _steps(console, "H02")
+    r = client.post("/api/heliostats/H02/jog", content=body, headers={**JSON, TOKEN_HEADER: TOKEN})
+    assert r.status_code == status, r.text
+    assert r.json()["ok"] is False and words in r.json()["error"]
+    assert _steps(console, "H02") == before
+
+
+def test_a_streamed_body_without_length_is_cut_at_the_limit(plant_console):
+    console, client = plant_console
+
+    def chunks():
+        for _ in range(100):
+            yield b" " * 4096
+    r = client.post("/api/heliostats/H02/jog", content=chunks(), headers={**JSON, TOKEN_HEADER: TOKEN})
+    assert r.status_code == 413 and "too large" in r.json()["error"]
+
+
 def test_state_change_needs_the_token(plant_console):
     console, client = plant_console
     before = _steps(console, "H02")

@@ -102,9 +102,9 @@ def test_wait_deadline_uses_the_given_clock():
 
 
 @pytest.mark.parametrize("args, fragment", [
-    (["--timeout", "nan", "status"], "--timeout must be in (0, 60]"),
-    (["--timeout", "inf", "status"], "--timeout must be in (0, 60]"),
-    (["--retries", "100000000", "status"], "--retries must be in 0..100"),
+    (["--timeout", "nan", "status"], "argument --timeout: nan is not a finite number (range (0, 60])"),
+    (["--timeout", "inf", "status"], "argument --timeout: inf is not a finite number (range (0, 60])"),
+    (["--retries", "100000000", "status"], "argument --retries: 100000000 is outside [0, 100]"),
     (["move", "--az-steps", "1", "--el-steps", "1", "--wait", "--wait-timeout", "nan"], "--wait-timeout"),
 ])
 def test_drive_rejects_non_finite_and_huge_options(capsys, args, fragment):

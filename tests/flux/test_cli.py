@@ -294,7 +294,8 @@ def test_glare_geometry_curve(capsys, tmp_path):
             "--distance-range",
         ),
         (["glare", "--corneal-irradiance-w-m2", "10", "--json"], "--subtended-angle-mrad"),
-        (["glare", "--corneal-irradiance-w-m2", "10", "--subtended-angle-mrad", "-1", "--json"], "> 0"),
+        (["glare", "--corneal-irradiance-w-m2", "10", "--subtended-angle-mrad", "-1", "--json"],
+         "-1 is outside (0, 1000]"),
         (["glare", "--sun", "x.png", "--json"], "--source"),
     ],
 )

@@ -7,6 +7,7 @@ can be checked for it. ``write_corpus(folder)`` writes them all and returns thei
 from __future__ import annotations
 
 import io
+import os
 import struct
 import zlib
 from pathlib import Path
@@ -91,9 +92,28 @@ def corpus() -> dict[str, bytes]:
 
 
 def write_corpus(folder: Path) -> list[Path]:
+    """The corpus as files, plus what only a file system holds: a FIFO (reading it blocks
+    forever), a directory, a link to ``/dev/zero`` (it never ends) and a sparse file over every
+    size limit; and the duplicate-key files."""
     folder.mkdir(parents=True, exist_ok=True)
     paths = []
-    for name, data in corpus().items():
+    for name, data in {**corpus(), **DUPLICATES}.items():
         (folder / name).write_bytes(data)
         paths.append(folder / name)
+    os.mkfifo(folder / "a_fifo")
+    (folder / "a_folder").mkdir()
+    (folder / "dev_zero_link").symlink_to("/dev/zero")
+    with open(folder / "oversized_sparse", "wb") as f:  # costs no disk
+        f.truncate(OVERSIZED)
+    paths += [folder / n for n in SPECIAL]
     return paths
+
+
+NOT_REGULAR = ("a_fifo", "a_folder", "dev_zero_link")
+SPECIAL = (*NOT_REGULAR, "oversized_sparse")
+OVERSIZED = (1 << 28) + (2 << 20)  # over the largest limit of any reader (images: 257 MiB)
+# A key twice in one mapping: YAML and JSON keep the last silently; the readers refuse it.
+DUPLICATES = {
+    "dup_key.yaml": b"sensors:\n  - {name: ccd1}\ntolerance_mrad: 10\nsite: {a: 1}\ntolerance_mrad: 0.1\n",
+    "dup_key.json": b'{"a": 1,\n "b": {"c": 2},\n "a": 3}\n',
+}

@@ -16,6 +16,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from controller.commands._numbers import Number
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser("fit", help="fit the tracking model to calibration records",
@@ -25,7 +27,7 @@ def register(subparsers) -> None:
                    help="PAINT/ARTIST heliostat-properties file")
     p.add_argument("--towers", required=True, metavar="TOWERS.json", help="tower-measurements file (targets)")
     p.add_argument("--out", required=True, metavar="MODEL.json", help="where to write the fitted model")
-    p.add_argument("--noise-mrad", type=float, default=0.8, metavar="S",
+    p.add_argument("--noise-mrad", type=Number(0, 100, lo_open=True), default=0.8, metavar="S",
                    help="1-σ noise of a measured mirror normal, mrad (default 0.8: the spread between "
                         "two focal-spot methods on the Jülich records)")
     p.add_argument("--json", action="store_true", help="print the model document as JSON")

@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import argparse
 
+from controller.commands._numbers import Number
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser("validate", help="leave-one-out open-loop error on calibration records",
@@ -22,7 +24,7 @@ def register(subparsers) -> None:
     p.add_argument("--heliostat-properties", required=True, metavar="PROPS.json",
                    help="PAINT/ARTIST heliostat-properties file")
     p.add_argument("--towers", required=True, metavar="TOWERS.json", help="tower-measurements file (targets)")
-    p.add_argument("--noise-mrad", type=float, default=0.8, metavar="S",
+    p.add_argument("--noise-mrad", type=Number(0, 100, lo_open=True), default=0.8, metavar="S",
                    help="1-σ noise of a measured mirror normal, mrad (default 0.8)")
     p.add_argument("--json", action="store_true", help="print the table as JSON")
     p.set_defaults(func=run)

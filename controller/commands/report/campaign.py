@@ -5,8 +5,9 @@ campaign named."""
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
-from controller.commands._common import add_json_option, output_dir, print_json
+from controller.commands._common import add_json_option, print_json, staged_output_dir
 from controller.errors import InputError
 
 
@@ -30,14 +31,14 @@ def run(args: argparse.Namespace) -> int:
     from controller.reports.night import write_night_report
     from controller.storage.db import open_existing
 
-    output_dir(args.out)
-    with open_existing(args.db) as store:
+    with staged_output_dir(args.out) as stage, open_existing(args.db) as store:
         night = None if args.campaign is not None else _night(store, args.night)
         if night is not None and night.kind == "planned":
-            path = write_night_report(store, args.out, night)
+            written = write_night_report(store, stage, night)
         else:
             camp = store.find_campaign(night.name if night is not None else args.campaign)
-            path = write_report(store, args.out, camp.id)
+            written = write_report(store, stage, camp.id)
+        path = Path(args.out) / written.name
     if args.json:
         print_json({"report": str(path), "html": str(path.with_suffix(".html")),
                     "night": None if night is None else night.index})

@@ -32,18 +32,20 @@ from __future__ import annotations
 import sys
 
 from controller.commands._common import add_config_option, add_json_option, output_dir, print_json
+from controller.commands._numbers import SEED, Number
 from controller.errors import InputError
 
 
 def register(subparsers) -> None:
     p = subparsers.add_parser("weighting", help="weighting-function study: centroid RMS vs threshold",
                               description="Reproduce the HDR paper's Fig. 13 on the simulated camera.")
-    p.add_argument("--pairs", type=int, default=20, help="pairs captured of the same scene (default 20)")
+    p.add_argument("--pairs", type=Number(1, 1000, integer=True), default=20,
+                   help="pairs captured of the same scene (default 20)")
     p.add_argument("--out", required=True, metavar="DIR", help="output directory")
-    p.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
+    p.add_argument("--seed", type=SEED, default=0, help="noise seed (default 0)")
     p.add_argument("--heliostat", default=None, help="heliostat whose spot is imaged (default: first)")
     p.add_argument("--source", default=None, help="light source id (default: the sun, else the lamp)")
-    p.add_argument("--low-peak", type=float, default=None, metavar="FRACTION",
+    p.add_argument("--low-peak", type=Number(0.05, 1), default=None, metavar="FRACTION",
                    help="LOW's peak signal as a fraction of its range (default 0.8: HIGH saturates in "
                         "the core; below ~0.47 nothing saturates)")
     add_config_option(p)

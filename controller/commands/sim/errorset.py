@@ -21,6 +21,7 @@ from controller.commands._common import (
     output_dir,
     print_json,
 )
+from controller.commands._numbers import SEED, Number
 from controller.commands.library import progress
 from controller.config import load_config
 from controller.errors import InputError
@@ -30,13 +31,14 @@ def register(subparsers) -> None:
     p = subparsers.add_parser("errorset", help="render error-case library and test manifests",
                               description=__doc__.splitlines()[0])
     p.add_argument("--out", required=True, metavar="DIR", help="output directory")
-    p.add_argument("--seed", type=int, default=0, metavar="S", help="seed of the perturbations (default 0)")
-    p.add_argument("--cases", type=int, default=6, metavar="N",
+    p.add_argument("--seed", type=SEED, default=0, metavar="S", help="seed of the perturbations (default 0)")
+    p.add_argument("--cases", type=Number(1, 1000, integer=True), default=6, metavar="N",
                    help="number of error cases of the error set, from 1 (default 6)")
     p.add_argument("--combined", action="store_true",
                    help="also every pair of the chosen cases that both change the spot's shape, as cases "
                         "of their own (labels a+b; tracking-offset has no shape and is left out)")
-    p.add_argument("--views", type=int, default=14, metavar="N", help="test views per case (default 14)")
+    p.add_argument("--views", type=Number(1, 1000, integer=True), default=14, metavar="N",
+                   help="test views per case (default 14)")
     p.add_argument("--heliostat", default="H09", metavar="ID[,ID...]",
                    help="heliostat(s) of the config the library is rendered for (default H09)")
     p.add_argument("--sources", default=None, metavar="ID[,ID...]",

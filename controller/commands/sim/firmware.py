@@ -28,6 +28,7 @@ from controller.commands._links import (
     load_plant,
     parse_units,
 )
+from controller.commands._numbers import Number
 from controller.errors import HeliocalError, InputError
 
 
@@ -38,7 +39,7 @@ def register(subparsers) -> None:
     p.add_argument("--units", default="1", help="bus addresses / unit ids to serve (default 1)")
     p.add_argument("--config", default=DEFAULT_CONFIG, metavar="FILE",
                    help=f"plant configuration for the axes (default {DEFAULT_CONFIG})")
-    p.add_argument("--speedup", type=float, default=1.0, metavar="X",
+    p.add_argument("--speedup", type=Number(0, 1000, lo_open=True), default=1.0, metavar="X",
                    help="run the actuator physics X times faster than real time (default 1)")
     add_json_option(p)
     p.set_defaults(func=run)

@@ -1,0 +1,53 @@
+"""Records from database rows, checked on the way out (:mod:`controller.storage.checks`): the
+JSON columns must parse to the kind of value written, the statuses must be known ones."""
+
+from __future__ import annotations
+
+import sqlite3
+from pathlib import Path
+
+from controller.calibration.records import (
+    CAMPAIGN_STATUSES,
+    RUN_STATUSES,
+    CampaignRecord,
+    MeasurementRecord,
+    RunRecord,
+)
+from controller.storage.checks import enum_column, json_column
+
+
+def campaign_from_row(row: sqlite3.Row, path: Path) -> CampaignRecord:
+    return CampaignRecord(int(row["id"]), row["name"], row["config_path"], row["config_sha256"],
+                          row["light_source"], row["target"],
+                          json_column(path, "campaigns", row, "queue_json", list),
+                          row["started_utc"], row["finished_utc"],
+                          enum_column(path, "campaigns", row, "status", ("running", *CAMPAIGN_STATUSES)),
+                          json_column(path, "campaigns", row, "meta_json", dict, {}), row["cause"])
+
+
+def run_from_row(row: sqlite3.Row, path: Path) -> RunRecord:
+    return RunRecord(
+        row["heliostat_id"], row["queue_index"],
+        enum_column(path, "heliostat_runs", row, "status", RUN_STATUSES),
+        row["final_state"], row["iterations"],
+        row["start_s"], row["end_s"], error_before_mrad=row["error_before_mrad"],
+        error_after_mrad=row["error_after_mrad"], matched_label=row["matched_label"],
+        fault_cause=row["fault_cause"], fault_state=row["fault_state"], at_standby_s=row["at_standby_s"],
+        on_target_s=row["on_target_s"], off_target_s=row["off_target_s"], id=int(row["id"]),
+        finished_utc=row["finished_utc"])
+
+
+def measurement_from_row(row: sqlite3.Row) -> MeasurementRecord:
+    def xyz(prefix: str):
+        v = (row[f"{prefix}_e"], row[f"{prefix}_n"], row[f"{prefix}_u"])
+        return None if v[0] is None else v
+
+    px = None if row["centroid_x_px"] is None else (row["centroid_x_px"], row["centroid_y_px"])
+    return MeasurementRecord(
+        row["iteration"], row["az_steps"], row["el_steps"], xyz("source"), row["source_az_deg"],
+        row["source_el_deg"], xyz("aim"), row["plant_time_s"], centroid_enu=xyz("centroid"), centroid_px=px,
+        error_mrad=row["error_mrad"], matched_label=row["matched_label"],
+        match_distance=row["match_distance"],
+        runner_up_label=row["runner_up_label"], runner_up_distance=row["runner_up_distance"],
+        measured_utc=row["measured_utc"], source_pos_enu=xyz("source_pos"), id=int(row["id"]),
+        run_id=int(row["run_id"]), campaign_id=int(row["campaign_id"]), heliostat_id=row["heliostat_id"])
