@@ -130,7 +130,7 @@ class RunRecord:
 # device is missing); stopped by the operator (Ctrl-C, SIGTERM). ``running`` while it runs.
 CAMPAIGN_STATUSES = ("finished", "partial", "aborted", "interrupted")
 # A heliostat run's outcome (RunRecord.status); records are refused on reading with another.
-RUN_STATUSES = ("calibrated", "not_converged", "measured", "failed")
+RUN_STATUSES = ("calibrated", "not_converged", "measured", "no_beam", "failed")
 
 
 @dataclass
