@@ -71,6 +71,13 @@ TABLE: dict[str, list[Entry]] = {
                            {"--name": "a campaign name", "--heliostats": "heliostat ids", "--report": OUTPUTS,
                             "--notify": "a command run at the end"})],
     "campaign list": [Entry("campaign list --db {db}", {"db": Slot("--db", DB, "db")})],
+    # The packaged plant has no lamps: section, which a planned night needs and checks right
+    # after the configuration: the database and recorded pairs are read as by campaign run.
+    "campaign night": [Entry("campaign night --config {config} --db {out}/n.db",
+                             {"config": Slot("--config", YAML, "config")},
+                             {"--db": "read after the lamps: check, as campaign run's --db",
+                              "--camera-manifest": "read after the lamps: check, as campaign run's",
+                              "--heliostats": "heliostat ids"})],
     "capture": [
         Entry("capture --camera file --manifest {cam} --config {config} --out {out}/cap",
               {"cam": Slot("--manifest", YAML, "cam"), "config": Slot("--config", YAML, "config")},
@@ -142,7 +149,8 @@ TABLE: dict[str, list[Entry]] = {
                         {"--out": OUTPUTS, "--images": "a folder (frames are read per pair, by workers)",
                          "--since": "a date", "--scheduler": "an address"})],
     "report campaign": [Entry("report campaign --db {db} --out {out}/r", {"db": Slot("--db", DB, "db")},
-                              {"--out": OUTPUTS, "--campaign": "a campaign name"})],
+                              {"--out": OUTPUTS, "--campaign": "a campaign name",
+                               "--night": "a night index or name"})],
     "report confusion": [
         Entry("report confusion --library {lib} --test {test} --out {out}/r",
               {"lib": Slot("--library", YAML, "lib"), "test": Slot("--test", CSV, "manifest")},

@@ -22,6 +22,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 from controller.commands._common import add_json_option
+from controller.commands._numbers import Number
 
 MAX_WORKERS = 256
 
@@ -40,7 +41,7 @@ def register(subparsers) -> None:
                         "given); every heliostat is refitted")
     p.add_argument("--scheduler", default=None, metavar="ADDRESS",
                    help="Dask scheduler tcp://HOST:PORT to run on (default: a local cluster)")
-    p.add_argument("--workers", type=int, default=None, metavar="N",
+    p.add_argument("--workers", type=Number(1, MAX_WORKERS, integer=True), default=None, metavar="N",
                    help="worker processes of the local cluster (default: the machine's cores)")
     add_json_option(p)
     p.set_defaults(func=run)
@@ -66,9 +67,7 @@ def _check(args: argparse.Namespace) -> tuple[Path, Path, datetime | None, str |
 
     if args.scheduler is not None and args.workers is not None:
         raise InputError("--scheduler and --workers exclude each other (the cluster has its own workers)")
-    workers = args.workers if args.workers is not None else (os.cpu_count() or 1)
-    if not 1 <= workers <= MAX_WORKERS:
-        raise InputError(f"--workers must be 1 … {MAX_WORKERS}, got {workers}")
+    workers = args.workers if args.workers is not None else min(os.cpu_count() or 1, MAX_WORKERS)
     if args.scheduler is not None:
         check_scheduler_address(args.scheduler)
     since = parse_since(args.since) if args.since is not None else None

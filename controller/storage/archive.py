@@ -13,6 +13,7 @@ import json
 from pathlib import Path
 
 from controller.calibration.reprocess_plan import Archive, StoredCampaign, StoredPair
+from controller.storage.checks import resolved_image_path
 from controller.storage.db import CampaignStore
 
 
@@ -27,7 +28,9 @@ def read_archive(store: CampaignStore) -> Archive:
     files: dict[int, dict[str, tuple]] = {}
     for r in store.query("SELECT measurement_id, kind, path, sha256, exposure_low_s, exposure_high_s "
                          "FROM images WHERE kind IN ('low', 'high') ORDER BY id"):
-        files.setdefault(int(r[0]), {})[r[1]] = (str(r[2]), str(r[3]), (float(r[4]), float(r[5])))
+        # Stored relative to the database (or absolute, before that): as the frame lies now.
+        files.setdefault(int(r[0]), {})[r[1]] = (resolved_image_path(store.path, str(r[2])), str(r[3]),
+                                                 (float(r[4]), float(r[5])))
     pairs = {mid: StoredPair(f["low"][0], f["high"][0], f["low"][1], f["high"][1], f["low"][2])
              for mid, f in files.items() if "low" in f and "high" in f}
     heliostats = sorted({m.heliostat_id for m in measurements})

@@ -301,7 +301,7 @@ def test_since_limits_the_pairs_and_still_refits_every_heliostat(field, tmp_path
 @pytest.mark.parametrize("args, words", [
     (["--scheduler", "localhost:8786"], "expected tcp://HOST:PORT"),
     (["--scheduler", "tcp://127.0.0.1:8786", "--workers", "2"], "exclude each other"),
-    (["--workers", "0"], "--workers must be"),
+    (["--workers", "0"], "argument --workers: 0 is outside [1, 256]"),
     (["--since", "yesterday"], "--since 'yesterday'"),
     (["--images", "/nonexistent-folder"], "not a folder"),
 ])

@@ -94,6 +94,7 @@ def test_a_config_without_a_lamp_panel_exits_2(capsys):
 
 def test_an_unknown_action_is_a_usage_error(field, capsys):
     _, path = field
-    with pytest.raises(SystemExit) as e:
-        main(["lamps", "--config", str(path), "blink", "lamp"])
-    assert e.value.code == 2
+    assert main(["lamps", "--config", str(path), "blink", "lamp"]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert err == ["heliocal lamps: error: argument action: invalid choice: 'blink' (choose from 'status', "
+                   "'on', 'off', 'all-off') (see heliocal lamps --help)"]
