@@ -219,6 +219,31 @@ class Console:
             self.release_lock_if_idle()
             self.poll(hid)
 
+    def heliostats_for(self, what: str, ids: list[str] | None) -> list[str]:
+        """The heliostats a campaign or night started from the page runs on: the ticked ones
+        (at least one), else all of the console's."""
+        if ids is not None and not ids:
+            raise InputError(f"{what}: tick at least one heliostat")
+        ids = ids or list(self.ids)
+        for hid in ids:
+            self.known(hid)
+        return ids
+
+    def take_over(self) -> None:
+        """Before a campaign or a night drives the heliostats: nothing else drives them, no beam
+        is left on the target by a manual command, no manual command runs (Conflict, 409), then
+        the database's campaign lock (DatabaseBusy names the CLI's campaign). Commissioning
+        sessions start afresh (the runs change their standby side)."""
+        if self.driving() is not None:
+            raise Conflict(f"{self.driving()} is running")
+        if self.holder() is not None:
+            raise Conflict(f"{self.holder()} may have its beam on the target after a manual command: "
+                           "park it first (one beam per target)")
+        if self.commands_running():
+            raise Conflict("a manual command is still running")
+        self.store.campaign_lock.acquire("console")
+        self.sessions.clear()
+
     def driving(self) -> str | None:
         """What drives the heliostats now ("campaign NAME", "night NAME"), or None."""
         if self.campaign is not None and self.campaign.running:

@@ -51,27 +51,11 @@ class CampaignControl(CampaignObserver):
     # -- control ----------------------------------------------------------------------------------
     def start(self, name: str, ids: list[str] | None = None) -> dict:
         c = self.c
-        if ids is not None and not ids:
-            raise InputError("campaign: tick at least one heliostat")
-        ids = ids or list(c.ids)
-        for hid in ids:
-            c.known(hid)
+        ids = c.heliostats_for("campaign", ids)
         if not name or not name.strip():
             raise InputError("campaign name: give a name")
         with self._lock:
-            if self.running:
-                raise Conflict(f"campaign {self.name} is running")
-            if c.night is not None and c.night.running:
-                raise Conflict(f"{c.driving()} is running: stop it first")
-            if c.holder() is not None:
-                raise Conflict(f"{c.holder()} may have its beam on the target after a manual command: "
-                               "park it first (one beam per target)")
-            if c.commands_running():
-                raise Conflict("a manual command is still running")
-            c.store.campaign_lock.acquire("console")  # DatabaseBusy (409) names the CLI's campaign
-            # Sessions start afresh after the campaign (its moves change their standby side);
-            # none needs parking here (checked above).
-            c.sessions.clear()
+            c.take_over()
             camp = Campaign(c.field, CampaignOptions(name=name.strip()), heliostat_ids=ids, observers=[self])
             self._campaign, self.name, self.campaign_id = camp, name.strip(), None
             self.queue, self.states, self.recorded = list(ids), {}, {}

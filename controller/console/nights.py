@@ -16,7 +16,7 @@ import time
 
 from controller.calibration.night import PlannedNight, tonight
 from controller.console.backend import Conflict, Console
-from controller.errors import HeliocalError, InputError
+from controller.errors import HeliocalError
 from controller.storage.nights import NightBook
 
 LOG_LINES = 40  # progress lines kept for the page
@@ -40,23 +40,9 @@ class NightControl:
 
     def start(self, ids: list[str] | None = None) -> dict:
         c = self.c
-        if ids is not None and not ids:
-            raise InputError("night: tick at least one heliostat")
-        ids = ids or list(c.ids)
-        for hid in ids:
-            c.known(hid)
+        ids = c.heliostats_for("night", ids)
         with self._lock:
-            if self.running:
-                raise Conflict(f"night {self._night.name} is running")
-            if c.campaign is not None and c.campaign.running:
-                raise Conflict(f"campaign {c.campaign.name} is running")
-            if c.holder() is not None:
-                raise Conflict(f"{c.holder()} may have its beam on the target after a manual command: "
-                               "park it first (one beam per target)")
-            if c.commands_running():
-                raise Conflict("a manual command is still running")
-            c.store.campaign_lock.acquire("console")
-            c.sessions.clear()
+            c.take_over()
             book = NightBook(c.store)
             name, index = tonight(book, book.base_name() or c.cfg.site.name)
             if c.hooks.set_night is not None:
