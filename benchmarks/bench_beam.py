@@ -14,6 +14,15 @@
 * ``match_100k_ms``: one query against 100,000 library entries (:class:`Matcher`). Target <= 1 ms.
   Peers: numpy brute force ``norm(X - q)`` and ``cv2.BFMatcher(NORM_L2)`` (float32).
 
+* ``presence_centroid_256_ms`` / ``presence_centroid_1024_ms``: the beam-presence decision and
+  the full energy centroid (:func:`controller.imaging.presence.detect_beam` +
+  :func:`controller.imaging.spot_centroid.spot_centroid`) on a real 256x256 PAINT photo
+  (tests/data/real/paint/106293-cropped.png) and on the 1024x768 image above. Targets <= 5 ms
+  and <= 20 ms. Peer in the same run: the default before them,
+  ``analyze(img, centroid="segment", presence=False)`` (``old_default_*_ms``), and the whole
+  new default ``analyze(img)`` (``analyze_default_*_ms``: presence, centroid and shape);
+  ``ratio_*`` = presence + centroid / old default.
+
 Times are medians over ``--repeat`` calls after a warm-up, on this machine's cores.
 """
 
@@ -23,12 +32,16 @@ import argparse
 import json
 import os
 import time
+from pathlib import Path
 
 import cv2
 import numpy as np
 
 from controller.imaging.beam import analyze
 from controller.imaging.moments import hu_moments
+from controller.imaging.presence import detect_beam
+from controller.imaging.spot_centroid import spot_centroid
+from controller.io.images import read_image
 from controller.recognition.library import Entry, Library
 from controller.recognition.matching import Matcher
 
@@ -84,8 +97,25 @@ def main() -> None:
     bf = cv2.BFMatcher(cv2.NORM_L2)
     q32 = queries[:1].astype(np.float32)
     img64 = img.astype(np.float64)
+    photo = read_image(Path(__file__).resolve().parents[1] / "tests/data/real/paint/106293-cropped.png")
+
+    def presence_centroid(frame):
+        return lambda: spot_centroid(frame, detect_beam(frame))
+
+    def old_default(frame):
+        return lambda: analyze(frame, centroid="segment", presence=False)
+
+    speed = {}
+    for name, frame in (("256", photo), ("1024", img)):
+        new = _median_ms(presence_centroid(frame), args.repeat)
+        old = _median_ms(old_default(frame), args.repeat)
+        speed[f"presence_centroid_{name}_ms"] = new
+        speed[f"old_default_{name}_ms"] = old
+        speed[f"analyze_default_{name}_ms"] = _median_ms(lambda f=frame: analyze(f), args.repeat)
+        speed[f"ratio_{name}"] = new / old
 
     result = {
+        **speed,
         "image": [768, 1024],
         "cores": os.cpu_count(),
         "analyze_hu_match_ms": _median_ms(pipeline, args.repeat),
@@ -98,7 +128,8 @@ def main() -> None:
         "numpy_bruteforce_100k_ms": _median_ms(
             lambda: int(np.argmin(np.linalg.norm(big - queries[0], axis=1))), args.repeat),
         "cv2_bfmatcher_100k_ms": _median_ms(lambda: bf.knnMatch(q32, big32, k=2), max(10, args.repeat // 10)),
-        "targets_ms": {"analyze_hu_match": 3.0, "match_100k": 1.0},
+        "targets_ms": {"analyze_hu_match": 3.0, "match_100k": 1.0, "presence_centroid_256": 5.0,
+                       "presence_centroid_1024": 20.0},
     }
     print(json.dumps({k: (round(v, 4) if isinstance(v, float) else v) for k, v in result.items()}))
 

@@ -32,13 +32,13 @@ import numpy as np
 import yaml
 
 from controller.calibration.beam_chain import BeamChain
-from controller.calibration.clipped_spot import clipped_centre
 from controller.commands.demo import simulated_campaign
 from controller.config import load_config
 from controller.devices.camera import FramePair
 from controller.imaging.background import subtract_background
 from controller.imaging.beam import analyze
 from controller.imaging.centroid import energy_centroid
+from controller.imaging.clipped_spot import clipped_centre
 from controller.io.images import read_image
 from controller.storage.db import open_existing
 from simplant.plant import field_selection

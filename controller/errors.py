@@ -38,3 +38,15 @@ class LimitError(InputError):
 
 class DeviceError(HeliocalError):
     """A device (drive, camera) failed or answered with an error. Exit status 1."""
+
+
+class NoBeamError(HeliocalError):
+    """The image holds no beam by the presence decision (controller.imaging.presence): not bad
+    input, not a device failure. Exit status 4. ``detail`` is the decision's JSON
+    (``beam``: false, ``statistic``, ``statistic_name``, ``threshold``)."""
+
+    exit_code = 4
+
+    def __init__(self, message: str, detail: dict | None = None) -> None:
+        super().__init__(message)
+        self.detail = detail or {}

@@ -6,14 +6,14 @@ import threading
 
 import numpy as np
 
-from controller.calibration.clipped_spot import clipped_centre
-from controller.calibration.observations import BeamNotFound, Observation
+from controller.calibration.observations import BeamNotFound, NoBeam, Observation
 from controller.config import PlantConfig
-from controller.errors import InputError
+from controller.errors import InputError, NoBeamError
 from controller.geometry.target_frame import TargetFrame
 from controller.imaging.background import subtract_background
 from controller.imaging.beam import analyze
 from controller.imaging.centroid import energy_centroid
+from controller.imaging.clipped_spot import clipped_centre
 from controller.imaging.crf_io import load_crf
 from controller.imaging.hdr import HdrMerger
 from controller.recognition.library import Match
@@ -55,11 +55,19 @@ class BeamChain:
         return m.merge(frame.low, frame.high)
 
     def analyze(self, hdr: np.ndarray, *, allow_clipped: bool = False) -> Observation:
-        """The beam in ``hdr``; BeamNotFound without one. A spot clipped by the view's edge is
+        """The beam in ``hdr``; :class:`NoBeam` when the presence decision finds none,
+        BeamNotFound when no usable spot is left. A spot clipped by the view's edge is
         refused too, unless ``allow_clipped`` (the cycle then corrects towards it and looks
         again): its centroid is biased towards the inside, right in direction only."""
         try:
-            r = analyze(hdr, threshold=self.threshold, background="auto")
+            # The shape (Hu moments) and the plane the energy centroid below is taken over are
+            # those the library and the campaign's accuracy were measured with.
+            r = analyze(hdr, threshold=self.threshold, background="auto", centroid="segment")
+        except NoBeamError as exc:
+            d = exc.detail
+            raise NoBeam(f"no beam on the target ({exc}); is the light source lit and confirmed, does "
+                         "the camera see this target, did the beam miss it?", d["statistic"],
+                         d["threshold"]) from None
         except InputError as exc:
             raise BeamNotFound(f"no beam spot in the image ({exc})") from None
         if r.pixels < 4:

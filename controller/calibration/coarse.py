@@ -6,7 +6,7 @@ loop"):
 * a library entry's stored axis ``correction_deg`` (Δazimuth, Δelevation of the axes, deg), on
   the first measurement of a known match: applied as it is (``Pointing.coarse_correction``);
 * a spot clipped by the camera view's edge, when ``calibration.coarse_correction`` is set
-  (None = never) and the clipped spot's centre estimate (:mod:`controller.calibration.clipped_spot`,
+  (None = never) and the clipped spot's centre estimate (:mod:`controller.imaging.clipped_spot`,
   from its half-maximum contour) has a confidence of at least that value: the move puts that
   centre on the aim point, through the same Jacobian as a centroid offset
   (``Pointing.fine_correction``, Eq. 1). The visible part's energy centroid is biased inward, so

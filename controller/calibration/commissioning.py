@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from controller.calibration.beam_chain import BeamChain
-from controller.calibration.observations import BeamNotFound, Observation
+from controller.calibration.observations import BeamNotFound, NoBeam, Observation
 from controller.calibration.park import park
 from controller.calibration.pointing import GeometryPointing
 from controller.calibration.registration_step import register_chain
@@ -43,11 +43,15 @@ class Capture:
     hdr: np.ndarray
     observation: Observation | None
     problem: str | None = None  # why there is no observation
+    # The presence decision found no beam (statistic, threshold): nothing is computed from it.
+    no_beam: tuple[float, float] | None = None
 
     def to_json(self, aim_point, heliostat_pos) -> dict:
         o = self.observation
         if o is None:
-            return {"beam": False, "problem": self.problem, "exposures": list(self.frame.exposures)}
+            nb = {} if self.no_beam is None else {"statistic": self.no_beam[0], "threshold": self.no_beam[1]}
+            return {"beam": False, "no_beam": self.no_beam is not None, **nb, "problem": self.problem,
+                    "exposures": list(self.frame.exposures)}
         return {"beam": True, "centroid_px": list(o.centroid_px), "centroid_enu_m": list(o.centroid_enu),
                 "error_mrad": pointing_error_mrad(heliostat_pos, aim_point, o.centroid_enu),
                 "peak": o.peak, "exposures": list(self.frame.exposures)}
@@ -125,11 +129,14 @@ class Commissioning:
     def capture(self) -> Capture:
         frame = self.camera.capture()
         hdr = self.chain.merge(frame)
+        no_beam = None
         try:
             obs, problem = self.chain.analyze(hdr), None
+        except NoBeam as exc:
+            obs, problem, no_beam = None, str(exc), (exc.statistic, exc.threshold)
         except BeamNotFound as exc:
             obs, problem = None, str(exc)
-        self.last = Capture(frame, hdr, obs, problem)
+        self.last = Capture(frame, hdr, obs, problem, no_beam)
         return self.last
 
     @staticmethod

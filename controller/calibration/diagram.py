@@ -37,8 +37,8 @@ any exception there fires `fail`, a state's timeout fires `timeout` (both lead t
 From `fault` the controller clears latched faults and parks the beam at standby (`recovered`),
 else stows the heliostat (`stow`); if both fail the cycle ends `aborted` and the campaign
 stops using the target, because a beam may still be on it. Only `done`, `stowed` and
-`aborted` are final; a run's *status* (`calibrated`, `not_converged`, `failed`) is recorded
-separately, with the fault cause.
+`aborted` are final; a run's *status* (`calibrated`, `not_converged`, `measured`, `no_beam`, `failed`) is
+recorded separately, with the fault cause (`no_beam`: the frame held no beam, docs/campaigns.md).
 
 ```mermaid
 {mermaid_diagram().strip()}

@@ -47,7 +47,7 @@ from transitions.extensions.states import Timeout, add_state_features
 from controller.calibration.approach import approach_path
 from controller.calibration.coarse import correction_step
 from controller.calibration.context import CycleContext, CycleObserver
-from controller.calibration.observations import BeamNotFound, Observation
+from controller.calibration.observations import BeamNotFound, NoBeam, Observation
 from controller.calibration.park import park
 from controller.calibration.records import CorrectionRecord, RunRecord, measurement_record
 from controller.devices.drive import DriveError, LinkError, MoveCancelled
@@ -143,7 +143,7 @@ class CalibrationCycle:
         self.obs: Observation | None = None
         self.match: Match | None = None
         self.coarse_done = False
-        self.clipped_looks = 0
+        self.clipped_looks, self.no_beam = 0, False  # no_beam: a frame held none (status "no_beam")
         self.observer = ctx.observer or CycleObserver()
         self.run_rec = RunRecord(ctx.heliostat_id, ctx.queue_index, "running", "idle", 0,
                                  start_s=ctx.time.now(), end_s=ctx.time.now())
@@ -208,7 +208,7 @@ class CalibrationCycle:
                 if self.state != state:
                     continue
                 self.cause = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
-                self.fault_state = state
+                self.fault_state, self.no_beam = state, isinstance(exc, NoBeam)
                 if state == "fault":
                     self.trigger("give_up")
                 else:
@@ -390,7 +390,7 @@ class CalibrationCycle:
             # blocks the gate for everyone after.
             self.ctx.gate.release(self._ticket, beam_off_target=not self.beam_on_target)
         if self.cause:
-            self.status = "failed"
+            self.status = "no_beam" if self.no_beam and self.state != "aborted" else "failed"
         r = self.run_rec
         r.status = self.status
         r.final_state = self.state

@@ -1,5 +1,6 @@
 """What one measurement of a cycle yields: the beam seen on the target, the library's match,
-and a correction step; :class:`BeamNotFound` when there is nothing to measure."""
+and a correction step; :class:`BeamNotFound` when there is nothing to measure, :class:`NoBeam`
+when the presence decision says there is no beam on the target at all."""
 
 from __future__ import annotations
 
@@ -17,7 +18,7 @@ class Observation:
     hu: np.ndarray
     peak: float
     clipped: tuple[str, ...] = ()  # edges of the view the spot touches: its centroid is biased inward
-    # A clipped spot's centre from its half-maximum contour (controller.calibration.clipped_spot),
+    # A clipped spot's centre from its half-maximum contour (controller.imaging.clipped_spot),
     # m ENU, and its confidence in [0, 1]; None / 0 when not clipped or not estimable.
     clipped_centre_enu: tuple[float, float, float] | None = None
     clipped_confidence: float = 0.0
@@ -38,3 +39,14 @@ class Step:
 
 class BeamNotFound(RuntimeError):
     """No usable beam spot in the image (none, or clipped by the edge of the view)."""
+
+
+class NoBeam(BeamNotFound):
+    """No beam on the target by the presence decision (:mod:`controller.imaging.presence`):
+    ``statistic`` < ``threshold``. The cycle records ``no_beam`` and computes no correction
+    from the frame (docs/campaigns.md, "No beam")."""
+
+    def __init__(self, message: str, statistic: float, threshold: float) -> None:
+        super().__init__(message)
+        self.statistic = statistic
+        self.threshold = threshold

@@ -83,7 +83,8 @@ class RunRecord:
     """Outcome of one heliostat's calibration cycle, written atomically with its children.
 
     ``status``: ``calibrated`` (within tolerance), ``not_converged`` (max iterations reached),
-    ``measured`` (an observation of a planned night: one measurement, no correction)
+    ``measured`` (an observation of a planned night: one measurement, no correction),
+    ``no_beam`` (a frame held no beam: nothing computed from it, controller.calibration.no_beam)
     or ``failed`` (fault; ``fault_cause`` says why, ``fault_state`` where). ``id`` and
     ``finished_utc`` are set when read back from the store."""
 
@@ -129,7 +130,7 @@ class RunRecord:
 # device is missing); stopped by the operator (Ctrl-C, SIGTERM). ``running`` while it runs.
 CAMPAIGN_STATUSES = ("finished", "partial", "aborted", "interrupted")
 # A heliostat run's outcome (RunRecord.status); records are refused on reading with another.
-RUN_STATUSES = ("calibrated", "not_converged", "measured", "failed")
+RUN_STATUSES = ("calibrated", "not_converged", "measured", "no_beam", "failed")
 
 
 @dataclass

@@ -40,6 +40,7 @@ from controller.calibration.field import Field, LampLit
 from controller.calibration.gate import TargetGate
 from controller.calibration.lamp_change import clear_targets
 from controller.calibration.machine import CalibrationCycle
+from controller.calibration.no_beam import NoBeamWatch
 from controller.calibration.observers import CampaignObserver, Observers
 from controller.calibration.outcome import CampaignResult, outcome
 from controller.calibration.planning import order_queue
@@ -226,6 +227,7 @@ class Campaign:
         session: list[RunRecord] = []
         cycles = self._cycles
         stop = self._stop
+        watch = NoBeamWatch(self.cfg.light_source(self.opt.light_source).id, self.cfg.target().id, self.lamp)
         self.observer.campaign_started(cid, list(queue), set(done))
 
         def one(ticket: int, qi: int, hid: str) -> RunRecord | None:
@@ -234,6 +236,12 @@ class Campaign:
             if gate.blocked or stop.is_set():
                 gate.release(ticket)
                 return None
+            if watch.stopped:  # no beam for several heliostats in a row: the light source is suspect
+                gate.release(ticket)
+                rec = watch.not_measured(hid, qi, self.time.now())
+                rec.id = self.store.record_run(cid, rec)
+                self.observer.run_recorded(cid, rec)
+                return rec
             cyc = CalibrationCycle(self._context(hid, qi, ticket, gate, pointing[hid]))
             cycles[hid] = cyc
             rec = cyc.run()
@@ -243,6 +251,7 @@ class Campaign:
             if gate.blocked and rec.final_state != "aborted" and rec.iterations == 0 \
                     and rec.status == "failed":
                 return None  # never reached the target because another beam blocked it: not recorded
+            watch.ended(rec)
             rec.id = self.store.record_run(cid, rec)
             self.observer.run_recorded(cid, rec)
             return rec

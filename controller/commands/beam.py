@@ -5,6 +5,12 @@ JSON (``--json``): ``{"centroid_px": [x, y], "peak", "total", "pixels", "hu": [7
 y = row, (0, 0) the centre of the top-left pixel. With ``--background fit`` also
 ``"spot_fit": {"centre_px", "amplitude", "sigma_major_px", "sigma_minor_px", "angle_deg",
 "exponent", "residual_rms"}``. ``--plot DIR`` writes one PNG per intermediate step.
+
+Every answer says whether there is a beam (``"beam"``, ``"statistic"``, ``"statistic_name"``,
+``"threshold"``; :mod:`controller.imaging.presence`), and where the spot runs out of the view
+(``"clipped"``: edges) or a second spot is in view (``"second_spot_px"``: [x, y] or null).
+No beam: exit status 4, JSON ``{"beam": false, "statistic", "statistic_name", "threshold",
+"reason"}`` (one line on stdout without ``--json``); nothing else is computed.
 """
 
 from __future__ import annotations
@@ -17,7 +23,7 @@ import numpy as np
 
 from controller.commands._common import add_json_option, existing_file, output_dir, print_json
 from controller.commands._numbers import fraction
-from controller.errors import InputError
+from controller.errors import InputError, NoBeamError
 from controller.imaging.beam import BeamResult, analyze
 from controller.io.images import pyplot, read_image, save_figure
 
@@ -64,6 +70,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         result = analyze(image, threshold=args.threshold, background=background, mask=mask,
                          keep_steps=bool(args.plot))
+    except NoBeamError as exc:
+        return no_beam(args, exc)
     except InputError as exc:
         raise InputError(f"{args.image}: {exc}") from None  # e.g. "image is all zeros"
     if args.plot:
@@ -84,6 +92,15 @@ def run(args: argparse.Namespace) -> int:
               f"d90 {d['d90_px']:.2f} px")
         print("hu " + " ".join(f"{v:.6g}" for v in d["hu"]))
     return 0
+
+
+def no_beam(args: argparse.Namespace, exc: NoBeamError) -> int:
+    """The "no beam" answer of ``beam`` and ``match``: JSON or one line on stdout, exit 4."""
+    if args.json:
+        print_json({**exc.detail, "reason": str(exc)})
+    else:
+        print(f"{args.image}: {exc}")
+    return NoBeamError.exit_code
 
 
 def plot_steps(result: BeamResult, out: Path) -> list[Path]:

@@ -8,6 +8,9 @@ the nearest entries of the case, ``coarse_correction_deg`` its negative, ``magni
 interpolated error size, ``confidence`` in [0, 1]. When the image is farther than the library's
 unknown threshold from every entry, ``label`` is ``"unknown"``, ``unknown`` is true,
 az/el/correction/estimates are null, confidence 0, and ``nearest`` names the closest case.
+
+An image without a beam (:mod:`controller.imaging.presence`) is not matched: exit status 4 and
+``{"beam": false, "statistic", "statistic_name", "threshold", "reason"}`` as ``heliocal beam``.
 """
 
 from __future__ import annotations
@@ -15,7 +18,10 @@ from __future__ import annotations
 import argparse
 
 from controller.commands._common import add_json_option, existing_file, print_json
-from controller.errors import InputError
+from controller.commands.beam import no_beam
+from controller.errors import InputError, NoBeamError
+from controller.imaging.beam import check_image
+from controller.imaging.presence import detect_beam
 from controller.io.images import read_image
 from controller.recognition.confusion import mechanisms
 from controller.recognition.library import Library
@@ -61,6 +67,9 @@ def run(args: argparse.Namespace) -> int:
     lib = load_library(existing_file(args.library, "library"))
     image = read_image(existing_file(args.image, "image"))
     try:
+        presence = detect_beam(check_image(image))
+        if not presence.beam:
+            return no_beam(args, NoBeamError(f"no beam: {presence.reason()}", presence.as_dict()))
         result = match_image(lib, image)
     except InputError as exc:
         raise InputError(f"{args.image}: {exc}") from None  # e.g. "image is all zeros"

@@ -22,17 +22,21 @@ _LOCAL_MAX_SIDE = 320
 
 @dataclass(frozen=True)
 class Background:
-    """Background model b(x, y) = level + slope_x * x + slope_y * y (counts, counts/px)."""
+    """Background model b(x, y) = level + slope_x x + slope_y y
+    + c_xx (x − x0)² + c_yy (y − y0)² + c_xy (x − x0)(y − y0), with ``quad`` = (c_xx, c_yy, c_xy)
+    about ``centre`` = (x0, y0) (counts, counts/px, counts/px²; zero for a plane)."""
 
     level: float
     slope_x: float = 0.0
     slope_y: float = 0.0
     noise: float = 0.0  # robust standard deviation of the background pixels
     image: np.ndarray | None = None  # a full null image, when one was given
+    quad: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    centre: tuple[float, float] = (0.0, 0.0)
 
     @property
     def is_constant(self) -> bool:
-        return self.image is None and self.slope_x == 0.0 and self.slope_y == 0.0
+        return self.image is None and self.slope_x == 0.0 and self.slope_y == 0.0 and not any(self.quad)
 
     def evaluate(self, shape: tuple[int, int], dtype=np.float64, origin: tuple[int, int] = (0, 0)
                  ) -> np.ndarray | float:
@@ -43,7 +47,27 @@ class Background:
             return self.level
         y = np.arange(origin[0], origin[0] + shape[0], dtype=dtype)
         x = np.arange(origin[1], origin[1] + shape[1], dtype=dtype)
-        return (self.level + self.slope_y * y)[:, None] + (self.slope_x * x)[None, :]
+        return self.on_grid(x, y, dtype)
+
+    def at(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """b at the points (``x``, ``y``) (px, arrays of one shape and dtype; no null image)."""
+        out = self.level + self.slope_x * x + self.slope_y * y
+        if any(self.quad):
+            cxx, cyy, cxy = self.quad
+            u, v = x - self.centre[0], y - self.centre[1]
+            out = out + cxx * u * u + cyy * v * v + cxy * u * v
+        return out.astype(x.dtype, copy=False)
+
+    def on_grid(self, x: np.ndarray, y: np.ndarray, dtype=np.float64) -> np.ndarray:
+        """b at the pixel centres of columns ``x`` and rows ``y`` (1-D, px): (len(y), len(x))."""
+        x = np.asarray(x, dtype)
+        y = np.asarray(y, dtype)
+        out = (self.level + self.slope_y * y)[:, None] + (self.slope_x * x)[None, :]
+        if any(self.quad):
+            cxx, cyy, cxy = self.quad
+            u, v = x - dtype(self.centre[0]), y - dtype(self.centre[1])
+            out = out + (cyy * v * v)[:, None] + (cxx * u * u)[None, :] + cxy * v[:, None] * u[None, :]
+        return out.astype(dtype, copy=False)
 
 
 def estimate_background(image: np.ndarray, mask: np.ndarray | None = None, iterations: int = 3) -> Background:

@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from controller.errors import InputError
+from controller.errors import InputError, NoBeamError
 from controller.imaging.background import (
     Background,
     estimate_background,
@@ -42,6 +42,8 @@ from controller.imaging.background import (
     working_dtype,
 )
 from controller.imaging.moments import central_moments, hu_from_eta, normalised_central_moments
+from controller.imaging.presence import Presence, detect_beam
+from controller.imaging.spot_centroid import spot_centroid
 from controller.imaging.spot_fit import SpotFit, SpotGuess, fit_spot
 
 SMOOTH_PX = 1.0
@@ -75,10 +77,16 @@ class BeamResult:
     bbox: tuple[int, int, int, int]
     steps: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
     spot_fit: SpotFit | None = None  # the model fit, with background="fit"
+    presence: Presence | None = None  # the beam-presence decision (None: not asked for)
+    clipped: tuple[str, ...] = ()  # edges of the view the spot runs out of (energy centroid)
+    second_spot_px: tuple[float, float] | None = None  # another beam-like spot in view
 
     def as_dict(self) -> dict:
         """The CLI/JSON contract of ``heliocal beam``."""
         return {
+            **(self.presence.as_dict() if self.presence is not None else {"beam": True}),
+            "clipped": list(self.clipped),
+            "second_spot_px": list(self.second_spot_px) if self.second_spot_px is not None else None,
             "centroid_px": [self.centroid_px[0], self.centroid_px[1]],
             "peak": self.peak,
             "total": self.total,
@@ -137,9 +145,7 @@ def _candidate_window(image: np.ndarray, background: Background, threshold: floa
     elif background.is_constant:
         half -= dt(background.level)
     else:
-        y = 2.0 * np.arange(half.shape[0], dtype=dt)
-        x = 2.0 * np.arange(half.shape[1], dtype=dt)
-        half -= (background.level + background.slope_y * y)[:, None] + (background.slope_x * x)[None, :]
+        half -= background.on_grid(2.0 * np.arange(half.shape[1]), 2.0 * np.arange(half.shape[0]), dt)
     if mask is not None:
         half[~mask[::2, ::2][:half.shape[0], :half.shape[1]]] = -np.inf
     peak = float(half.max())
@@ -287,21 +293,30 @@ def _guess(img: np.ndarray, bg: Background, threshold: float, m: np.ndarray | No
 
 
 def analyze(image: np.ndarray, threshold: float = 0.5, background="auto", mask: np.ndarray | None = None,
-            keep_steps: bool = False) -> BeamResult:
-    """Analyse a beam spot: centroid, peak, total, ellipse, d90 and Hu moments.
+            keep_steps: bool = False, centroid: str = "energy", presence: bool = True) -> BeamResult:
+    """Analyse a beam spot: presence, centroid, peak, total, ellipse, d90 and Hu moments.
 
     Parameters
     ----------
     image : ndarray (rows, cols), integer counts or float (HDR) intensities.
-    threshold : fraction of the background-subtracted peak; pixels above it form the spot.
-    background : "auto" (sigma-clipped plane), "local" (that plane refitted to a ring around the
-        spot, :func:`controller.imaging.background.estimate_local_background`), "fit" (from the local
+    threshold : fraction of the background-subtracted peak; pixels above it form the spot (its
+        shape: ellipse, d90, Hu moments; and the centroid with ``centroid="segment"``).
+    background : "auto" (sigma-clipped plane; with ``centroid="energy"`` a quadratic surface
+        fitted around the spot, :mod:`controller.imaging.spot_centroid`), "local" (that plane
+        refitted to a ring around the spot,
+        :func:`controller.imaging.background.estimate_local_background`), "fit" (from the local
         plane, a quadratic background and an elliptical super-Gaussian fitted jointly by robust
         least squares over the same neighbourhood, :func:`controller.imaging.spot_fit.fit_spot`;
         the centroid is the model's centre, the rest is measured above the fitted surface),
         "none", or a null image ndarray of the same shape.
     mask : optional (rows, cols) target mask, non-zero = on target.
     keep_steps : keep intermediate images in ``result.steps`` for plotting.
+    centroid : "energy" (default; with ``background="auto"``: the spot's full energy centroid
+        in a symmetric window, no threshold) or "segment" (intensity centroid of the pixels
+        above ``threshold``; the only one for "local", "none" and a null image).
+    presence : decide first whether there is a beam at all (:func:`controller.imaging.presence.detect_beam`,
+        on the image minus a null image when one is given) and raise
+        :class:`controller.errors.NoBeamError` when there is none.
 
     Returns
     -------
@@ -310,9 +325,21 @@ def analyze(image: np.ndarray, threshold: float = 0.5, background="auto", mask: 
     """
     if not 0.0 <= float(threshold) < 1.0:
         raise InputError(f"threshold must be a fraction of the peak in [0, 1), got {threshold}")
+    if centroid not in ("energy", "segment"):
+        raise InputError(f"centroid must be 'energy' or 'segment', not {centroid!r}")
     img = check_image(image)
     m = _as_mask(mask, img.shape)
     fit = None
+    energy = centroid == "energy" and isinstance(background, str) and background == "auto"
+    pres = None
+    if presence or energy:
+        null = not isinstance(background, str)
+        pres = detect_beam(subtract_background(img, _background(img, background, m)) if null else img, m)
+        if presence and not pres.beam:
+            raise NoBeamError(f"no beam: {pres.reason()}", pres.as_dict())
+    # The energy centroid has its own surface around the spot; the shape (ellipse, d90, Hu
+    # moments, which the recognition library was built on) stays above the plane over the view.
+    spot = spot_centroid(img, pres, m) if energy else None
     if isinstance(background, str) and background in ("local", "fit"):
         # The ring plane only holds near the spot: analyse that neighbourhood only.
         bg, m = estimate_local_background(img, m)
@@ -332,7 +359,10 @@ def analyze(image: np.ndarray, threshold: float = 0.5, background="auto", mask: 
     cm = central_moments(weights)
     if not cm.m00 > 0.0:
         raise InputError("no beam: segmented spot has no energy")
-    cx, cy = (cm.cx + c0, cm.cy + r0) if fit is None else (fit.x, fit.y)
+    if spot is not None:
+        cx, cy = spot.x, spot.y
+    else:
+        cx, cy = (cm.cx + c0, cm.cy + r0) if fit is None else (fit.x, fit.y)
     ell = second_moment_ellipse(cm.mu["20"], cm.mu["02"], cm.mu["11"], cm.m00)
     d90 = enclosed_energy_diameter(weights, cx - c0, cy - r0)
     pixels = int(np.count_nonzero(region))
@@ -357,6 +387,9 @@ def analyze(image: np.ndarray, threshold: float = 0.5, background="auto", mask: 
     return BeamResult(
         centroid_px=(float(cx), float(cy)), peak=peak, total=float(cm.m00), pixels=pixels, hu=hu,
         ellipse=ell, d90_px=d90, background=bg, threshold_level=level, saturated_pixels=saturated,
-        bbox=bbox, steps=steps, spot_fit=fit,
+        bbox=bbox, steps=steps, spot_fit=fit, presence=pres,
+        clipped=spot.clipped if spot is not None else (),
+        second_spot_px=spot.second_spot if spot is not None else None,
     )
+
 

@@ -66,7 +66,7 @@ def energy_moments(image: np.ndarray, threshold: float = WINDOW_THRESHOLD,
     included, so the blurred tails are not clipped (the condition of the blur invariance).
     InputError when there is no beam or no positive energy in the window.
     """
-    res = analyze(image, threshold=threshold, background="auto")
+    res = analyze(image, threshold=threshold, background="auto", centroid="segment", presence=False)
     b0, b1, a0, a1 = res.bbox
     cx, cy = (int(round(v)) for v in res.centroid_px)
     # Symmetric about the centroid, so that what is left of the background (a constant, or the

@@ -49,7 +49,8 @@ _LOG_FLOOR = 1e-30
 
 def hu_stack(image: np.ndarray, thresholds: Sequence[float]) -> np.ndarray:
     """Hu moments (len(thresholds), 7) of the beam segmented at each threshold (background auto)."""
-    return np.array([analyze(image, threshold=t, background="auto").hu for t in thresholds], dtype=np.float64)
+    return np.array([analyze(image, threshold=t, background="auto", centroid="segment", presence=False).hu
+                     for t in thresholds], dtype=np.float64)
 
 
 def describe(image: np.ndarray, kind: str, threshold: float = 0.5) -> np.ndarray:

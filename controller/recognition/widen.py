@@ -36,7 +36,8 @@ MIN_SIGMA_PX = 0.3  # below this a Gaussian kernel of OpenCV is the identity
 def spot_d90(image: np.ndarray) -> float:
     """The beam's d90 (px) at 0.1 of its peak, background estimated
     (:func:`controller.imaging.beam.analyze`)."""
-    return analyze(image, threshold=D90_THRESHOLD, background="auto").d90_px
+    return analyze(image, threshold=D90_THRESHOLD, background="auto", centroid="segment",
+                   presence=False).d90_px
 
 
 def widened(image: np.ndarray, fraction: float, d90_px: float) -> np.ndarray:

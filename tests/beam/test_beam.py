@@ -138,7 +138,10 @@ def test_cli_json_contract_and_plots(tmp_path):
     r = heliocal("beam", str(path), "--plot", str(plots), "--json")
     assert r.returncode == 0, r.stderr
     d = json.loads(r.stdout)
-    assert set(d) == {"centroid_px", "peak", "total", "pixels", "hu", "ellipse", "d90_px", "saturated_px"}
+    assert set(d) == {"centroid_px", "peak", "total", "pixels", "hu", "ellipse", "d90_px", "saturated_px",
+                      "beam", "statistic", "statistic_name", "threshold", "clipped", "second_spot_px"}
+    assert d["beam"] is True and d["statistic"] >= d["threshold"] == 5.5
+    assert d["clipped"] == [] and d["second_spot_px"] is None
     assert set(d["ellipse"]) == {"major_px", "minor_px", "angle_deg"}
     assert len(d["hu"]) == 7
     assert d["centroid_px"] == pytest.approx([60.25, 30.5], abs=0.15)

@@ -5,11 +5,15 @@ target's four measured corners (beamkit.project_to_image). Measured offsets of o
 from UTIS, in px (1 px ~ 34 mm; `analyze(..., background=B)`, threshold 0.5):
 
     background         106293 137608 213508 216331 240796 99927 | mean median max
-    auto  (plane)         2.5    1.0    2.0    7.0    7.2   2.0 |  3.6   2.2   7.2
+    auto, energy (default) 1.17 0.88   0.61   7.39   4.27  0.82 | 2.52  1.03  7.39
+    auto, centroid=segment 2.5  1.0    2.0    7.0    7.2   2.0  |  3.6   2.2   7.2
     local (ring plane)    1.5    0.6    2.0    7.0    3.5   1.8 |  2.8   1.9   7.0
     fit   (spot model)    0.75   0.84   0.45   7.1    3.4   1.14 | 2.29  0.99  7.1
 
-"fit" (controller/imaging/spot_fit.py) fits an elliptical super-Gaussian and a quadratic
+The default (controller/imaging/spot_centroid.py) is the full energy centroid in a symmetric
+window over a quadratic surface fitted to a ring around the spot; its window size was chosen on
+real spots with a known centroid (UTIS main lobes laid onto empty-target photos, below), not on
+these photos. "fit" (controller/imaging/spot_fit.py) fits an elliptical super-Gaussian and a quadratic
 background by Cauchy-loss least squares over the ring neighbourhood of "local"; its centroid is
 the model's centre. **The issue's goal (mean <= 1.5 px, max <= 3 px against UTIS) is not
 reached**: mean 2.29, max 7.1. The two misses, from the images:
@@ -43,7 +47,7 @@ import json
 import cv2
 import numpy as np
 import pytest
-from beamkit import PAINT, paint_samples, project_to_image
+from beamkit import PAINT, REAL, paint_samples, project_to_image
 
 from controller.imaging.beam import analyze
 from controller.io.images import read_image
@@ -134,3 +138,62 @@ def test_utis_flux_of_216331_has_a_detached_lobe():
         gap[sample] = float(np.hypot(*(whole - _main_lobe_centroid(sample))))
     assert gap["216331"] > 5.0, gap
     assert max(v for k, v in gap.items() if k != "216331") < 0.5, gap
+
+
+def test_default_energy_centroid_on_real_photos(towers):
+    to_utis, to_main, second = {}, {}, {}
+    for sample in SAMPLES:
+        r = analyze(read_image(PAINT / f"{sample}-cropped.png"))
+        c = np.array(r.centroid_px)
+        to_utis[sample] = float(np.hypot(*(c - _utis_px(sample, towers))))
+        to_main[sample] = float(np.hypot(*(c - _main_lobe_centroid(sample))))
+        second[sample] = r.second_spot_px
+        assert r.clipped == ()
+    print(f"\nPAINT, default centroid to UTIS px: {to_utis}; mean {np.mean(list(to_utis.values())):.2f}")
+    for sample in ("106293", "137608", "213508", "99927"):  # measured 0.61-1.17
+        assert to_utis[sample] < 1.5, to_utis
+    assert float(np.mean(list(to_utis.values()))) < 2.8, to_utis  # measured 2.52 (old default 3.60)
+    assert to_utis["240796"] < 5.0, to_utis  # measured 4.27: the shadow step under the tail
+    # 216331: UTIS's whole-flux centroid holds the detached corner lobe; the default reports it as
+    # a second spot instead of averaging it in, and lands on UTIS's main lobe.
+    assert second["216331"] is not None and second["216331"][0] > 200 and second["216331"][1] < 40
+    assert to_main["216331"] < 1.5, to_main
+    assert all(v is None for k, v in second.items() if k != "216331"), second
+    assert float(np.mean(list(to_main.values()))) < 1.7, to_main  # measured 1.54
+
+
+def _main_lobe(sample: str) -> tuple[np.ndarray, np.ndarray]:
+    """UTIS's main lobe of ``sample`` scaled to peak 1, and its centroid (x, y) px."""
+    flux = cv2.imread(str(PAINT / f"{sample}-flux.png"), cv2.IMREAD_GRAYSCALE).astype(float)
+    _, labels = cv2.connectedComponents((flux > 0).astype(np.uint8), connectivity=8)
+    energy = np.bincount(labels.ravel(), weights=flux.ravel())
+    energy[0] = -1.0
+    w = np.where(labels == int(np.argmax(energy)), flux, 0.0)
+    yy, xx = np.indices(w.shape)
+    return w / w.max(), np.array([(w * xx).sum(), (w * yy).sum()]) / w.sum()
+
+
+def test_real_spots_on_held_out_empty_targets_centroid_with_known_truth():
+    """Each PAINT spot (UTIS's main lobe, at the brightness it has in its own photo) laid onto
+    the 20 held-out empty-target photos: the true centroid is known exactly, the background is
+    real. Measured (mean / p95 / max px): default 0.72 / 1.77 / 2.16; centroid="segment" (old
+    default) 1.39 / 3.01 / 3.78; fit 1.04 / 2.69 / 3.27; local 1.38 / 2.77 / 3.61."""
+    from controller.imaging.presence import detect_beam
+
+    empty = sorted((REAL / "utis-empty").glob("*.png"))
+    held_out = [p for i, p in enumerate(empty) if i % 3 == 2]
+    errs = {"energy": [], "segment": []}
+    for sample in SAMPLES:
+        spot, truth = _main_lobe(sample)
+        own = detect_beam(read_image(PAINT / f"{sample}-cropped.png"))
+        amp = float(own.smoothed.max() - own.floor)
+        for p in held_out:
+            img = read_image(p).astype(float) + amp * spot
+            for mode in errs:
+                c = np.array(analyze(img, centroid=mode).centroid_px)
+                errs[mode].append(float(np.hypot(*(c - truth))))
+    e, old = np.array(errs["energy"]), np.array(errs["segment"])
+    print(f"\nreal spots on held-out empty targets: default mean {e.mean():.2f} max {e.max():.2f}; "
+          f"old default mean {old.mean():.2f} max {old.max():.2f}")
+    assert e.mean() < 1.0 and e.max() < 2.6, e
+    assert e.mean() < 0.7 * old.mean()

@@ -124,7 +124,9 @@ def test_library_build_yaml_and_match_cli(tmp_path, capsys):
 
 def test_match_reports_unknown_far_from_every_case(tmp_path, capsys):
     lib_path, _ = _spot_library(tmp_path, capsys)
-    ring = gaussian((100, 100), 50, 50, 20.0, amp=1.0) - gaussian((100, 100), 50, 50, 10.0, amp=1.0)
+    # A thin ring (radius 30 px, σ 4 px across) with dark background around it: no spot shape.
+    yy, xx = np.mgrid[0:160, 0:160]
+    ring = np.exp(-0.5 * ((np.hypot(xx - 80.0, yy - 80.0) - 30.0) / 4.0) ** 2)
     np.save(tmp_path / "ring.npy", np.clip(ring, 0, None))
     code, out, _ = cli(capsys, "match", str(tmp_path / "ring.npy"), "--library", str(lib_path), "--json")
     d = json.loads(out)

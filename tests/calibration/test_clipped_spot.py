@@ -1,4 +1,4 @@
-"""The centre of a spot clipped by the view's edge (controller.calibration.clipped_spot) and the
+"""The centre of a spot clipped by the view's edge (controller.imaging.clipped_spot) and the
 coarse correction that puts it on the aim in the loop, against the centroid-only loop."""
 
 from __future__ import annotations
@@ -7,9 +7,9 @@ import cv2
 import numpy as np
 import pytest
 
-from controller.calibration.clipped_spot import BEYOND, CORE_CUT, clipped_centre
 from controller.calibration.observations import Observation
 from controller.imaging.centroid import energy_centroid
+from controller.imaging.clipped_spot import BEYOND, CORE_CUT, clipped_centre
 
 from .conftest import AIM
 

@@ -149,3 +149,22 @@ def test_bad_prompt_line_does_not_end_the_session(small_config, tmp_path):
     out, err = p.communicate("m 1\nc\ns\nq\n", timeout=scaled_s(120))
     assert p.returncode == 0 and "Traceback" not in err
     assert out.count("error: usage:") == 2 and "az 500 el 500 steps" in out  # status still ran
+
+
+def test_capture_at_stow_is_no_beam_and_nothing_is_computed_from_it(small_config, tmp_path):
+    # At stow the beam is nowhere near the target: the capture says "no beam" with the presence
+    # statistic, verify is not ok and has no error, and no reference case can be stored from it.
+    base = ("--config", str(small_config), "--heliostat", "H02", "--simulate", "--json")
+    r = _run(*base, "--run-dir", str(tmp_path / "run"), "--capture", str(tmp_path / "f.png"), "--verify")
+    assert r.returncode == 0, r.stderr
+    steps = json.loads(r.stdout)["steps"]
+    for key in ("capture", "verify"):
+        s = steps[key]
+        assert s["beam"] is False and s["no_beam"] is True and s["statistic"] < s["threshold"], s
+        assert "no beam on the target" in s["problem"] and "error_mrad" not in s
+    assert steps["verify"]["ok"] is False
+    r = _run(*base, "--run-dir", str(tmp_path / "run2"), "--store-reference", "x", "--library",
+             str(tmp_path / "lib.yaml"))
+    assert r.returncode == 2
+    assert "cannot store a reference case: no beam on the target" in r.stdout + r.stderr
+    assert not (tmp_path / "lib.yaml").exists()

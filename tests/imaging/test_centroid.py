@@ -35,13 +35,14 @@ def test_nothing_above_threshold_gives_nan():
 def test_noise_only_frame_is_no_beam_not_a_clipped_one():
     """The heliostat at stow leaves only noise: the chain says there is no beam, with figures."""
     from controller.calibration.beam_chain import BeamChain
-    from controller.calibration.observations import BeamNotFound
+    from controller.calibration.observations import NoBeam
     from controller.config import load_config
 
     chain = BeamChain(load_config(REPO / "configs" / "demo.yaml"))
     noise = np.random.default_rng(0).normal(20.0, 1.0, (768, 1024))
-    with pytest.raises(BeamNotFound, match=r"no beam spot found \(peak .* background noise σ"):
+    with pytest.raises(NoBeam, match=r"^no beam on the target \(no beam: spot excess .* x the") as e:
         chain.analyze(noise)
+    assert e.value.statistic < e.value.threshold == 5.5
     spot = noise.copy()
     yy, xx = np.mgrid[0:768, 0:1024]
     spot += 500.0 * np.exp(-((xx - 400.0) ** 2 + (yy - 300.0) ** 2) / (2 * 15.0**2))
