@@ -1,6 +1,6 @@
 """The recognition chain on the real Jülich spots (PAINT target photos and flux maps, AA39 flux
 maps). No labels exist for them, so this records what the chain says: the nearest case, its
-distance and confidence, against the library documented in docs/recognition.md ("Real spots"):
+distance and confidence, against the library documented in docs/results.md ("Recognition on the real spots"):
 
     heliocal sim errorset --out ES --heliostat H09 --sources lamp,sun --magnitudes 0.5,1,1.5 --views 1
     heliocal library build ES/library.csv --out lib.yaml        (multi-lobe-hu, whitened)
@@ -19,7 +19,7 @@ import math
 import pytest
 from beamkit import REAL, cli
 
-# Nearest case per image, as documented in docs/recognition.md.
+# Nearest case per image, as documented in docs/results.md.
 NEAREST = {
     "106293-cropped.png": "gravity-sag", "137608-cropped.png": "gear-backlash",
     "213508-cropped.png": "wind-load", "216331-cropped.png": "canting-error",

@@ -74,7 +74,7 @@ def test_a_shape_of_no_case_is_unknown_directly_and_widened_carries_no_correctio
         assert lib.match_hu(lib.describe(ring)).unknown
         assert len(lib.descriptors(ring)) == 1 + len(WIDEN)  # the widened copies were tried
         m = lib.match_image(ring)
-        # Widening has a price (docs/recognition.md: a case missing from the library is
+        # Widening has a price (docs/results.md: a case missing from the library is
         # rejected less often); a widened match is marked and never carries a move.
         assert m.unknown or (m.widened > 0 and m.correction_deg is None and m.confidence == 0.0)
     finally:
