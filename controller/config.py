@@ -205,6 +205,9 @@ class Planner(_Model):
                                               "error is already below tolerance")
     sun_positions: int = Field(default=48, ge=4, le=2000,
                                description="sun positions of the yearly path the planner scores against")
+    view_margin_m: float = Field(default=0.2, ge=0, le=50,
+                                 description="distance the 3σ spot of a planned geometry keeps inside the "
+                                             "camera's view, m")
 
 
 class Calibration(_Model):

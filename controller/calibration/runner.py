@@ -182,7 +182,7 @@ class Campaign:
             pointing = {hid: GeometryPointing(self.cfg.heliostat(hid), target, source, self.chain.frame,
                                               cal.standby_offset_m, current.get(hid), cal.model,
                                               aims.get(hid), others=self.cfg.targets,
-                                              zones=self.cfg.person_zones)
+                                              zones=self.cfg.person_zones, model=self.field.model(hid))
                         for hid in self.ids}
             existing = self.store.campaign_by_name(self.opt.name)
             queue = existing.queue if existing is not None else order_queue(self.cfg, self.ids, current,
