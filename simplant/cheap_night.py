@@ -35,10 +35,10 @@ AIM_OFFSET_V_M = 1.0  # the aim grid's points are this far above and below the t
 TARGET_ROOM_M = 2.7
 
 
-def field_data(base: dict, n: int, targets: int, geometries: int = 3) -> dict:
+def field_data(base: dict, n: int, targets: int, geometries: int = 3, span_deg: float = SPAN_DEG) -> dict:
     """A field of ``n`` heliostats (config mapping) from ``base`` (a plant config mapping whose
     first heliostat is the prototype): staggered half rings north of the tower from 40 m, 7 m
-    apart, spanning ±:data:`SPAN_DEG`, heliostats 6 m apart on a ring, each focused at its
+    apart, spanning ±``span_deg``, heliostats 6 m apart on a ring, each focused at its
     range to the tower, 30 per serial bus; ``targets`` targets stacked on the tower
     (``calibration.targets``, 2 × 2 aim grid :data:`AIM_OFFSET_V_M` above and below the centre),
     sized for the field: a target is tall enough for the 3σ spot of the farthest heliostat
@@ -51,9 +51,9 @@ def field_data(base: dict, n: int, targets: int, geometries: int = 3) -> dict:
     data = copy.deepcopy(base)
     positions, r, k = [], 40.0, 0
     while len(positions) < n:
-        count = int(2 * math.pi * r * (2 * SPAN_DEG / 360.0) / 6.0)  # 6 m apart along the ring
+        count = int(2 * math.pi * r * (2 * span_deg / 360.0) / 6.0)  # 6 m apart along the ring
         for j in range(min(count, n - len(positions))):
-            az = math.radians(-SPAN_DEG + 2 * SPAN_DEG * (j + 0.5 * (k % 2)) / count)
+            az = math.radians(-span_deg + 2 * span_deg * (j + 0.5 * (k % 2)) / count)
             positions.append((r, az))
         r += 7.0
         k += 1
@@ -111,7 +111,7 @@ class CheapField:
         self.beams = BeamField(self.plant)
         self.cameras = {t.id: CheapCamera(self.plant, self.beams, self.cfg.for_target(t.id), seed=seed + k)
                         for k, t in enumerate(self.cfg.targets)}
-        self.pool = InProcPool.for_plant(self.plant)
+        self.pool = InProcPool.for_plant(self.plant, touched=self.beams.touch)
         self.lamps = InProcLampPanel(self.plant)
         self.time = PlantTime(now=self.plant.clock, sleep=self.plant.clock.sleep, utc=self.plant.utc,
                               computing=self.plant.clock.realtime)

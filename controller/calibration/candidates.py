@@ -26,14 +26,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from controller.config import LampSource, PlantConfig
-from controller.geometry.design import beam_jacobians, daytime_weight, tangents_batch
+from controller.geometry.design import tangents_batch
 from controller.geometry.kinematics import HeliostatKinematics
-from controller.geometry.pose_batch import aim_steps, forward_jacobian, normal_and_center, perturbed
+from controller.geometry.pose_batch import KinStack, aim_steps, forward_jacobian, normal_and_center, perturbed
 from controller.geometry.spot import MirrorOptics, PredictedSpot, predict_spots
 from controller.geometry.target_frame import TargetFrame
 from controller.geometry.tracking_model import TrackingModel
 from controller.geometry.vectors import unit
-from controller.geometry.zones import zone_boxes, zone_entered
+from controller.geometry.zones import rays_enter_any, zone_boxes
 
 MAX_INCIDENCE_DEG = 75.0  # beyond this the lamp grazes the mirror: a faint, smeared spot
 
@@ -91,45 +91,88 @@ def evaluate(geo: FieldGeometry, heliostat_id: str, model: TrackingModel, cov: n
              target: str) -> Candidates:
     """The candidates of ``heliostat_id`` on ``target`` with its ``model`` and covariance ``cov``
     (module docstring)."""
-    h = geo.cfg.heliostat(heliostat_id)
-    kin = HeliostatKinematics.from_config(h)
-    view = geo.views[target]
-    fr = view.frame
-    a_count = len(view.points)
+    return evaluate_many(geo, [(heliostat_id, model, cov, target)])[0]
+
+
+def evaluate_many(geo: FieldGeometry,
+                  tasks: list[tuple[str, TrackingModel, np.ndarray, str]]) -> list[Candidates]:
+    """:func:`evaluate` for each ``(heliostat id, model, covariance, target)`` of ``tasks``, all
+    at once (:class:`controller.geometry.pose_batch.KinStack`): a chunk of a field costs a few
+    hundred array operations, not a few hundred per heliostat."""
+    hs = [geo.cfg.heliostat(hid) for hid, *_ in tasks]
+    kin = KinStack.of([HeliostatKinematics.from_config(h) for h in hs])
+    values = np.array([m.values for _, m, _, _ in tasks], float)  # (H, p)
+    covs = np.array([c for _, _, c, _ in tasks], float)  # (H, p, p)
+    views = [geo.views[t] for *_, t in tasks]
+    m = _daytime_weights(geo, kin, values)
+    if not geo.lamps:
+        return [_none(mi, "no lamp of calibration.lamps to plan with") for mi in m]
+    a_count = len(views[0].points)
     lamp_ids = [lp.id for lp in geo.lamps for _ in range(a_count)]
-    lamp_xyz = np.array([lp.position_enu_m for lp in geo.lamps], float).reshape(-1, 3)
-    lamp_pos = np.repeat(lamp_xyz, a_count, axis=0)
+    lamp_pos = np.repeat(np.array([lp.position_enu_m for lp in geo.lamps], float), a_count, axis=0)
     lamp_d = np.repeat(np.array([lp.diameter_m for lp in geo.lamps], float), a_count)
-    points = np.tile(view.points, (len(geo.lamps), 1))
-    cells = list(view.cells) * len(geo.lamps)
-    # The daytime weight: the beam's sensitivity over the planner's sun positions (design Eq. 3).
-    m = daytime_weight(beam_jacobians(kin, model, geo.sun, geo.centre))
-    if not len(points):
-        return _none(m, "no lamp of calibration.lamps to plan with")
-    steps, ok = aim_steps(kin, model.values, points, lamp=lamp_pos)
+    points = np.array([np.tile(v.points, (len(geo.lamps), 1)) for v in views])  # (H, K, 3)
+    steps, ok = aim_steps(kin.shaped(2), values[:, None, :], points, lamp=lamp_pos)
     reach = ok.copy()
-    n, c = normal_and_center(kin, perturbed(model.values)[:, None, :], steps)  # (p + 1, K, 3)
+    n, c = normal_and_center(kin.shaped(3), perturbed(values)[:, :, None, :], steps[:, None])  # (H, P, K, 3)
     s = unit(lamp_pos - c)
-    cos_i = np.sum(s[0] * n[0], axis=-1)
-    ok &= cos_i >= math.cos(math.radians(MAX_INCIDENCE_DEG))
+    ok &= np.sum(s[:, 0] * n[:, 0], axis=-1) >= math.cos(math.radians(MAX_INCIDENCE_DEG))
     lit = ok.copy()
     if len(geo.zones):
-        pos = np.asarray(h.position_enu_m, float)
         # The beam runs from the mirror to the aim point, where the target stops it.
-        for k in np.flatnonzero(ok):
-            ok[k] = zone_entered(pos, points[k] - pos, geo.zones, 1.0) is None
+        pos = np.broadcast_to(np.array([h.position_enu_m for h in hs], float)[:, None], points.shape)
+        ok &= ~rays_enter_any(pos.reshape(-1, 3), (points - pos).reshape(-1, 3), geo.zones, 1.0
+                              ).reshape(ok.shape)
     clear = ok.copy()
     # H of design Eq. (1): the tangential components of the normal less the normal the spot implies.
-    implied = unit(s + unit(points - c))
-    hh = forward_jacobian(np.einsum("kij,pkj->pki", tangents_batch(n[0]), n - implied))
-    spots = predict_spots(kin, MirrorOptics.from_config(h.mirror), model.values, cov, steps, points, fr,
-                          lamp=lamp_pos, lamp_diameter_m=lamp_d)
-    ok &= spots.in_view(view.half_view_m, geo.margin_m)
-    idx = np.flatnonzero(ok)
-    why = None if len(idx) else _why(reach, lit, clear, spots, view, geo.margin_m)
-    return Candidates([lamp_ids[i] for i in idx], points[idx], [cells[i] for i in idx], steps[idx], hh[idx],
-                      PredictedSpot(spots.offset_m[idx], spots.sigma_m[idx], spots.position_sigma_m[idx]),
-                      m, why)
+    implied = unit(s + unit(points[:, None] - c))
+    hh = forward_jacobian(np.einsum("hkij,hpkj->hpki", tangents_batch(n[:, 0]), n - implied), axis=1)
+    optics = MirrorOptics(*(np.array([getattr(MirrorOptics.from_config(h.mirror), f) for h in hs])[:, None]
+                            for f in ("width_m", "height_m", "focal_m", "slope_error_rad")))
+    frames = _FrameStack(*(np.array([getattr(v.frame, f) for v in views])[:, None]
+                           for f in ("center", "normal", "u", "v")))
+    spots = predict_spots(kin, optics, values, covs, steps, points, frames, lamp=lamp_pos[None],
+                          lamp_diameter_m=lamp_d)
+    half = np.array([v.half_view_m for v in views])[:, None]
+    ok &= np.all(spots.reach_m() + geo.margin_m <= half, axis=-1)
+    out = []
+    for i, view in enumerate(views):
+        idx = np.flatnonzero(ok[i])
+        sp = PredictedSpot(spots.offset_m[i], spots.sigma_m[i], spots.position_sigma_m[i])
+        why = None if len(idx) else _why(reach[i], lit[i], clear[i], sp, view, geo.margin_m)
+        kept = PredictedSpot(sp.offset_m[idx], sp.sigma_m[idx], sp.position_sigma_m[idx])
+        out.append(Candidates([lamp_ids[k] for k in idx], points[i, idx],
+                              [view.cells[k % a_count] for k in idx], steps[i, idx], hh[i, idx], kept, m[i],
+                              why))
+    return out
+
+
+@dataclass(frozen=True, eq=False)  # numpy fields
+class _FrameStack:
+    """The target planes of a chunk of heliostats, each (H, 1, 3): what predict_spots reads of a frame."""
+
+    center: np.ndarray
+    normal: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+
+
+def _daytime_weights(geo: FieldGeometry, kin: KinStack, values: np.ndarray) -> np.ndarray:
+    """M of design Eq. (3) for each heliostat, (H, p, p): its beam's sensitivity over the
+    planner's sun positions, aiming at the calibration target's centre
+    (:func:`controller.geometry.design.beam_jacobians` for a stack)."""
+    h, sun = len(values), geo.sun
+    if not len(sun):
+        return np.full((h, values.shape[1], values.shape[1]), np.nan)
+    aims = np.broadcast_to(geo.centre, (h, len(sun), 3))
+    steps, ok = aim_steps(kin.shaped(2), values[:, None, :], aims,
+                          source_dirs=np.broadcast_to(sun, aims.shape))
+    n, c = normal_and_center(kin.shaped(3), perturbed(values)[:, :, None, :], steps[:, None])  # (H, P, S, 3)
+    beam = 2.0 * np.sum(sun * n, axis=-1, keepdims=True) * n - sun - unit(geo.centre - c)
+    a = forward_jacobian(beam, axis=1) * ok[:, :, None, None]  # (H, S, 3, p); unreachable: left out
+    count = ok.sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.einsum("hkip,hkiq->hpq", a, a) / np.where(count > 0, count, np.nan)[:, None, None]
 
 
 def _none(m: np.ndarray, why: str) -> Candidates:

@@ -145,3 +145,29 @@ def _daytime_chunk(ctx, tasks: list) -> list[tuple]:
             hist += np.histogram(np.clip(mags, HIST_EDGES[0], HIST_EDGES[-1]), HIST_EDGES)[0]
     return [(per, sum_sq, count, np.concatenate(pooled) if exact and pooled else
              (np.empty(0) if exact else hist))]
+
+
+class DaytimeTally:
+    """The field's predicted daytime RMS kept up to date as models change: each heliostat's
+    Σ magnitude² and count over its covariance draws (as :func:`predicted_daytime` pools them),
+    recomputed only for the heliostats :meth:`update` is given — a night's pass refits a few
+    hundred models of a field of thousands."""
+
+    def __init__(self, cfg, path: SunPath) -> None:
+        self.ctx = (cfg, path.directions, False)
+        self.sums: dict[str, tuple[float, int]] = {}
+
+    def update(self, models: dict[str, ModelRecord | None]) -> None:
+        cfg, directions, _ = self.ctx
+        target = np.asarray(cfg.target().center_enu_m, float)
+        for hid, rec in models.items():
+            model, cov = model_covariance(rec, cfg.calibration.model.prior_sigma)
+            pe = predicted_error(HeliostatKinematics.from_config(cfg.heliostat(hid)), model, cov, directions,
+                                 target, draws=DRAWS)
+            self.sums[hid] = (float(np.sum(pe.draws_mrad**2)), pe.draws_mrad.size)
+
+    @property
+    def rms(self) -> float:
+        """Field RMS, mrad, of :func:`predicted_daytime` over the heliostats updated so far."""
+        count = sum(c for _, c in self.sums.values())
+        return float(np.sqrt(sum(s for s, _ in self.sums.values()) / count)) if count else float("nan")

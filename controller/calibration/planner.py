@@ -42,7 +42,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from controller.calibration.candidates import MAX_INCIDENCE_DEG, Candidates, FieldGeometry, evaluate
+from controller.calibration.candidates import (
+    MAX_INCIDENCE_DEG,
+    Candidates,
+    FieldGeometry,
+    evaluate,
+    evaluate_many,
+)
 from controller.calibration.daytime import model_covariance, sun_path
 from controller.calibration.records import ModelRecord
 from controller.calibration.workers import map_chunks
@@ -52,7 +58,8 @@ from controller.geometry.target_frame import TargetFrame
 from controller.geometry.tracking_model import TrackingModel
 
 __all__ = ["MAX_INCIDENCE_DEG", "Geometry", "NightPlan", "PlanItem", "Unmeasurable", "aim_points", "assess",
-           "candidates", "plan_field", "plan_heliostat", "plan_night", "planner_sun", "round_robin"]
+           "assess_many", "candidates", "plan_field", "plan_heliostat", "plan_night", "planner_sun",
+           "round_robin"]
 
 
 @dataclass(frozen=True)
@@ -163,12 +170,38 @@ def assess(geo: FieldGeometry, heliostat_id: str, record: ModelRecord | None, ni
            offset: int, targets: tuple[str, ...] | None) -> tuple[list[PlanItem], Unmeasurable | None]:
     """One planning decision: the items of :func:`plan_heliostat` and, when the heliostat has no
     measurable geometry tonight, why."""
-    if strategy not in ("design", "round-robin"):
-        raise ValueError(f"unknown planning strategy {strategy!r}")
+    return assess_many(geo, [(heliostat_id, record, night, strategy, offset, targets)])[0]
+
+
+BATCH = 64  # heliostats whose candidates are evaluated together
+
+
+def assess_many(geo: FieldGeometry, tasks: list[tuple]) -> list[tuple[list[PlanItem], Unmeasurable | None]]:
+    """:func:`assess` for each ``(heliostat id, record, night, strategy, offset, targets)`` of
+    ``tasks``: the candidates of :data:`BATCH` heliostats at a time
+    (:func:`controller.calibration.candidates.evaluate_many`), then each heliostat's picks."""
     cal = geo.cfg.calibration
-    model, cov = model_covariance(record, cal.model.prior_sigma)
-    tids = targets or cal.parallel_targets()
-    found = [(tid, evaluate(geo, heliostat_id, model, cov, tid)) for tid in tids]
+    out = []
+    for start in range(0, len(tasks), BATCH):
+        part = tasks[start:start + BATCH]
+        for _, _, _, strategy, _, _ in part:
+            if strategy not in ("design", "round-robin"):
+                raise ValueError(f"unknown planning strategy {strategy!r}")
+        mc = {hid: model_covariance(rec, cal.model.prior_sigma) for hid, rec, *_ in part}
+        jobs = [(hid, *mc[hid], tid) for hid, _, _, _, _, targets in part
+                for tid in targets or cal.parallel_targets()]
+        found = iter(evaluate_many(geo, jobs))
+        for hid, _, night, strategy, offset, targets in part:
+            tids = targets or cal.parallel_targets()
+            out.append(_decide(geo, hid, mc[hid][1], [(tid, next(found)) for tid in tids], night, strategy,
+                               offset))
+    return out
+
+
+def _decide(geo: FieldGeometry, heliostat_id: str, cov: np.ndarray, found: list[tuple[str, Candidates]],
+            night: str, strategy: str, offset: int) -> tuple[list[PlanItem], Unmeasurable | None]:
+    """The picks of one heliostat among its measurable candidates (module docstring, steps 2-3)."""
+    cal = geo.cfg.calibration
     m = found[0][1].m
     v = float(np.sum(cov * m))
     predicted = 1e3 * math.sqrt(v) if math.isfinite(v) else float("inf")
@@ -224,5 +257,4 @@ def _setup(cfg: PlantConfig) -> FieldGeometry:
 
 
 def _plan_chunk(geo: FieldGeometry, tasks: list[tuple]) -> list[tuple[list[PlanItem], Unmeasurable | None]]:
-    return [assess(geo, hid, rec, night, strategy, offset, targets)
-            for hid, rec, night, strategy, offset, targets in tasks]
+    return assess_many(geo, tasks)

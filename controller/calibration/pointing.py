@@ -83,6 +83,27 @@ class GeometryPointing(BeamSafety):
                     best = (cost, point)
             if best is not None:
                 self.standby_point = best[1]
+        if model is not None:
+            self.standby_point = self._nominally_clear(self.standby_point, model)
+
+    def _nominally_clear(self, point: np.ndarray, model: ModelRecord) -> np.ndarray:
+        """The beam-safety checks trace the nominal kinematics; for a model far from nominal
+        (a far heliostat's few mrad are metres on the target) the nominal ray at the standby pose
+        may still land on a target grown by its margin, and the pose would be refused as unsafe:
+        the standby point moves out along its side until it does not (three tries)."""
+        side = point - self.aim_point
+        side = side / np.linalg.norm(side)
+        for _ in range(3):
+            try:
+                steps = self._steps(point, model)
+                if not (self.beam_on_target(*steps) or self.beam_on_other_target(*steps)):
+                    return point
+                hit = self.kin.spot(*steps, self.source_dir, self.frame.center, self.frame.normal)
+            except (LimitError, ValueError, FloatingPointError):
+                return point
+            short = self.target.width_m / 2 + 2.0 - abs(float((hit - self.frame.center) @ self.frame.u))
+            point = point + (max(short, 0.0) + 1.0) * side
+        return point
 
     def park_clearance_m(self, source, model: ModelRecord | None) -> float:
         """The least distance (m) from the target centre, along the view's width, at which the

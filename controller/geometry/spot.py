@@ -48,7 +48,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from controller.geometry.kinematics import HeliostatKinematics
-from controller.geometry.pose_batch import forward_jacobian, normal_and_center, perturbed
+from controller.geometry.pose_batch import KinStack, forward_jacobian, normal_and_center, perturbed
 from controller.geometry.target_frame import TargetFrame
 
 SIGMAS = 3.0  # k of Eq. (4)
@@ -76,15 +76,16 @@ def spot_covariance(distance_m, lamp_angle_rad, slope_error_rad, mirror_w_m, mir
 
     ``distance_m`` L and ``lamp_angle_rad`` α (...,); ``slope_error_rad`` σ_s, mirror width,
     height and focal length (m, scalars or (...,)); ``beam`` (..., 3) the unit beam direction;
-    ``normal``, ``u_axis``, ``v_axis`` (3,) the target plane's unit normal and in-plane axes."""
+    ``normal``, ``u_axis``, ``v_axis`` ((3,) or broadcast against ``beam``) the target plane's
+    unit normal and in-plane axes."""
     L = np.asarray(distance_m, float)
     common = (np.asarray(lamp_angle_rad, float) * L / 4.0) ** 2 + (2.0 * np.asarray(slope_error_rad) * L) ** 2
     defocus = np.abs(1.0 - L / np.asarray(focal_m, float))
     var_u = common + (np.asarray(mirror_w_m) * defocus) ** 2 / 12.0
     var_v = common + (np.asarray(mirror_h_m) * defocus) ** 2 / 12.0
     b = np.asarray(beam, float)
-    cos_t = np.maximum(np.abs(b @ np.asarray(normal, float)), 0.05)  # grazing: bounded stretch
-    d = np.stack([b @ np.asarray(u_axis, float), b @ np.asarray(v_axis, float)], axis=-1)
+    cos_t = np.maximum(np.abs(_dot(b, normal)), 0.05)  # grazing: bounded stretch
+    d = np.stack([_dot(b, u_axis), _dot(b, v_axis)], axis=-1)
     dn = np.linalg.norm(d, axis=-1, keepdims=True)
     d = np.where(dn > 1e-9, d / np.where(dn > 1e-9, dn, 1.0), 0.0)
     s = np.eye(2) + (1.0 / cos_t - 1.0)[..., None, None] * d[..., :, None] * d[..., None, :]
@@ -96,15 +97,20 @@ def spot_covariance(distance_m, lamp_angle_rad, slope_error_rad, mirror_w_m, mir
 def hit_uv(center, beam, plane_point, normal, u_axis, v_axis) -> np.ndarray:
     """(u, v) in m, from ``plane_point``, where rays from ``center`` (..., 3) along ``beam``
     (..., 3) meet the plane through ``plane_point`` with unit ``normal``: t = ((p₀ − o)·N)/(b·N).
-    NaN where a ray is parallel to the plane or the plane is behind it."""
+    NaN where a ray is parallel to the plane or the plane is behind it. The plane's point and
+    axes are (3,) or broadcast against the rays."""
     o, b = np.asarray(center, float), np.asarray(beam, float)
-    p0, n = np.asarray(plane_point, float), np.asarray(normal, float)
-    denom = b @ n
+    p0 = np.asarray(plane_point, float)
+    denom = _dot(b, normal)
     with np.errstate(divide="ignore", invalid="ignore"):
-        t = ((p0 - o) @ n) / denom
+        t = _dot(p0 - o, normal) / denom
     t = np.where((np.abs(denom) > 1e-12) & (t >= 0.0), t, np.nan)
     hit = o + t[..., None] * b - p0
-    return np.stack([hit @ np.asarray(u_axis, float), hit @ np.asarray(v_axis, float)], axis=-1)
+    return np.stack([_dot(hit, u_axis), _dot(hit, v_axis)], axis=-1)
+
+
+def _dot(a, b) -> np.ndarray:
+    return np.sum(np.asarray(a, float) * np.asarray(b, float), axis=-1)
 
 
 def position_covariance(jacobian_uv: np.ndarray, model_covariance: np.ndarray) -> np.ndarray:
@@ -150,9 +156,9 @@ def standby_clearance_m(half_view_m: float, spot_sigma_m: float, position_sigma_
     return float(half_view_m + k * (spot_sigma_m + position_sigma_m) + margin_m)
 
 
-def predict_spots(kin: HeliostatKinematics, optics: MirrorOptics, values: np.ndarray, covariance: np.ndarray,
-                  steps: np.ndarray, aims: np.ndarray, frame: TargetFrame, *, lamp=None,
-                  lamp_diameter_m: float | np.ndarray = 0.0, sun_dir=None,
+def predict_spots(kin: HeliostatKinematics | KinStack, optics: MirrorOptics, values: np.ndarray,
+                  covariance: np.ndarray, steps: np.ndarray, aims: np.ndarray, frame: TargetFrame, *,
+                  lamp=None, lamp_diameter_m: float | np.ndarray = 0.0, sun_dir=None,
                   sun_angle_rad: float = 0.0) -> PredictedSpot:
     """The spots of one heliostat at K poses on ``frame``'s plane (Eq. 1-3): aimed at ``aims``
     (K, 3) m ENU with motor ``steps`` (K, 2) by the model ``values`` (p,) SI, whose covariance
@@ -161,23 +167,41 @@ def predict_spots(kin: HeliostatKinematics, optics: MirrorOptics, values: np.nda
     mirror), or the sun along ``sun_dir`` ((3,) unit ENU, towards it) of angular diameter
     ``sun_angle_rad``. The spot's size is taken along the aimed beam (mirror centre to aim
     point); its position's Jacobian is that of the reflected central ray's hit point
-    (:func:`hit_uv`) by forward differences over the model's terms."""
-    aims = np.asarray(aims, float).reshape(-1, 3)
-    n, c = normal_and_center(kin, perturbed(values)[:, None, :], steps)  # (p + 1, K, 3)
+    (:func:`hit_uv`) by forward differences over the model's terms.
+
+    A stack of H heliostats at once: ``kin`` a :class:`controller.geometry.pose_batch.KinStack`,
+    ``values`` (H, p), ``covariance`` (H, p, p), ``steps`` (H, K, 2), ``aims`` and ``lamp``
+    (H, K, 3), ``optics`` fields and ``lamp_diameter_m`` broadcast against (H, K), ``frame``'s
+    ``center``, ``normal``, ``u``, ``v`` (3,) or (H, 1, 3)."""
+    values = np.asarray(values, float)
+    aims = np.asarray(aims, float)
+    steps = np.asarray(steps, float)
+    vals = perturbed(values)[..., :, None, :]  # (..., P, 1, p): the P parameter sets at every pose
+    if hasattr(kin, "shaped"):
+        kin = kin.shaped(vals.ndim - 1)
+    n, c = normal_and_center(kin, vals, steps[..., None, :, :])  # (..., P, K, 3)
+    plane = [_lift(np.asarray(x, float)) for x in (frame.center, frame.normal, frame.u, frame.v)]
     if lamp is not None:
-        to_lamp = np.asarray(lamp, float) - c
+        to_lamp = _lift(np.asarray(lamp, float)) - c
         s = to_lamp / np.linalg.norm(to_lamp, axis=-1, keepdims=True)
-        angle = np.asarray(lamp_diameter_m, float) / np.linalg.norm(to_lamp[0], axis=-1)
+        angle = np.asarray(lamp_diameter_m, float) / np.linalg.norm(to_lamp[..., 0, :, :], axis=-1)
     else:
         s = np.broadcast_to(np.asarray(sun_dir, float) / np.linalg.norm(sun_dir), c.shape)
-        angle = np.full(len(aims), float(sun_angle_rad))
+        angle = np.full(aims.shape[:-1], float(sun_angle_rad))
     beam = 2.0 * np.sum(s * n, axis=-1, keepdims=True) * n - s
-    uv = hit_uv(c, beam, frame.center, frame.normal, frame.u, frame.v)  # (p + 1, K, 2)
-    j = np.nan_to_num(forward_jacobian(uv), nan=1e9)  # a beam off the plane: unknown, never in view
-    to_aim = aims - c[0]
+    uv = hit_uv(c, beam, *plane)  # (..., P, K, 2)
+    j = np.nan_to_num(forward_jacobian(uv, axis=-3), nan=1e9)  # a beam off the plane: never in view
+    to_aim = aims - c[..., 0, :, :]
     dist = np.linalg.norm(to_aim, axis=-1)
     o = optics
     cov = spot_covariance(dist, angle, o.slope_error_rad, o.width_m, o.height_m, o.focal_m,
-                          to_aim / dist[:, None], frame.normal, frame.u, frame.v)
-    offset = np.stack([(aims - frame.center) @ frame.u, (aims - frame.center) @ frame.v], axis=-1)
-    return predicted_spot(offset, cov, position_covariance(j, covariance))
+                          to_aim / dist[..., None], frame.normal, frame.u, frame.v)
+    rel = aims - np.asarray(frame.center, float)
+    offset = np.stack([_dot(rel, frame.u), _dot(rel, frame.v)], axis=-1)
+    pos_cov = position_covariance(j, np.asarray(covariance, float)[..., None, :, :])
+    return predicted_spot(offset, cov, pos_cov)
+
+
+def _lift(x: np.ndarray) -> np.ndarray:
+    """A per-pose array (..., K, 3) given the parameter-set axis: (..., 1, K, 3); (3,) as is."""
+    return x if x.ndim < 2 else x[..., None, :, :]

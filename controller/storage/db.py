@@ -312,11 +312,16 @@ class CampaignStore:
         with self._lock:
             row = self._db.execute("SELECT * FROM model_params WHERE heliostat_id=? ORDER BY id DESC LIMIT 1",
                                    (heliostat_id,)).fetchone()
-        if row is None:
-            return None
-        return ModelRecord(json.loads(row["params_json"]), json.loads(row["sigma_json"]),
-                           row["residual_mrad"], row["n_measurements"],
-                           json.loads(row["detail_json"] or "{}"))
+        return None if row is None else _model(row)
+
+    def latest_models(self, heliostat_ids=None) -> dict[str, ModelRecord]:
+        """The latest model of every heliostat that has one (of ``heliostat_ids``, or all), in
+        one query: a field of thousands is not asked one heliostat at a time."""
+        with self._lock:
+            rows = self._db.execute("SELECT * FROM model_params WHERE id IN "
+                                    "(SELECT MAX(id) FROM model_params GROUP BY heliostat_id)").fetchall()
+        wanted = None if heliostat_ids is None else set(heliostat_ids)
+        return {r["heliostat_id"]: _model(r) for r in rows if wanted is None or r["heliostat_id"] in wanted}
 
     def query(self, sql: str, args: tuple = ()) -> list[sqlite3.Row]:
         """Rows of one read-only SELECT (for the storage modules beside this one)."""
@@ -346,6 +351,11 @@ def _run(row: sqlite3.Row) -> RunRecord:
         fault_cause=row["fault_cause"], fault_state=row["fault_state"], at_standby_s=row["at_standby_s"],
         on_target_s=row["on_target_s"], off_target_s=row["off_target_s"], id=int(row["id"]),
         finished_utc=row["finished_utc"])
+
+
+def _model(row: sqlite3.Row) -> ModelRecord:
+    return ModelRecord(json.loads(row["params_json"]), json.loads(row["sigma_json"]), row["residual_mrad"],
+                       row["n_measurements"], json.loads(row["detail_json"] or "{}"))
 
 
 def _measurement(row: sqlite3.Row) -> MeasurementRecord:

@@ -1,8 +1,8 @@
 """The records of a whole field at once: a few queries instead of one per heliostat.
 
 A field of 10,000 heliostats asked one heliostat at a time costs 10,000 queries for its
-models and as many for its measurements; these read them in one query each (by the indices
-of schema v9) and write a field's refitted models in one transaction.
+measurements; this reads them in one query, and writes a field's refitted models in one
+transaction (the latest models: :meth:`controller.storage.db.CampaignStore.latest_models`).
 """
 
 from __future__ import annotations
@@ -11,17 +11,6 @@ import json
 
 from controller.calibration.records import MeasurementRecord, ModelRecord, utc_now
 from controller.storage.db import CampaignStore, _measurement
-
-
-def latest_models(store: CampaignStore, heliostat_ids=None) -> dict[str, ModelRecord]:
-    """The latest fitted model of every heliostat that has one (of ``heliostat_ids``, or all)."""
-    rows = store.query("SELECT * FROM model_params WHERE id IN "
-                       "(SELECT MAX(id) FROM model_params GROUP BY heliostat_id)")
-    wanted = None if heliostat_ids is None else set(heliostat_ids)
-    return {r["heliostat_id"]: ModelRecord(json.loads(r["params_json"]), json.loads(r["sigma_json"]),
-                                           r["residual_mrad"], r["n_measurements"],
-                                           json.loads(r["detail_json"] or "{}"))
-            for r in rows if wanted is None or r["heliostat_id"] in wanted}
 
 
 def measurements_by_heliostat(store: CampaignStore, heliostat_ids=None) -> dict[str, list[MeasurementRecord]]:

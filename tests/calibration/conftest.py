@@ -288,5 +288,6 @@ def calibrated_record(cfg, hid: str, observations: int = 3) -> ModelRecord:
     centre = np.asarray(cfg.target().center_enu_m, float)
     steps = model_aim(kin, model, None, centre, lamp_position=lamp)
     for _ in range(observations):
-        cov = posterior(cov, normal_jacobian(kin, model, *steps, None, centre, lamp), cal.model.noise_mrad * 1e-3)
+        h = normal_jacobian(kin, model, *steps, None, centre, lamp)
+        cov = posterior(cov, h, cal.model.noise_mrad * 1e-3)
     return ModelRecord(model.to_dict(), {}, 0.2, observations, {"covariance_si": cov.tolist()})
