@@ -72,8 +72,9 @@ class GeometryPointing(BeamSafety):
             best = None
             for side in (own, -own):
                 point = self.aim_point + standby_offset_m * side
-                try:
-                    az, el = self.kin.aim(self.source_dir, point)
+                try:  # the steps the model will take there: far from nominal, a side's may differ
+                    az, el = self._steps(point, model) if model is not None else self.kin.aim(self.source_dir,
+                                                                                              point)
                 except (LimitError, ValueError):  # unreachable side
                     continue
                 if self.beam_in_zone(az, el) is not None:

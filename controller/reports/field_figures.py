@@ -66,10 +66,10 @@ def distributions(rows: list[dict], out: Path, name: str = "distributions.png") 
     return name
 
 
-def thumbnails(store: CampaignStore, night_name: str, heliostat_ids: list[str], out: Path) -> dict[str, str]:
+def thumbnails(store: CampaignStore, heliostat_ids: list[str], out: Path) -> dict[str, str]:
     """Per heliostat of ``heliostat_ids``: the thumbnail (path relative to ``out``) of the HIGH
-    frame of its last measurement tonight, scaled to at most :data:`THUMB_PX` wide. One query for
-    all of them; frames no longer on disk are left out."""
+    frame of its latest measurement (tonight's when it was measured tonight), scaled to at most
+    :data:`THUMB_PX` wide. One query for all of them; frames no longer on disk are left out."""
     import cv2
 
     if not heliostat_ids:
@@ -78,9 +78,7 @@ def thumbnails(store: CampaignStore, night_name: str, heliostat_ids: list[str], 
     rows = store.query(
         "SELECT r.heliostat_id AS hid, i.path AS path FROM images i "
         "JOIN measurements m ON i.measurement_id=m.id JOIN heliostat_runs r ON m.run_id=r.id "
-        "JOIN campaigns c ON r.campaign_id=c.id "
-        f"WHERE i.kind='high' AND r.heliostat_id IN ({marks}) AND substr(c.name, 1, ?)=? ORDER BY m.id",
-        (*heliostat_ids, len(night_name) + 1, night_name + "/"))
+        f"WHERE i.kind='high' AND r.heliostat_id IN ({marks}) ORDER BY m.id", tuple(heliostat_ids))
     last = {r["hid"]: r["path"] for r in rows}  # the latest frame wins
     out_paths = {}
     for hid, path in last.items():

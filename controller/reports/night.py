@@ -8,7 +8,7 @@ field's models stand — readable at any field size.
   predict — open loop, from their covariance — and, for a simulated plant, the true one), its
   passes grouped by lamp (lamp, target, measured / heliostats, status), the field map and
   distributions, the :data:`WORST` heliostats of the field by predicted daytime error with a
-  thumbnail of their last frame tonight, the heliostats that had no measurable geometry
+  thumbnail of their latest frame, the heliostats that had no measurable geometry
   tonight and why, and — for a field of at most :data:`TABLE_MAX` heliostats — every
   heliostat's row;
 * ``passes.png``: measured and planned geometries per lamp and target (bars);
@@ -138,11 +138,11 @@ def write_night_report(store: CampaignStore, out_dir: str | Path, night: NightRe
 
 
 def _worst(store: CampaignStore, night: NightRecord, field: list[dict], out: Path, row) -> list[str]:
-    """The :data:`WORST` heliostats by predicted daytime RMS, each with its last frame tonight."""
+    """The :data:`WORST` heliostats by predicted daytime RMS, each with its latest frame."""
     worst = sorted((r for r in field if r["predicted_rms_mrad"] is not None),
                    key=lambda r: -r["predicted_rms_mrad"])[:WORST]
-    thumbs = thumbnails(store, night.name, [r["heliostat"] for r in worst], out)
-    cols = ["heliostat", "predicted daytime RMS mrad", "planned", "measured", "last frame tonight",
+    thumbs = thumbnails(store, [r["heliostat"] for r in worst], out)
+    cols = ["heliostat", "predicted daytime RMS mrad", "planned", "measured", "latest frame",
             "why not measured"]
     rows = [[r["heliostat"], _num(r["predicted_rms_mrad"], 2), str(r["planned"]), str(r["measured"]),
              f"![{r['heliostat']}]({thumbs[r['heliostat']]})" if r["heliostat"] in thumbs else "–",
