@@ -89,12 +89,15 @@ def cpu_s() -> float:
     return me.ru_utime + me.ru_stime + kids.ru_utime + kids.ru_stime
 
 
-def sample_plan(plan, ids: list[str], limit: int) -> tuple[list, list[str]]:
+def sample_plan(plan, ids: list[str], limit: int, targets: int) -> tuple[list, list[str]]:
     """The plan of every k-th heliostat of ``ids``, k the least that keeps it within ``limit``
-    geometries (all of it when it fits)."""
+    geometries and shares no factor with ``targets`` (heliostat i's target is i mod targets:
+    so the sample has every target); all of it when it fits."""
     if len(plan) <= limit:
         return plan, ids
     k = int(np.ceil(len(plan) / limit))
+    while np.gcd(k, targets) != 1:
+        k += 1
     chosen = set(ids[::k])
     return [it for it in plan if it.heliostat_id in chosen], [h for h in ids if h in chosen]
 
@@ -188,6 +191,7 @@ def main() -> None:
     cheap = CheapField(data, out / "field", speedup=args.speedup)
     build_s = time.perf_counter() - t
     cfg, ids = cheap.cfg, [h.id for h in cheap.cfg.heliostats]
+    centre = {t.id: np.asarray(t.center_enu_m, float) for t in cfg.targets}
     t = time.perf_counter()
     seed = calibrate_from_truth(cheap, "field", workers=args.workers)
     seed_s = time.perf_counter() - t
@@ -205,7 +209,7 @@ def main() -> None:
                       workers=args.workers)
     say(f"planned {len(plan.items)} geometries for {plan.decisions} heliostats in {plan.seconds:.1f} s; "
         f"{len(plan.unmeasurable)} with no measurable geometry")
-    items, sampled = sample_plan(plan.items, ids, args.sample)
+    items, sampled = sample_plan(plan.items, ids, args.sample, args.targets)
     r = run_cheap_night(cheap, items, night, 3600.0 * args.night_h, heliostat_ids=ids,
                         unmeasurable=plan.unmeasurable, workers=args.workers)
     say(f"night: {len(r.measured)}/{r.planned} measured, {r.plant_s / 3600:.2f} plant h, "
@@ -227,6 +231,9 @@ def main() -> None:
         kind = (run.fault_cause or run.status).split(":")[0]
         failed[kind] = failed.get(kind, 0) + 1
     peer = model_night(data, items, 3600.0 * args.night_h)
+    second = [{"target": tid, "beams": {hid: [round(float(x), 2) for x in np.subtract(p, centre[tid])]
+                                        for hid, p in hits.items()}}
+              for tid, cam in cheap.cameras.items() for hits in cam.hits if len(hits) > 1][:5]
     result = {
         "benchmark": "field night (the product's PlannedNight, cheap optics)",
         "heliostats": len(ids), "targets": args.targets, "geometries_per_heliostat": args.geometries,
@@ -237,6 +244,7 @@ def main() -> None:
                    "night_0_unreachable": len(seed["unreachable"])},
         "second_beam_captures": sum(1 for v in r.beams_in_view.values() for b in v if len(b) > 1),
         "captures": sum(len(v) for v in r.beams_in_view.values()),
+        "second_beam_examples": second,
         "runs_not_measured": failed, "night_status": r.summary.status,
         "planner_ms_per_decision": 1e3 * plan.seconds / max(1, plan.decisions), "decisions": plan.decisions,
         "planner_ms_per_geometry": 1e3 * plan.seconds / max(1, len(plan.items)),

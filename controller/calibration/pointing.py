@@ -51,7 +51,7 @@ class GeometryPointing(BeamSafety):
         model_prior(self.model_settings)  # an unknown term is refused before anything moves
         pos = np.asarray(heliostat.position_enu_m, float)
         super().__init__(heliostat, np.asarray(source_direction(source, pos), float), target, frame, others,
-                         zones)
+                         zones, None if model is None else TrackingModel.from_dict(model.params))
         self.heliostat_pos = pos
         # The target centre, or a point of the aim grid on a planned night.
         self.aim_point = np.asarray(target.center_enu_m if aim_point is None else aim_point, float)
@@ -65,10 +65,12 @@ class GeometryPointing(BeamSafety):
         own = frame.side(self.heliostat_pos)
         self.standby_point = self.aim_point + standby_offset_m * own
         if current_steps is not None or self.zone_ids:
-            # Park on the side the slew from the present pose reaches first (azimuth steps
-            # closer to the present ones), so the beam does not pass the target on its way;
-            # without a present pose, on the heliostat's own side. Never on a side whose
-            # standby beam would enter a person zone.
+            # Park on the side where the beam is now (its ray beside the target: what the slew's
+            # beam-safety check traces), else the side the slew from the present pose
+            # reaches first (azimuth steps closer to the present ones), so the beam does not
+            # pass the target on its way; without a present pose, on the heliostat's own side.
+            # Never on a side whose standby beam would enter a person zone.
+            now = self._beam_side(current_steps) if current_steps is not None else 0.0
             best = None
             for side in (own, -own):
                 point = self.aim_point + standby_offset_m * side
@@ -79,32 +81,25 @@ class GeometryPointing(BeamSafety):
                     continue
                 if self.beam_in_zone(az, el) is not None:
                     continue
-                cost = abs(az - current_steps[0]) if current_steps is not None else float(side is not own)
+                if now:
+                    cost = float(np.sign(float(side @ frame.u)) != now)
+                else:
+                    cost = abs(az - current_steps[0]) if current_steps is not None else float(side is not own)
                 if best is None or cost < best[0]:
                     best = (cost, point)
             if best is not None:
                 self.standby_point = best[1]
-        if model is not None:
-            self.standby_point = self._nominally_clear(self.standby_point, model)
 
-    def _nominally_clear(self, point: np.ndarray, model: ModelRecord) -> np.ndarray:
-        """The beam-safety checks trace the nominal kinematics; for a model far from nominal
-        (a far heliostat's few mrad are metres on the target) the nominal ray at the standby pose
-        may still land on a target grown by its margin, and the pose would be refused as unsafe:
-        the standby point moves out along its side until it does not (three tries)."""
-        side = point - self.aim_point
-        side = side / np.linalg.norm(side)
-        for _ in range(3):
-            try:
-                steps = self._steps(point, model)
-                if not (self.beam_on_target(*steps) or self.beam_on_other_target(*steps)):
-                    return point
-                hit = self.kin.spot(*steps, self.source_dir, self.frame.center, self.frame.normal)
-            except (LimitError, ValueError, FloatingPointError):
-                return point
-            short = self.target.width_m / 2 + 2.0 - abs(float((hit - self.frame.center) @ self.frame.u))
-            point = point + (max(short, 0.0) + 1.0) * side
-        return point
+    def _beam_side(self, steps: tuple[int, int]) -> float:
+        """+1 or −1: the side (along the view's u axis) of the target where the ray at ``steps``
+        lands beside it; 0 when it lands on it (grown by its margin) or misses its plane."""
+        c, b = self.rays([steps])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = float((self.frame.center - c[0]) @ self.frame.normal) / float(b[0] @ self.frame.normal)
+        if not np.isfinite(t) or t < 0:
+            return 0.0
+        u = float((c[0] + t * b[0] - self.frame.center) @ self.frame.u)
+        return float(np.sign(u)) if abs(u) > self.target.width_m / 2 + 2.0 else 0.0
 
     def park_clearance_m(self, source, model: ModelRecord | None) -> float:
         """The least distance (m) from the target centre, along the view's width, at which the

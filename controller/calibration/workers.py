@@ -9,7 +9,9 @@ on anything but its arguments.
 
 Workers are started with ``spawn`` (a fresh interpreter, not a fork of a process that may run
 device threads, whose locks a fork would copy mid-use); starting them costs about a second,
-so a small field is done in this process (:data:`POOL_MIN_TASKS`).
+so a small field is done in this process (:data:`POOL_MIN_TASKS`). A spawned worker imports
+the main script again: a script without the ``if __name__ == "__main__":`` guard breaks its
+workers, and the work is then done in this process (same result, slower).
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ import multiprocessing
 import os
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from typing import Any
 
 POOL_MIN_TASKS = 400  # below this a pool's start-up costs more than it saves
@@ -47,10 +50,13 @@ def map_chunks(fn: Callable[[Any, list], list], tasks: Sequence, *, setup: Calla
         return list(fn(setup(*setup_args), tasks))
     size = max(1, math.ceil(len(tasks) / (workers * CHUNKS_PER_WORKER)))
     chunks = [tasks[i:i + size] for i in range(0, len(tasks), size)]
-    with ProcessPoolExecutor(max_workers=min(workers, len(chunks)),
-                             mp_context=multiprocessing.get_context("spawn"),
-                             initializer=_init, initargs=(setup, setup_args)) as pool:
-        return [r for part in pool.map(_call, [fn] * len(chunks), chunks) for r in part]
+    try:
+        with ProcessPoolExecutor(max_workers=min(workers, len(chunks)),
+                                 mp_context=multiprocessing.get_context("spawn"),
+                                 initializer=_init, initargs=(setup, setup_args)) as pool:
+            return [r for part in pool.map(_call, [fn] * len(chunks), chunks) for r in part]
+    except BrokenProcessPool:  # the workers could not start (see the module docstring)
+        return list(fn(setup(*setup_args), tasks))
 
 
 def _init(setup: Callable[..., Any], args: tuple) -> None:

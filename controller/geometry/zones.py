@@ -47,8 +47,8 @@ def zone_entered(origin: np.ndarray, direction: np.ndarray, boxes: np.ndarray,
 def rays_enter_any(origins: np.ndarray, directions: np.ndarray, boxes: np.ndarray,
                    max_t: float = np.inf) -> np.ndarray:
     """For each ray origin + t·direction ((N, 3) each), whether it enters any box of ``boxes``
-    (n, 2, 3) before ``max_t`` — :func:`ray_box_entry`'s slab method for all rays and boxes at
-    once: (N,) bool."""
+    (n, 2, 3) before ``max_t`` (a number, or one per ray) — :func:`ray_box_entry`'s slab method
+    for all rays and boxes at once: (N,) bool."""
     o = np.asarray(origins, float)[:, None, :]
     d = np.asarray(directions, float)[:, None, :]
     b = np.asarray(boxes, float).reshape(-1, 2, 3)
@@ -60,7 +60,7 @@ def rays_enter_any(origins: np.ndarray, directions: np.ndarray, boxes: np.ndarra
     far = np.where(flat, np.inf, np.maximum(a, c)).min(axis=-1)
     inside_flat = np.all(~flat | ((lo <= o) & (o <= hi)), axis=-1)
     t = np.maximum(near, 0.0)
-    return np.any(inside_flat & (t <= far) & (t < max_t), axis=-1)
+    return np.any(inside_flat & (t <= far) & (t < np.reshape(max_t, (-1, 1))), axis=-1)
 
 
 def zone_boxes(zones) -> np.ndarray:
