@@ -176,3 +176,45 @@ def test_a_large_fields_heliostats_are_found_by_id_and_a_missing_one_named_brief
     with pytest.raises(ConfigError, match=r"no heliostat 'X1' in the configuration \(known: F0001, .*, … "
                                           r"\(2000 in all\)\)"):
         large.heliostat("X1")
+
+
+def test_model_refit_command_refits_every_heliostat_as_one_at_a_time(tmp_path, base):
+    """``heliocal model refit``: the models it records are the fits one at a time, with the
+    configuration's fit settings; bad input is one line and exit 2, nothing written."""
+    import json
+    import subprocess
+    import sys
+
+    from controller.commands._cheap_night import calibrate_from_truth
+    from controller.storage.db import CampaignStore
+    from controller.storage.field_records import measurements_by_heliostat
+    from simplant.cheap_night import CheapField
+
+    field = CheapField(field_data(base, 8, 1, 3), tmp_path)
+    calibrate_from_truth(field, "f")
+    # A different noise setting: the refit must follow the configuration, not the old models.
+    data = yaml.safe_load(field.config_path.read_text())
+    data["calibration"]["model"] = {**data["calibration"].get("model", {}), "noise_mrad": 0.9}
+    config = tmp_path / "refit.yaml"
+    config.write_text(yaml.safe_dump(data))
+    cfg = parse_config(data, str(config))
+
+    def cli(*args):
+        return subprocess.run([sys.executable, "-m", "controller.cli", "model", "refit", *args],
+                              cwd=REPO, capture_output=True, text=True)
+
+    r = cli("--config", str(config), "--db", str(field.db_path), "--workers", "2", "--json")
+    assert r.returncode == 0, r.stderr
+    out = json.loads(r.stdout)
+    assert out["heliostats"] == out["refitted"] == 8 and out["no_model"] == [] and out["measurements"] == 8
+    with CampaignStore(field.db_path, readonly=True) as store:
+        history = measurements_by_heliostat(store)
+        latest = store.latest_models()
+    for hid, ms in history.items():
+        kin = HeliostatKinematics.from_config(cfg.heliostat(hid))
+        alone = fit_measurements(kin, ms, cfg.calibration.model)
+        assert latest[hid].params == alone.params and latest[hid].sigma == alone.sigma
+    bad = cli("--config", str(config), "--db", str(field.db_path), "--heliostats", "F0001,NOPE")
+    assert bad.returncode == 2 and "NOPE" in bad.stderr and len(bad.stderr.strip().splitlines()) == 1
+    with CampaignStore(field.db_path, readonly=True) as store:
+        assert store.latest_models() == latest
