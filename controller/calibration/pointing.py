@@ -49,6 +49,7 @@ class GeometryPointing(BeamSafety):
                  model: ModelRecord | None = None) -> None:
         self.model_settings = model_settings or ModelSettings()
         model_prior(self.model_settings)  # an unknown term is refused before anything moves
+        self.model = model  # the model the standby and the beam-safety checks were computed with
         pos = np.asarray(heliostat.position_enu_m, float)
         super().__init__(heliostat, np.asarray(source_direction(source, pos), float), target, frame, others,
                          zones, None if model is None else TrackingModel.from_dict(model.params))
