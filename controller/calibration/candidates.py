@@ -69,6 +69,8 @@ class FieldGeometry:
         self.zones = zone_boxes(cfg.person_zones)
         self.centre = np.asarray(cfg.target().center_enu_m, float)
         self.margin_m = cfg.calibration.planner.view_margin_m
+        # The beam error no covariance knows (spot Eq. 3): the measured normal's noise, doubled.
+        self.floor_rad = 2e-3 * cfg.calibration.model.noise_mrad
 
 
 @dataclass(frozen=True, eq=False)  # numpy fields
@@ -132,7 +134,7 @@ def evaluate_many(geo: FieldGeometry,
     frames = _FrameStack(*(np.array([getattr(v.frame, f) for v in views])[:, None]
                            for f in ("center", "normal", "u", "v")))
     spots = predict_spots(kin, optics, values, covs, steps, points, frames, lamp=lamp_pos[None],
-                          lamp_diameter_m=lamp_d)
+                          lamp_diameter_m=lamp_d, floor_rad=geo.floor_rad)
     half = np.array([v.half_view_m for v in views])[:, None]
     ok &= np.all(spots.reach_m() + geo.margin_m <= half, axis=-1)
     out = []

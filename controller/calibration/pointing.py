@@ -105,9 +105,9 @@ class GeometryPointing(BeamSafety):
     def park_clearance_m(self, source, model: ModelRecord | None) -> float:
         """The least distance (m) from the target centre, along the view's width, at which the
         spot of this heliostat stays :data:`PARK_MARGIN_M` outside the camera's view at 3σ: the
-        view's half-width plus 3σ of the spot's size and of its position (the model's covariance;
-        the prior without a model), as the spot at the aim point predicts them
-        (:func:`controller.geometry.spot.standby_clearance_m`)."""
+        view's half-width plus 3σ of the spot's size and of its position (the model's covariance,
+        the prior without a model; at least the measured normal's noise doubled, spot Eq. 3), as
+        the spot at the aim point predicts them (:func:`controller.geometry.spot.standby_clearance_m`)."""
         tm, cov = model_covariance(model, self.model_settings.prior_sigma)
         try:
             steps = np.array([self._steps(self.aim_point, model)], float)
@@ -119,7 +119,8 @@ class GeometryPointing(BeamSafety):
         else:
             light = {"sun_dir": self.source_dir, "sun_angle_rad": 1e-3 * source.angular_diameter_mrad}
         aim = self.aim_point[None]
-        spot = predict_spots(self.kin, optics, tm.values, cov, steps, aim, self.frame, **light)
+        spot = predict_spots(self.kin, optics, tm.values, cov, steps, aim, self.frame,
+                             floor_rad=2e-3 * self.model_settings.noise_mrad, **light)
         return standby_clearance_m(self.frame.width_m / 2.0, float(spot.sigma_m[0, 0]),
                                    float(spot.position_sigma_m[0, 0]), PARK_MARGIN_M)
 

@@ -17,7 +17,11 @@ obliquely (cos θ = |b·N|) stretches the footprint by 1/cos θ along its in-pla
 moves it by J δp, J = ∂(u, v)/∂p of the hit point (the reflected central ray meeting the
 plane), so its covariance is
 
-    Σ_pos = J Σ_p Jᵀ                                                            (3)
+    Σ_pos = J Σ_p Jᵀ + (ε L)² I                                                 (3)
+
+with ε a floor of the beam's error that no covariance knows: a model is not known better than
+the noise of the measurements it was fitted to, and a real heliostat has effects no term has
+(the callers take ε = 2 σ_n, the measured normal's noise doubled on reflection).
 
 **In view.** A camera sees the target plane over a rectangle of half-size (H_u, H_v) about the
 target centre (:class:`controller.geometry.target_frame.TargetFrame`: W × H). A spot aimed at
@@ -159,7 +163,7 @@ def standby_clearance_m(half_view_m: float, spot_sigma_m: float, position_sigma_
 def predict_spots(kin: HeliostatKinematics | KinStack, optics: MirrorOptics, values: np.ndarray,
                   covariance: np.ndarray, steps: np.ndarray, aims: np.ndarray, frame: TargetFrame, *,
                   lamp=None, lamp_diameter_m: float | np.ndarray = 0.0, sun_dir=None,
-                  sun_angle_rad: float = 0.0) -> PredictedSpot:
+                  sun_angle_rad: float = 0.0, floor_rad: float = 0.0) -> PredictedSpot:
     """The spots of one heliostat at K poses on ``frame``'s plane (Eq. 1-3): aimed at ``aims``
     (K, 3) m ENU with motor ``steps`` (K, 2) by the model ``values`` (p,) SI, whose covariance
     is ``covariance`` (p, p) SI². The source is a lamp at ``lamp`` ((3,) or (K, 3) m ENU) of
@@ -167,7 +171,9 @@ def predict_spots(kin: HeliostatKinematics | KinStack, optics: MirrorOptics, val
     mirror), or the sun along ``sun_dir`` ((3,) unit ENU, towards it) of angular diameter
     ``sun_angle_rad``. The spot's size is taken along the aimed beam (mirror centre to aim
     point); its position's Jacobian is that of the reflected central ray's hit point
-    (:func:`hit_uv`) by forward differences over the model's terms.
+    (:func:`hit_uv`) by forward differences over the model's terms. ``floor_rad``: a beam error
+    the covariance cannot know (what a measurement's noise leaves, effects no term has), added in
+    quadrature as (floor · L)² on each axis.
 
     A stack of H heliostats at once: ``kin`` a :class:`controller.geometry.pose_batch.KinStack`,
     ``values`` (H, p), ``covariance`` (H, p, p), ``steps`` (H, K, 2), ``aims`` and ``lamp``
@@ -199,6 +205,7 @@ def predict_spots(kin: HeliostatKinematics | KinStack, optics: MirrorOptics, val
     rel = aims - np.asarray(frame.center, float)
     offset = np.stack([_dot(rel, frame.u), _dot(rel, frame.v)], axis=-1)
     pos_cov = position_covariance(j, np.asarray(covariance, float)[..., None, :, :])
+    pos_cov = pos_cov + ((floor_rad * dist) ** 2)[..., None, None] * np.eye(2)
     return predicted_spot(offset, cov, pos_cov)
 
 
