@@ -1,60 +1,77 @@
-"""One planned night of a 1,000-heliostat field with 1, 2 and 3 targets, run by the real runner.
+"""A planned night of a large field through the product's own night, at 1,000 or 10,000 heliostats.
 
 The field (:func:`simplant.cheap_night.field_data`): heliostats on staggered half rings north
-of the tower (40-300 m), each with the demo's AA39 actuators; up to three targets on the tower
-(upper, middle, lower, each with its camera, a 2 × 2 aim grid, all in
-``calibration.targets``); six lamps. The queue is shared out over the targets by the
-planner's rule (heliostat i takes target i mod n on the first night,
-:func:`controller.calibration.planner.plan_night`); per heliostat the real planner
-(:func:`controller.calibration.planner.plan_heliostat`) chooses the night's geometries on its
-target, timed per decision. ``--planned`` heliostats are planned (default 200 of the 1,000:
-planning all takes ~0.1 s each on this machine); the others take the aim points of the
-planned heliostat nearest to them on the same target.
+of the tower (from 40 m, ±50°), each with the demo's AA39 actuators and focused at its range;
+``--targets`` targets stacked on the tower, each with its camera and a 2 × 2 aim grid, sized so
+that the farthest heliostat's spot fits; six lamps. Its devices are in-process
+(:class:`simplant.cheap_night.CheapField`: the firmware physics without a wire, analytic-spot
+cameras of 128 × 96 pixels, an in-process lamp panel) on the plant clock at ``--speedup``.
 
-**The run** (:func:`controller.commands._cheap_night.run_cheap_night` on a
-:class:`simplant.cheap_night.CheapField`): the product's night
-(:class:`controller.calibration.night.PlannedNight`, as ``heliocal campaign night`` runs it:
-lamp changes in the dark, one :class:`controller.calibration.runner.Campaign` per pass, the
-targets of a lamp in parallel, state machine, gate per target, fit, SQLite store) against the
-simulated plant's hidden
-heliostats, driven in-process through the firmware physics (:mod:`simplant.inproc`) and seen
-by cheap analytic-spot cameras (:mod:`simplant.cheap_camera`, 128 × 96), on the plant clock at
-``--speedup`` (the controller's own computing runs at 1x plant time). The night ends after
-``--night-h`` plant hours (every running campaign is stopped as by Ctrl-C) or when every pass
-is done.
+What runs, in order, each timed:
 
-**The peer** (``model``): the discrete-event model of the runner's rules this benchmark used
-to be — same plans, same passes (:func:`controller.calibration.nights.night_passes`), slews at
-the configured axis speeds (:func:`controller.calibration.planning.slew_time_s`), settle and
-:data:`PROCESS_S` per measurement, :data:`LAMP_SWITCH_S` per lamp; no runner, camera or drive.
-``runner_over_model`` is the ratio of their heliostats/hour/target.
+1. **night 0** (``seed_s``): the calibration night, made from the plant's truth rather than
+   run closed loop (10,000 closed-loop runs would take hours of wall time): each heliostat's
+   first capture at the calibration lamp, fitted by the product's model fit
+   (:func:`controller.commands._cheap_night.calibrate_from_truth`);
+2. **planning** (``plan_s``): tonight's plan for the *whole* field from the models in the
+   database (:func:`controller.calibration.planner.plan_field`, as ``PlannedNight`` plans:
+   measurable geometries only, ``--workers`` processes); ``planner_ms_per_decision`` is its wall
+   time per heliostat planned (one decision = one heliostat's geometries);
+3. **the night** (``night_wall_s``, ``plant_hours``): the product's night operation
+   (:func:`controller.commands._cheap_night.run_cheap_night` →
+   :class:`controller.calibration.night.PlannedNight`: lamp changes in the dark for every
+   heliostat of the field, one campaign per pass, the targets of a lamp in parallel, the
+   state machine, gate, fit, SQLite store, frame archive) over the whole field. When the plan
+   has more than ``--sample`` geometries, the night runs the plan of an evenly spread sample of
+   heliostats (every k-th, so every ring and target is in it) — the rest of the plan is made
+   and counted, not run: 30,000 measurements do not fit 30 minutes of wall time. ``planned``
+   and ``measured`` are the sample's; ``plan_total`` the whole field's;
+4. **refit** (``fit_s``): every heliostat's model refitted on all its measurements
+   (:func:`controller.calibration.refit.refit_models`, ``heliocal model refit``), in
+   ``--workers`` processes; ``fit_same_as_serial`` checks 20 of them against a fit one at a
+   time in this process;
+5. **morning report** (``report_s``): :func:`controller.reports.night.write_night_report` of the
+   night, for every heliostat of the field.
 
-    python benchmarks/bench_field.py [--heliostats 1000] [--planned 200] [--geometries 3]
-                                     [--night-h 8] [--speedup 100]
+``second_beam_captures``: captures in which a target's camera saw more than one beam (the
+simulated truth: :attr:`simplant.cheap_camera.CheapCamera.beams_in_view`).
+``controller_cpu_s``: CPU seconds of this process and its worker processes over steps 2-5 —
+the night's share includes the in-process simulated plant (its cameras and physics).
 
-It prints JSON: per target count, the runner's plant time, wall time, measurements done /
-planned, heliostats covered, heliostats/hour/target, the planner's time per decision,
-captures with more than one beam in a target's view (the plant's truth), and the model peer.
+**The peer** (``model``): a discrete-event model of the runner's rules over the same sample
+plan — slews at the configured axis speeds, settle and :data:`PROCESS_S` per measurement,
+:data:`LAMP_SWITCH_S` per lamp, no runner, camera or drive; ``runner_over_model`` is the ratio
+of their plant hours.
+
+    python benchmarks/bench_field.py --heliostats 10000 --targets 3 --json
+        [--geometries 3] [--sample 1500] [--night-h 12] [--speedup 200] [--workers 2]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
+import resource
 import sys
 import tempfile
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import yaml
 
+from controller.calibration.model_update import fit_measurements
 from controller.calibration.nights import night_passes
-from controller.calibration.planner import plan_heliostat, planner_sun
+from controller.calibration.planner import plan_field
 from controller.calibration.planning import slew_time_s
-from controller.commands._cheap_night import run_cheap_night
-from controller.config import parse_config
+from controller.calibration.refit import refit_models
+from controller.commands._cheap_night import calibrate_from_truth, run_cheap_night
+from controller.geometry.kinematics import HeliostatKinematics
+from controller.reports.night import write_night_report
+from controller.storage.db import CampaignStore
+from controller.storage.field_records import measurements_by_heliostat, record_models
+from controller.storage.nights import NightBook
 from simplant.cheap_night import LAMPS, CheapField, field_data
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -62,45 +79,38 @@ PROCESS_S = 4.0  # demo: capture, merge, analysis, fit and record per measuremen
 LAMP_SWITCH_S = 60.0  # lights off/on, warm-up
 
 
-def target_of(index: int, targets: int) -> int:
-    """The target of the heliostat at ``index`` on the first night: the planner's rule
-    (:func:`controller.calibration.planner.plan_night`, i mod n)."""
-    return index % targets
+def say(text: str) -> None:
+    print(f"bench_field: {text}", file=sys.stderr)
 
 
-def plan_field(data: dict, targets: int, planned: int) -> tuple[dict[str, list], float, int]:
-    """Plans per heliostat (real planner on ``planned`` of them), seconds per decision, decisions."""
-    cfg = parse_config(data, f"field-{targets}")
-    tids = cfg.calibration.parallel_targets()
-    sun = planner_sun(cfg)
-    hs = data["heliostats"]
-    sample = set(np.linspace(0, len(hs) - 1, min(planned, len(hs))).round().astype(int).tolist())
-    plans: dict[str, list] = {}
-    t0 = time.perf_counter()
-    for i in sorted(sample):
-        plans[hs[i]["id"]] = plan_heliostat(cfg, hs[i]["id"], None, "n1", sun,
-                                            targets=(tids[target_of(i, targets)],))
-    per = (time.perf_counter() - t0) / max(1, len(sample))
-    for i, h in enumerate(hs):
-        if h["id"] not in plans:
-            near = min((j for j in sample if target_of(j, targets) == target_of(i, targets)),
-                       key=lambda j: np.hypot(hs[j]["position_enu_m"][0] - h["position_enu_m"][0],
-                                              hs[j]["position_enu_m"][1] - h["position_enu_m"][1]))
-            plans[h["id"]] = [replace(it, heliostat_id=h["id"]) for it in plans[hs[near]["id"]]]
-    return plans, per, len(sample)
+def cpu_s() -> float:
+    """CPU seconds of this process and its (finished) worker processes."""
+    me, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return me.ru_utime + me.ru_stime + kids.ru_utime + kids.ru_stime
 
 
-def model_night(data: dict, plans: dict[str, list], targets: int, night_s: float) -> dict:
-    """The peer: a discrete-event model of the runner's rules (module docstring), lamp by
-    lamp, every target its passes; no runner, no camera, no drives."""
+def sample_plan(plan, ids: list[str], limit: int, targets: int) -> tuple[list, list[str]]:
+    """The plan of every k-th heliostat of ``ids``, k the least that keeps it within ``limit``
+    geometries and shares no factor with ``targets`` (heliostat i's target is i mod targets:
+    so the sample has every target); all of it when it fits."""
+    if len(plan) <= limit:
+        return plan, ids
+    k = int(np.ceil(len(plan) / limit))
+    while np.gcd(k, targets) != 1:
+        k += 1
+    chosen = set(ids[::k])
+    return [it for it in plan if it.heliostat_id in chosen], [h for h in ids if h in chosen]
+
+
+def model_night(data: dict, plan: list, night_s: float) -> dict:
+    """The peer: a discrete-event model of the runner's rules (module docstring), lamp by lamp,
+    every target its passes; no runner, no camera, no drives."""
     ax = data["heliostats"][0]["axes"]
     az, el = ax["azimuth"], ax["elevation"]
     settle = float(data["calibration"].get("settle_s", 0.5))
-    steps = {(it.heliostat_id, it.geometry.lamp, it.geometry.aim_enu): it.geometry.steps
-             for p in plans.values() for it in p}
-    passes = night_passes([it for p in plans.values() for it in p], "n1")
-    clock, done, helios = 0.0, 0, set()
-    per_target = {}
+    steps = {(it.heliostat_id, it.geometry.lamp, it.geometry.aim_enu): it.geometry.steps for it in plan}
+    passes = night_passes(plan, "n1")
+    clock, done = 0.0, 0
     for lamp in dict.fromkeys(p.lamp for p in passes):
         if clock + LAMP_SWITCH_S > night_s:
             break
@@ -119,76 +129,139 @@ def model_night(data: dict, plans: dict[str, list], targets: int, night_s: float
                 if busy[p.target] + occupancy > night_s:
                     break
                 busy[p.target] += occupancy
-                per_target[p.target] = per_target.get(p.target, 0.0) + occupancy
                 done += 1
-                helios.add(hid)
         clock = max(busy.values())
-    planned = sum(len(p) for p in plans.values())
-    used = clock
-    return {"targets": targets, "planned_measurements": planned, "measurements": done,
-            "coverage": done / planned if planned else float("nan"), "heliostats_covered": len(helios),
-            "plant_time_h": used / 3600.0,
-            "target_occupancy_h": {str(t): v / 3600.0 for t, v in per_target.items()},
-            "heliostats_per_hour_per_target": len(helios) / (used / 3600.0) / targets if used else 0.0}
+    return {"planned": len(plan), "measured": done, "plant_hours": clock / 3600.0}
 
 
-def runner_night(data: dict, plans: dict[str, list], targets: int, night_s: float, speedup: float) -> dict:
-    """The night through the real runner over the cheap plant (module docstring)."""
-    with tempfile.TemporaryDirectory(prefix="bench-field-") as tmp:
-        f = CheapField(data, Path(tmp), speedup=speedup)
-        r = run_cheap_night(f, [it for p in plans.values() for it in p], "n1", night_s)
-    hours = r.plant_s / 3600.0
-    several = {t: sum(1 for b in v if len(b) > 1) for t, v in r.beams_in_view.items()}
-    failed: dict[str, int] = {}  # runs not measured, by the exception that ended them
-    for run in (run for res in r.results for run in res.runs if run.status != "measured"):
-        kind = (run.fault_cause or run.status).split(":")[0]
-        failed[kind] = failed.get(kind, 0) + 1
-    return {"targets": targets, "planned_measurements": r.planned, "measurements": len(r.measured),
-            "coverage": len(r.measured) / r.planned if r.planned else float("nan"),
-            "heliostats_covered": len(r.heliostats), "plant_time_h": hours, "wall_s": r.wall_s,
-            "ended_by_night_budget": r.stopped_by_budget, "measurements_per_target": r.per_target,
-            "captures": {t: len(v) for t, v in r.beams_in_view.items()},
-            "captures_with_several_beams_in_view": several, "runs_not_measured": failed,
-            "passes": {res.status: sum(1 for x in r.results if x.status == res.status) for res in r.results},
-            "heliostats_per_hour_per_target": len(r.heliostats) / hours / targets if hours else 0.0}
+def refit_field(cfg, db: Path, workers: int | None) -> dict:
+    """Step 4: every model refitted (timed), 20 of them checked against one at a time, stored."""
+    store = CampaignStore(db)
+    try:
+        history = measurements_by_heliostat(store)
+        r = refit_models(cfg, history, workers=workers)
+        ids = sorted(history)
+        check = ids[:: max(1, len(ids) // 20)][:20]
+        same = all(_same(r.models[hid], fit_measurements(HeliostatKinematics.from_config(cfg.heliostat(hid)),
+                                                         history[hid], cfg.calibration.model))
+                   for hid in check)
+        record_models(store, {hid: (history[hid][-1], m) for hid, m in r.models.items() if m is not None})
+    finally:
+        store.close()
+    return {"fit_s": r.seconds, "fit_heliostats": len(history),
+            "fit_measurements": sum(len(v) for v in history.values()), "fit_same_as_serial": same}
+
+
+def _same(a, b) -> bool:
+    if a is None or b is None:
+        return a is b
+    return a.params == b.params and a.detail.get("covariance_si") == b.detail.get("covariance_si")
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--heliostats", type=int, default=1000)
-    ap.add_argument("--planned", type=int, default=200, help="heliostats planned by the real planner")
-    ap.add_argument("--geometries", type=int, default=1,
-                    help="planned per heliostat (3 through the runner: ~0.12 s wall per measurement, "
-                         "over 10 min for the three target counts)")
-    ap.add_argument("--night-h", type=float, default=8.0, help="the night's budget, plant hours")
-    ap.add_argument("--speedup", type=float, default=100.0,
+    ap.add_argument("--targets", type=int, default=3)
+    ap.add_argument("--geometries", type=int, default=3, help="planned per heliostat and night")
+    ap.add_argument("--sample", type=int, default=1500,
+                    help="most geometries the night runs (an evenly spread sample of heliostats beyond)")
+    ap.add_argument("--night-h", type=float, default=12.0, help="the night's budget, plant hours")
+    ap.add_argument("--speedup", type=float, default=200.0,
                     help="plant seconds per wall second (<= 1000; higher counts more of the simulator's own "
                          "wall time as plant time)")
+    ap.add_argument("--workers", type=int, default=None, help="processes for planning and fitting "
+                    "(default: one per core)")
+    ap.add_argument("--out", default=None,
+                    help="keep the database and report here (default: a temporary folder)")
+    ap.add_argument("--json", action="store_true", help="print one JSON object")
     args = ap.parse_args()
-    for name in ("heliostats", "planned", "geometries"):
-        if getattr(args, name) < 1:
-            ap.exit(2, f"bench_field.py: --{name} must be at least 1\n")
-    if not 0 < args.night_h <= 24 or not 0 < args.speedup <= 1000:
-        ap.exit(2, "bench_field.py: --night-h must be in (0, 24] and --speedup in (0, 1000]\n")
+    if not 1 <= args.heliostats <= 50_000 or not 1 <= args.targets <= 3 or not 1 <= args.geometries <= 12:
+        ap.exit(2, "bench_field.py: --heliostats in [1, 50000], --targets in [1, 3], "
+                   "--geometries in [1, 12]\n")
+    if args.sample < 1 or not 0 < args.night_h <= 24 or not 0 < args.speedup <= 1000:
+        ap.exit(2, "bench_field.py: --sample >= 1, --night-h in (0, 24], --speedup in (0, 1000]\n")
+    if args.workers is not None and not 1 <= args.workers <= 64:
+        ap.exit(2, "bench_field.py: --workers in [1, 64]\n")
+    wall0, load0 = time.perf_counter(), os.getloadavg()
+    tmp = None if args.out else tempfile.TemporaryDirectory(prefix="bench-field-")
+    out = Path(args.out or tmp.name)
     base = yaml.safe_load((ROOT / "configs" / "demo.yaml").read_text())
-    wall0 = time.perf_counter()
-    rows = []
-    for targets in (1, 2, 3):
-        data = field_data(base, args.heliostats, targets, args.geometries)
-        plans, per, n = plan_field(data, targets, args.planned)
-        run = runner_night(data, plans, targets, 3600.0 * args.night_h, args.speedup)
-        print(f"bench_field: {targets} target(s): {run['measurements']}/{run['planned_measurements']} "
-              f"measured, {run['plant_time_h']:.2f} plant h, {run['wall_s']:.0f} s wall", file=sys.stderr)
-        model = model_night(data, plans, targets, 3600.0 * args.night_h)
-        rows.append({**run, "planner": {"s_per_decision": per, "decisions_timed": n}, "model": model,
-                     "runner_over_model": run["heliostats_per_hour_per_target"]
-                     / max(model["heliostats_per_hour_per_target"], 1e-12)})
-    print(json.dumps({"benchmark": "field night (real runner, cheap optics)", "heliostats": args.heliostats,
-                      "lamps": len(LAMPS), "night_budget_h": args.night_h, "clock_speedup": args.speedup,
-                      "geometries_per_heliostat": args.geometries, "by_targets": rows,
-                      "coverage_ratio_3_over_1_target":
-                          rows[-1]["measurements"] / max(1, rows[0]["measurements"]),
-                      "wall_s": time.perf_counter() - wall0}, indent=1))
+    data = field_data(base, args.heliostats, args.targets, args.geometries)
+    t = time.perf_counter()
+    cheap = CheapField(data, out / "field", speedup=args.speedup)
+    build_s = time.perf_counter() - t
+    cfg, ids = cheap.cfg, [h.id for h in cheap.cfg.heliostats]
+    centre = {t.id: np.asarray(t.center_enu_m, float) for t in cfg.targets}
+    t = time.perf_counter()
+    seed = calibrate_from_truth(cheap, "field", workers=args.workers)
+    seed_s = time.perf_counter() - t
+    say(f"{len(ids)} heliostats, night 0 from the truth in {seed_s:.0f} s (field built in {build_s:.0f} s)")
+
+    cpu0 = cpu_s()
+    store = CampaignStore(cheap.db_path, readonly=True)
+    try:
+        book = NightBook(store)
+        night, index = f"{book.base_name()}/night-{book.next_index()}", book.next_index()
+        models = store.latest_models(ids)
+    finally:
+        store.close()
+    plan = plan_field(cfg, {hid: models.get(hid) for hid in ids}, night, night_index=index,
+                      workers=args.workers)
+    say(f"planned {len(plan.items)} geometries for {plan.decisions} heliostats in {plan.seconds:.1f} s; "
+        f"{len(plan.unmeasurable)} with no measurable geometry")
+    items, sampled = sample_plan(plan.items, ids, args.sample, args.targets)
+    r = run_cheap_night(cheap, items, night, 3600.0 * args.night_h, heliostat_ids=ids,
+                        unmeasurable=plan.unmeasurable, workers=args.workers)
+    say(f"night: {len(r.measured)}/{r.planned} measured, {r.plant_s / 3600:.2f} plant h, "
+        f"{r.wall_s:.0f} s wall")
+    fit = refit_field(cfg, cheap.db_path, args.workers)
+    say(f"refit {fit['fit_heliostats']} models in {fit['fit_s']:.1f} s")
+    t = time.perf_counter()
+    store = CampaignStore(cheap.db_path, readonly=True)
+    try:
+        rec = next(n for n in NightBook(store).nights() if n.name == night)
+        write_night_report(store, out / "report", rec)
+    finally:
+        store.close()
+    report_s = time.perf_counter() - t
+    cpu = cpu_s() - cpu0
+
+    failed: dict[str, int] = {}
+    for run in (run for res in r.results for run in res.runs if run.status != "measured"):
+        kind = (run.fault_cause or run.status).split(":")[0]
+        failed[kind] = failed.get(kind, 0) + 1
+    peer = model_night(data, items, 3600.0 * args.night_h)
+    second = [{"target": tid, "beams": {hid: [round(float(x), 2) for x in np.subtract(p, centre[tid])]
+                                        for hid, p in hits.items()}}
+              for tid, cam in cheap.cameras.items() for hits in cam.hits if len(hits) > 1][:5]
+    result = {
+        "benchmark": "field night (the product's PlannedNight, cheap optics)",
+        "heliostats": len(ids), "targets": args.targets, "geometries_per_heliostat": args.geometries,
+        "lamps": len(LAMPS), "planned": r.planned, "measured": len(r.measured),
+        "measured_fraction": len(r.measured) / r.planned if r.planned else None,
+        "plan_total": len(plan.items), "unmeasurable": len(plan.unmeasurable),
+        "sample": {"heliostats": len(sampled), "of": len(ids), "limit_geometries": args.sample,
+                   "night_0_unreachable": len(seed["unreachable"])},
+        "second_beam_captures": sum(1 for v in r.beams_in_view.values() for b in v if len(b) > 1),
+        "captures": sum(len(v) for v in r.beams_in_view.values()),
+        "second_beam_examples": second,
+        "runs_not_measured": failed, "night_status": r.summary.status,
+        "planner_ms_per_decision": 1e3 * plan.seconds / max(1, plan.decisions), "decisions": plan.decisions,
+        "planner_ms_per_geometry": 1e3 * plan.seconds / max(1, len(plan.items)),
+        "plan_s": plan.seconds, **fit, "report_s": report_s,
+        "plant_hours": r.plant_s / 3600.0, "ended_by_night_budget": r.stopped_by_budget,
+        "night_wall_s": r.wall_s, "seed_s": seed_s, "build_s": build_s,
+        "controller_cpu_s": cpu, "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+        "workers_peak_rss_mb": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024.0,
+        "daytime_error_predicted_mrad": r.summary.daytime_error_predicted_mrad,
+        "model": peer, "runner_over_model": (r.plant_s / 3600.0) / max(peer["plant_hours"], 1e-9),
+        "workers": args.workers, "clock_speedup": args.speedup, "night_budget_h": args.night_h,
+        "load_average": {"start": load0, "end": os.getloadavg()}, "cores": os.cpu_count(),
+        "wall_s": time.perf_counter() - wall0,
+    }
+    if tmp is not None:
+        tmp.cleanup()
+    print(json.dumps(result, indent=None if args.json else 1))
 
 
 if __name__ == "__main__":

@@ -2,7 +2,9 @@
 
 For each heliostat of the demo field a hidden heliostat is drawn (:mod:`simplant.truth`:
 actuator geometry, pedestal, joints, droop, stroke scale, position error, nightly drift — not
-the controller's model). Each night, each schedule plans the same number of measurements
+the controller's model). Night 0 measures each heliostat once at the calibration lamp and
+target centre (its nominal pose: the closed-loop campaign's first capture), which gives the
+first model. Each night, each schedule plans the same number of measurements
 (``geometries_per_night`` per heliostat, from the same candidate geometries); a measurement
 is the truth's beam spot on the target plane for the planned steps (central ray from the
 true mirror centre, plus 0.2 mrad of noise), the fit uses every measurement so far, and the
@@ -33,7 +35,7 @@ import yaml
 
 from controller.calibration.daytime import model_covariance, predicted_daytime, sun_path, tracking_steps
 from controller.calibration.model_update import fit_measurements
-from controller.calibration.planner import candidates, plan_night, planner_sun
+from controller.calibration.planner import Geometry, PlanItem, candidates, plan_night, planner_sun
 from controller.calibration.records import MeasurementRecord
 from controller.config import parse_config
 from controller.geometry.aiming import angle_mrad, intersect_plane, reflected_beam, source_direction
@@ -89,10 +91,27 @@ def true_daytime(cfg, truths, models, path, night: int) -> tuple[float, float]:
     return float(np.sqrt(np.mean(e**2))), float(np.percentile(e, 95))
 
 
+def calibration_item(cfg, hid: str) -> PlanItem:
+    """The calibration night's geometry of ``hid``: the calibration lamp onto the target centre
+    with the nominal kinematics (the closed-loop campaign's first pose)."""
+    lamp = cfg.light_source()
+    centre = np.asarray(cfg.target().center_enu_m, float)
+    h = cfg.heliostat(hid)
+    pos = np.asarray(h.position_enu_m, float)
+    steps = HeliostatKinematics.from_config(h).aim(source_direction(lamp, pos), centre,
+                                                   lamp_position=np.asarray(lamp.position_enu_m, float))
+    return PlanItem(hid, "night-0", Geometry(lamp.id, tuple(float(v) for v in centre), (0, 0), steps), 1, 0.0,
+                    0.0, 0.0)
+
+
 def run(strategy: str, cfg, truths, nights: int, seed: int, path) -> list[dict]:
     rng = np.random.default_rng([seed, 99])
-    history: dict[str, list[MeasurementRecord]] = {hid: [] for hid in truths}
-    models: dict = dict.fromkeys(truths)
+    # Night 0: each heliostat measured once at the calibration geometry (the planner plans only
+    # geometries whose spot it can predict inside the camera's view: it needs a first model).
+    history: dict[str, list[MeasurementRecord]] = {
+        hid: [measure(truths[hid], cfg, calibration_item(cfg, hid), 0, rng)] for hid in truths}
+    models: dict = {hid: fit_measurements(HeliostatKinematics.from_config(cfg.heliostat(hid)), ms,
+                                          cfg.calibration.model) for hid, ms in history.items()}
     out = []
     for k in range(nights):
         t0 = time.perf_counter()

@@ -203,6 +203,9 @@ class Planner(_Model):
                                               "error is already below tolerance")
     sun_positions: int = Field(default=48, ge=4, le=2000,
                                description="sun positions of the yearly path the planner scores against")
+    view_margin_m: float = Field(default=0.2, ge=0, le=50,
+                                 description="distance the 3σ spot of a planned geometry keeps inside the "
+                                             "camera's view, m")
 
 
 class Calibration(_Model):
@@ -313,13 +316,27 @@ class PlantConfig(_Model):
         return next(s for s in self.light_sources if s.id == sid)
 
 
+_INDEX: dict[int, tuple[tuple, dict]] = {}  # id(items) -> (items, {id: entry}): a large field's lookups
+
+
 def _by_id(items, item_id: str, what: str):
-    """The entry of ``items`` whose ``id`` is ``item_id``; ConfigError naming the known ids."""
-    for it in items:
-        if it.id == item_id:
-            return it
-    raise ConfigError(f"no {what} {item_id!r} in the configuration "
-                      f"(known: {', '.join(it.id for it in items)})")
+    """The entry of ``items`` whose ``id`` is ``item_id``; ConfigError naming the known ids (a
+    field of thousands of heliostats is looked up through an index, built once per tuple)."""
+    if len(items) > 16:
+        hit = _INDEX.get(id(items))
+        if hit is None or hit[0] is not items:
+            if len(_INDEX) > 64:
+                _INDEX.clear()
+            hit = _INDEX[id(items)] = (items, {it.id: it for it in items})
+        if item_id in hit[1]:
+            return hit[1][item_id]
+    else:
+        for it in items:
+            if it.id == item_id:
+                return it
+    known = [it.id for it in items]
+    listed = ", ".join(known[:20]) + (f", … ({len(known)} in all)" if len(known) > 20 else "")
+    raise ConfigError(f"no {what} {item_id!r} in the configuration (known: {listed})")
 
 
 def parse_config(data: object, source: str = "<config>") -> PlantConfig:

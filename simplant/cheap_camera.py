@@ -38,28 +38,32 @@ SPOT_EXTENT_SIGMA = 3.0
 MAX_THROW_M = 1000.0
 
 
-def spot_covariance(distance_m: float, lamp_angle_rad: float, slope_error_rad: float,
-                    mirror_w_m: float, mirror_h_m: float, focal_m: float, beam: np.ndarray,
-                    normal: np.ndarray, u_axis: np.ndarray, v_axis: np.ndarray) -> np.ndarray:
-    """2 × 2 covariance (m², target axes u, v) of a heliostat's spot on a target plane.
+def spot_covariance(distance_m, lamp_angle_rad, slope_error_rad, mirror_w_m, mirror_h_m, focal_m,
+                    beam: np.ndarray, normal: np.ndarray, u_axis: np.ndarray,
+                    v_axis: np.ndarray) -> np.ndarray:
+    """2 × 2 covariance (m², target axes u, v) of a heliostat's spot on a target plane; every
+    argument but the plane's axes may be an array over heliostats ((n,), beams (n, 3)): (n, 2, 2).
 
     Across the beam, per mirror axis, independent blurs add in quadrature:
     σ² = (αL/4)² + (2σ_s L)² + (w |1 − L/f|)² / 12 — the lamp disc of angular diameter α
     imaged at distance L (a uniform disc of radius r has σ = r/2), the slope error σ_s
     doubled on reflection, and the mirror of width w focused at f (a uniform band of width
     w|1 − L/f|). The mirror's width axis is taken along u, its height along v. An oblique
-    beam (cos θ = |b·n|) stretches the footprint by 1/cos θ along the beam's in-plane
-    direction d: Σ' = S Σ Sᵀ, S = I + (1/cos θ − 1) d dᵀ."""
-    common = (lamp_angle_rad * distance_m / 4.0) ** 2 + (2.0 * slope_error_rad * distance_m) ** 2
-    defocus = abs(1.0 - distance_m / focal_m)
-    cov = np.diag([common + (mirror_w_m * defocus) ** 2 / 12.0, common + (mirror_h_m * defocus) ** 2 / 12.0])
-    cos_t = max(abs(float(beam @ normal)), 0.05)
-    d = np.array([beam @ u_axis, beam @ v_axis], float)
-    if np.linalg.norm(d) > 1e-9:
-        d /= np.linalg.norm(d)
-        s = np.eye(2) + (1.0 / cos_t - 1.0) * np.outer(d, d)
-        cov = s @ cov @ s.T
-    return cov
+    beam (cos θ = |b·n|) stretches the footprint by 1/cos θ along the beam's in-plane direction d:
+    Σ' = S Σ Sᵀ, S = I + (1/cos θ − 1) d dᵀ."""
+    dist = np.asarray(distance_m, float)
+    common = (np.asarray(lamp_angle_rad) * dist / 4.0) ** 2 + (2.0 * np.asarray(slope_error_rad) * dist) ** 2
+    defocus = np.abs(1.0 - dist / np.asarray(focal_m, float))
+    cov = np.zeros((*dist.shape, 2, 2))
+    cov[..., 0, 0] = common + (np.asarray(mirror_w_m) * defocus) ** 2 / 12.0
+    cov[..., 1, 1] = common + (np.asarray(mirror_h_m) * defocus) ** 2 / 12.0
+    b = np.asarray(beam, float)
+    cos_t = np.maximum(np.abs(b @ normal), 0.05)
+    d = np.stack([b @ u_axis, b @ v_axis], axis=-1)
+    norm = np.linalg.norm(d, axis=-1, keepdims=True)
+    d = np.where(norm > 1e-9, d / np.maximum(norm, 1e-12), 0.0)
+    stretch = np.eye(2) + (1.0 / cos_t - 1.0)[..., None, None] * d[..., :, None] * d[..., None, :]
+    return stretch @ cov @ np.swapaxes(stretch, -1, -2)
 
 
 def spot_peak(area_m2: float, cos_incidence: float, cov: np.ndarray) -> float:
@@ -75,7 +79,10 @@ class BeamField:
 
     :meth:`beams` returns arrays over the heliostats: mirror centre (N, 3) m ENU, unit beam
     direction (N, 3), the lamp's distance (N,) m and the cosine of the lamp's incidence on the
-    mirror (N,)."""
+    mirror (N,). A heliostat's beam is recomputed when the lamp or night changed or its rods
+    moved; only heliostats sent a command since they last stood still are looked at
+    (:meth:`touch`, called by the in-process drives), so a capture over a field of thousands
+    costs what its moving heliostats cost."""
 
     def __init__(self, plant) -> None:
         self.plant = plant
@@ -86,20 +93,33 @@ class BeamField:
         self.lamp_m = np.ones(n)
         self.cos_i = np.zeros(n)
         self._key: list[tuple | None] = [None] * n
+        self._scene: tuple | None = None  # (night, lamp) the beams were computed under
+        self._active: set[int] = set()
+        self._index = {hid: i for i, hid in enumerate(self.ids)}
         self._lock = threading.Lock()
+
+    def touch(self, hid: str) -> None:
+        """``hid`` was sent a command: its rods may move until it stands still again."""
+        with self._lock:
+            self._active.add(self._index[hid])
 
     def beams(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         p = self.plant
         lamp_cfg = p.lamp()
         lamp = np.asarray(lamp_cfg.position_enu_m, float)
         with self._lock:
-            for i, hid in enumerate(self.ids):
-                hh = p.hidden[hid]
+            scene = (p.night, p.lit)
+            look = range(len(self.ids)) if scene != self._scene else sorted(self._active)
+            self._scene = scene
+            for i in look:
+                hh = p.hidden[self.ids[i]]
                 steps = hh.controller.output_steps()
+                if not hh.controller.status()["moving"]:
+                    self._active.discard(i)
                 key = (steps, p.night, p.lit)
                 if key == self._key[i]:
                     continue  # rods, night and lamp unchanged: so is the beam
-                n = hh.beam_normal(p.true_normal(hid))
+                n = hh.beam_normal(p.true_normal(self.ids[i]))
                 pos = hh.truth.mirror_center(*steps, night=p.night)
                 s = unit(lamp - pos)
                 self.pos[i] = pos
@@ -128,6 +148,11 @@ class CheapCamera(PlantClockCamera):
         rows, cols = self.grid.shape
         self._yy, self._xx = np.mgrid[0:rows, 0:cols].astype(float)
         self.sim = SimulatedCamera(cam, self._scene, seed=seed, clock=plant.clock, knees=(0.0, 0.0))
+        mirrors = [cfg.heliostat(hid).mirror for hid in field.ids]
+        self.slope = np.array([1e-3 * m.slope_error_mrad for m in mirrors])
+        self.width = np.array([m.width_m for m in mirrors])
+        self.height = np.array([m.height_m for m in mirrors])
+        self.focal = np.array([m.focal_length_m for m in mirrors])
         self.beams_in_view: list[tuple[str, ...]] = []
         self.hits: list[dict[str, tuple[float, float, float]]] = []  # per capture: hid -> true ENU hit
 
@@ -143,33 +168,33 @@ class CheapCamera(PlantClockCamera):
         denom = beam @ g.normal
         with np.errstate(divide="ignore", invalid="ignore"):
             t = ((g.center - pos) @ g.normal) / denom
-        ok = np.isfinite(t) & (t > 0) & (t < MAX_THROW_M)
-        hit = pos + t[:, None] * beam
+        ok = np.flatnonzero(np.isfinite(t) & (t > 0) & (t < MAX_THROW_M))
+        hit = pos[ok] + t[ok, None] * beam[ok]
         du, dv = g.pixel_size_m
+        # Every beam's spot at once; only those whose footprint reaches the view are drawn.
+        covs = spot_covariance(t[ok], lamp_d / lamp_m[ok], self.slope[ok], self.width[ok], self.height[ok],
+                               self.focal[ok], beam[ok], g.normal, g.u_axis, g.v_axis)
+        xs, ys = g.enu_to_pixel(hit)
+        sx, sy = np.sqrt(covs[:, 0, 0]) / du, np.sqrt(covs[:, 1, 1]) / dv
+        rows, cols = g.shape
+        near = ((-SPOT_EXTENT_SIGMA * sx < xs + 0.5) & (xs + 0.5 < cols + SPOT_EXTENT_SIGMA * sx)
+                & (-SPOT_EXTENT_SIGMA * sy < ys + 0.5) & (ys + 0.5 < rows + SPOT_EXTENT_SIGMA * sy))
         seen, hits = [], {}
-        for i in np.flatnonzero(ok):
+        for k in np.flatnonzero(near):
+            i = ok[k]
             hid = self.field.ids[i]
-            h = self.cfg.heliostat(hid).mirror
-            cov = spot_covariance(float(t[i]), lamp_d / float(lamp_m[i]), 1e-3 * h.slope_error_mrad,
-                                  h.width_m, h.height_m, h.focal_length_m, beam[i], g.normal, g.u_axis,
-                                  g.v_axis)
-            x, y = g.enu_to_pixel(hit[i])
-            sx, sy = np.sqrt(cov[0, 0]) / du, np.sqrt(cov[1, 1]) / dv
-            rows, cols = g.shape
-            if not (-SPOT_EXTENT_SIGMA * sx < x + 0.5 < cols + SPOT_EXTENT_SIGMA * sx
-                    and -SPOT_EXTENT_SIGMA * sy < y + 0.5 < rows + SPOT_EXTENT_SIGMA * sy):
-                continue
+            cov, x, y = covs[k], float(xs[k]), float(ys[k])
             # Elliptical Gaussian in pixels: exp(-½ rᵀ C⁻¹ r), C the covariance in px².
             c = cov / np.array([[du * du, du * dv], [du * dv, dv * dv]])
             ci = np.linalg.inv(c)
-            rx, ry = self._xx - float(x), self._yy - float(y)
+            rx, ry = self._xx - x, self._yy - y
             m2 = ci[0, 0] * rx * rx + 2 * ci[0, 1] * rx * ry + ci[1, 1] * ry * ry
             if not (m2 <= SPOT_EXTENT_SIGMA ** 2).any():
                 continue
-            peak = self.peak * spot_peak(h.width_m * h.height_m, float(cos_i[i]), cov)
+            peak = self.peak * spot_peak(self.width[i] * self.height[i], float(cos_i[i]), cov)
             img += peak * np.where(m2 <= SPOT_EXTENT_SIGMA ** 2, np.exp(-0.5 * m2), 0.0)
             seen.append(hid)
-            hits[hid] = tuple(float(v) for v in hit[i])
+            hits[hid] = tuple(float(v) for v in hit[k])
         self.beams_in_view.append(tuple(seen))
         self.hits.append(hits)
         return img

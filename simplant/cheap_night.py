@@ -14,6 +14,7 @@ import copy
 import math
 from pathlib import Path
 
+import numpy as np
 import yaml
 
 from controller.devices.plant_time import PlantTime
@@ -22,53 +23,75 @@ from simplant.inproc import InProcLampPanel, InProcPool
 from simplant.plant import SimulatedPlant
 from simplant.settings import SimulationSettings
 
-TARGET_HEIGHTS = (40.0, 30.0, 20.0)  # m: upper, middle, lower target on the tower
+LOWEST_TARGET_M = 20.0  # m: centre of the lowest target on the tower
+TARGET_GAP_M = 3.0  # m between stacked targets
 LAMPS = ([0.0, 5.0, 60.0], [-60.0, 30.0, 25.0], [60.0, 30.0, 25.0], [0.0, 3.0, 8.0],
          [-200.0, 40.0, 40.0], [200.0, 40.0, 40.0])
 CAMERA_PX = (128, 96)  # width, height: the cheap camera's rectified view
+SPAN_DEG = 50.0  # the rings span ±this from north: the prototype's azimuth reaches the tower from there
+AIM_OFFSET_V_M = 1.0  # the aim grid's points are this far above and below the target's centre
+# Room a target leaves, per side, beyond the 3σ spot of the farthest heliostat aimed at it: the
+# aim offset, the uncertainty of a spot's position after the calibration night, the margin.
+TARGET_ROOM_M = 2.7
 
 
-def field_data(base: dict, n: int, targets: int, geometries: int = 3) -> dict:
+def field_data(base: dict, n: int, targets: int, geometries: int = 3, span_deg: float = SPAN_DEG) -> dict:
     """A field of ``n`` heliostats (config mapping) from ``base`` (a plant config mapping whose
     first heliostat is the prototype): staggered half rings north of the tower from 40 m, 7 m
-    apart, heliostats 6 m apart on a ring, each focused at its range to the tower, 30 per
-    serial bus; ``targets`` targets on the
-    tower (``calibration.targets``, 2 × 2 aim grid), six lamps, the planner at ``geometries``
-    per heliostat, standby points 12 m off the aim; a ``CAMERA_PX`` camera without
-    registration (cheap optics)."""
+    apart, spanning ±``span_deg``, heliostats 6 m apart on a ring, each focused at its
+    range to the tower, 30 per serial bus; ``targets`` targets stacked on the tower
+    (``calibration.targets``, 2 × 2 aim grid :data:`AIM_OFFSET_V_M` above and below the centre),
+    sized for the field: a target is tall enough for the 3σ spot of the farthest heliostat
+    (σ = 2 × slope error × range, Eq. 1 of :mod:`controller.geometry.spot`) plus
+    :data:`TARGET_ROOM_M` per side, at least 7 m, and 8/7 as wide; six lamps (the tower's top
+    lamp above the highest target), the planner at ``geometries`` per heliostat, standby
+    points at least 12 m off the aim; a ``CAMERA_PX`` camera without registration (cheap
+    optics)."""
     proto = base["heliostats"][0]
     data = copy.deepcopy(base)
-    data["targets"] = [{"id": f"T{k + 1}", "center_enu_m": [0.0, 0.0, h], "normal": [0.0, 1.0, 0.0],
-                        "width_m": 8.0, "height_m": 7.0} for k, h in enumerate(TARGET_HEIGHTS[:targets])]
-    data["camera"] = {**{k: v for k, v in data["camera"].items() if k != "registration"},
-                      "width_px": CAMERA_PX[0], "height_px": CAMERA_PX[1], "crf_file": None}
-    data["light_sources"] = [{"kind": "sun", "id": "sun", "angular_diameter_mrad": 9.3}] + [
-        {"kind": "lamp", "id": f"L{i + 1}", "position_enu_m": p, "diameter_m": 0.3}
-        for i, p in enumerate(LAMPS)]
-    cal = data["calibration"]
-    cal.update(light_source="L1", target="T1", targets=[f"T{k + 1}" for k in range(targets)],
-               lamps=[f"L{i + 1}" for i in range(len(LAMPS))],
-               aim_grid={"rows": 2, "cols": 2, "margin_m": 2.5},
-               # Oblique beams from the field's wings are wide (up to ~0.7 m σ on the target):
-               # their standby points must leave the view by more than a spot.
-               standby_offset_m=12.0,
-               planner={"geometries_per_night": geometries, "check_geometries": 1, "sun_positions": 16})
-    hs, r, k = [], 40.0, 0
-    while len(hs) < n:
-        count = int(2 * math.pi * r / 2 / 6.0)  # half a ring, 6 m apart
-        for j in range(min(count, n - len(hs))):
-            az = math.radians(-70.0 + 140.0 * (j + 0.5 * (k % 2)) / count)
-            h = copy.deepcopy(proto)
-            h["id"] = f"F{len(hs) + 1:04d}"
-            h["position_enu_m"] = [round(r * math.sin(az), 2), round(r * math.cos(az), 2), 2.0]
-            # Focused at its slant range to the middle of the tower's targets, as a field's
-            # heliostats are (the prototype's focus would blur the far rows over the whole view).
-            h["mirror"] = {**proto["mirror"], "focal_length_m": round(math.hypot(r, 30.0 - 2.0), 1)}
-            h["link"] = {"kind": "serial", "device": f"/dev/heliocal-bus{len(hs) // 30}",
-                         "address": 1 + len(hs) % 30}
-            hs.append(h)
+    positions, r, k = [], 40.0, 0
+    while len(positions) < n:
+        count = int(2 * math.pi * r * (2 * span_deg / 360.0) / 6.0)  # 6 m apart along the ring
+        for j in range(min(count, n - len(positions))):
+            az = math.radians(-span_deg + 2 * span_deg * (j + 0.5 * (k % 2)) / count)
+            positions.append((r, az))
         r += 7.0
         k += 1
+    far = max(rr for rr, _ in positions)
+    slope = 1e-3 * float(proto["mirror"].get("slope_error_mrad", 1.5))
+    height = max(7.0, 2.0 * (3.0 * 2.0 * slope * far + TARGET_ROOM_M))
+    width = 8.0 / 7.0 * height
+    step = height + TARGET_GAP_M
+    heights = [LOWEST_TARGET_M + (2 - i) * step for i in range(3)][:targets]
+    middle = LOWEST_TARGET_M + step
+    data["targets"] = [{"id": f"T{i + 1}", "center_enu_m": [0.0, 0.0, round(h, 2)], "normal": [0.0, 1.0, 0.0],
+                        "width_m": round(width, 2), "height_m": round(height, 2)}
+                       for i, h in enumerate(heights)]
+    data["camera"] = {**{k: v for k, v in data["camera"].items() if k != "registration"},
+                      "width_px": CAMERA_PX[0], "height_px": CAMERA_PX[1], "crf_file": None}
+    lamps = [list(p) for p in LAMPS]
+    lamps[0][2] = max(lamps[0][2], LOWEST_TARGET_M + 2 * step + height / 2 + 10.0)  # above the highest target
+    data["light_sources"] = [{"kind": "sun", "id": "sun", "angular_diameter_mrad": 9.3}] + [
+        {"kind": "lamp", "id": f"L{i + 1}", "position_enu_m": p, "diameter_m": 0.3}
+        for i, p in enumerate(lamps)]
+    cal = data["calibration"]
+    cal.update(light_source="L1", target="T1", targets=[f"T{i + 1}" for i in range(targets)],
+               lamps=[f"L{i + 1}" for i in range(len(LAMPS))],
+               aim_grid={"rows": 2, "cols": 2, "margin_m": round(height / 2 - AIM_OFFSET_V_M, 2)},
+               # The least standby offset; the cycle grows it with the spot's size (oblique beams
+               # from the field's wings are wide) so that a parked spot stays out of every view.
+               standby_offset_m=12.0,
+               planner={"geometries_per_night": geometries, "check_geometries": 1, "sun_positions": 16})
+    hs = []
+    for i, (rr, az) in enumerate(positions):
+        h = copy.deepcopy(proto)
+        h["id"] = f"F{i + 1:05d}" if n > 9999 else f"F{i + 1:04d}"
+        h["position_enu_m"] = [round(rr * math.sin(az), 2), round(rr * math.cos(az), 2), 2.0]
+        # Focused at its slant range to the middle target, as a field's heliostats are (the
+        # prototype's focus would blur the far rows over the whole view).
+        h["mirror"] = {**proto["mirror"], "focal_length_m": round(math.hypot(rr, middle - 2.0), 1)}
+        h["link"] = {"kind": "serial", "device": f"/dev/heliocal-bus{i // 30}", "address": 1 + i % 30}
+        hs.append(h)
     data["heliostats"] = hs
     return data
 
@@ -88,8 +111,25 @@ class CheapField:
         self.beams = BeamField(self.plant)
         self.cameras = {t.id: CheapCamera(self.plant, self.beams, self.cfg.for_target(t.id), seed=seed + k)
                         for k, t in enumerate(self.cfg.targets)}
-        self.pool = InProcPool.for_plant(self.plant)
+        self.pool = InProcPool.for_plant(self.plant, touched=self.beams.touch)
         self.lamps = InProcLampPanel(self.plant)
         self.time = PlantTime(now=self.plant.clock, sleep=self.plant.clock.sleep, utc=self.plant.utc,
                               computing=self.plant.clock.realtime)
         self.db_path = out / "night.db"
+
+    def true_hit(self, hid: str, az_steps: float, el_steps: float, lamp: str,
+                 target: str) -> np.ndarray | None:
+        """Where the hidden heliostat's beam under ``lamp`` lands on ``target``'s plane at the
+        given steps tonight (m ENU; None when it does not meet the plane): the plant's truth, as
+        the cheap camera draws it (:class:`simplant.cheap_camera.BeamField`)."""
+        n = self.plant.true_normal_at(hid, az_steps, el_steps)
+        c = self.plant.true_mirror_center(hid, az_steps, el_steps)
+        s = np.asarray(self.cfg.light_source(lamp).position_enu_m, float) - c
+        s /= np.linalg.norm(s)
+        beam = 2.0 * float(s @ n) * n - s
+        t = self.cfg.target(target)
+        p0, nn = np.asarray(t.center_enu_m, float), np.asarray(t.normal, float)
+        denom = float(beam @ nn)
+        if abs(denom) < 1e-12 or float((p0 - c) @ nn) / denom <= 0:
+            return None
+        return c + float((p0 - c) @ nn) / denom * beam

@@ -23,15 +23,17 @@ from simplant.firmware.physics import SimController
 class InProcDrive(Drive):
     """A :class:`Drive` over one :class:`SimController` (module docstring)."""
 
-    def __init__(self, controller: SimController, limits: DriveLimits, frozen=None) -> None:
+    def __init__(self, controller: SimController, limits: DriveLimits, frozen=None, touched=None) -> None:
         self.ctl = controller
         self._frozen = frozen
+        self._touched = touched or (lambda: None)
         self.unit = controller.unit
         self.limits = limits
         self.retries_used = 0
         self.last_targets: tuple[int, int] | None = None
 
     def _ok(self, command: Command, result: Reject) -> None:
+        self._touched()  # the rods may move from now on
         if result != Reject.OK:
             raise nak_error(self.unit, command, int(result))
 
@@ -91,30 +93,39 @@ class InProcPool:
     ``frozen``: a context manager that stops the plant clock (``PlantClock.frozen``) around
     each status reading. With a large clock speedup the simulator's own cost of integrating
     the motion (tens of µs of wall time per poll) would otherwise cost the plant a sizeable
-    fraction of every poll interval; a real status poll takes milliseconds."""
+    fraction of every poll interval; a real status poll takes milliseconds.
 
-    def __init__(self, controllers: dict[tuple, SimController], frozen=None) -> None:
+    ``touched(hid)``: told of every command a heliostat's drive is sent
+    (:meth:`simplant.cheap_camera.BeamField.touch`); ``ids`` names the heliostat of each key."""
+
+    def __init__(self, controllers: dict[tuple, SimController], frozen=None, touched=None,
+                 ids: dict[tuple, str] | None = None) -> None:
         self._ctl = dict(controllers)
         self._frozen = frozen
+        self._touched = touched
+        self._ids = ids or {}
 
     @staticmethod
     def key(link) -> tuple:
         return (*link.bus_key, link.station)
 
     @classmethod
-    def for_plant(cls, plant) -> InProcPool:
+    def for_plant(cls, plant, touched=None) -> InProcPool:
         """The drives of every hidden heliostat of a :class:`simplant.plant.SimulatedPlant`
         (not started: its links stay as configured)."""
         cfg = plant.cfg
-        return cls({cls.key(cfg.heliostat(hid).link): hh.controller for hid, hh in plant.hidden.items()},
-                   plant.clock.frozen)
+        keys = {hid: cls.key(cfg.heliostat(hid).link) for hid in plant.hidden}
+        return cls({keys[hid]: hh.controller for hid, hh in plant.hidden.items()}, plant.clock.frozen,
+                   touched, {k: hid for hid, k in keys.items()})
 
     def drive(self, link, limits: DriveLimits) -> InProcDrive:
         try:
             ctl = self._ctl[self.key(link)]
         except KeyError:
             raise nak_error(link.station, Command.GET_STATUS, int(Reject.BAD_ADDRESS)) from None
-        return InProcDrive(ctl, limits, self._frozen)
+        hid = self._ids.get(self.key(link))
+        touched = (lambda: self._touched(hid)) if self._touched is not None and hid is not None else None
+        return InProcDrive(ctl, limits, self._frozen, touched)
 
     def close(self) -> None:
         """Nothing to release."""

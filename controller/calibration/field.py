@@ -97,6 +97,11 @@ class Field:
         """The latest fitted tracking model of ``hid`` (None before its first)."""
         return self.store.latest_model(hid)
 
+    def models(self, ids: list[str]) -> dict[str, ModelRecord | None]:
+        """The latest model of each of ``ids`` (None before its first), in one query."""
+        got = self.store.latest_models(ids)
+        return {hid: got.get(hid) for hid in ids}
+
     def light(self, lamp: str, ask_operator: Callable[[str], None]) -> LampLit:
         """Light ``lamp`` for measuring: through the lamp panel (every other lamp off, the lamp
         confirmed lit, else LampError naming it) or, without one, by asking the operator

@@ -79,34 +79,36 @@ class LampChanger:
         self.lights_out = lights_out or plant.lights_out
         self.move_timeout_s = move_timeout_s
 
-    def pointing(self, hid: str, lamp: str, where: Standby, current: tuple[int, int]) -> GeometryPointing:
+    def pointing(self, hid: str, lamp: str, where: Standby, current: tuple[int, int],
+                 model: ModelRecord | None = None) -> GeometryPointing:
         cfg = self.cfg.for_target(where.target) if where.target else self.cfg
         cal, cam = cfg.calibration, cfg.camera
         frame = TargetFrame.from_config(cfg.target(), (cam.height_px, cam.width_px))
         return GeometryPointing(cfg.heliostat(hid), cfg.target(), cfg.light_source(lamp), frame,
                                 cal.standby_offset_m, current, cal.model, where.aim_enu,
-                                others=self.cfg.targets, zones=self.cfg.person_zones)
+                                others=self.cfg.targets, zones=self.cfg.person_zones, model=model)
 
     def __call__(self, lamp: str, standby: dict[str, Standby]) -> LampChange:
         """Switch the lamps off and leave every heliostat of ``standby`` on a pose whose beam
         under ``lamp`` is off every target (module docstring); LampChangeError otherwise."""
         self.lights_out()
-        # A heliostat stays put only when its beam lands as far from every target as a standby
-        # beam does: closer, its spot's tails would fall into a camera's view and spoil others'
+        # A heliostat stays put only when its beam lands as far from every target as its standby
+        # beam would (its standby offset grows with its spot, GeometryPointing.park_clearance_m):
+        # closer, its spot's tails would fall into a camera's view and spoil others'
         # measurements, though it is off the target.
-        cal = self.cfg.calibration
         half = max(max(t.width_m, t.height_m) for t in self.cfg.targets) / 2
-        stay_margin = max(2.0, cal.standby_offset_m - half)
         moving: dict[str, tuple[Drive, GeometryPointing, tuple[int, int] | None]] = {}
         stowed: list[str] = []
         for hid, where in standby.items():
             drive = self._ask(hid, lamp, lambda h=hid: self.field.drive(h))
             st = self._ask(hid, lamp, drive.status)
             with self.time.computing():
-                p = self.pointing(hid, lamp, where, (st.az_steps, st.el_steps))
+                model = self.field.model(hid)
+                p = self.pointing(hid, lamp, where, (st.az_steps, st.el_steps), model)
+                stay_margin = max(2.0, p.standby_offset_m - half)
                 if not where.required and _safe(p, st.az_steps, st.el_steps, stay_margin):
                     continue
-                pose = _safe_standby(p, self.field.model(hid))
+                pose = _safe_standby(p, model)
             try:
                 if pose is None:
                     raise LimitError("no safe standby for it")

@@ -27,11 +27,11 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
-from controller.calibration.daytime import predicted_daytime, sun_path
+from controller.calibration.daytime import DaytimeTally, predicted_daytime, sun_path
 from controller.calibration.field import Field
 from controller.calibration.lamp_change import LampChange, LampChangeError, LampChanger, Standby
 from controller.calibration.nights import Pass, run_night
-from controller.calibration.planner import PlanItem, plan_night
+from controller.calibration.planner import PlanItem, plan_field
 from controller.calibration.records import NightRecord
 from controller.calibration.runner import Campaign, CampaignObserver, CampaignOptions, CampaignResult
 from controller.errors import HeliocalError
@@ -48,6 +48,8 @@ class NightStore(Protocol):
     def next_index(self) -> int: ...
     def plan(self, night: str) -> list[PlanItem]: ...
     def record_plan(self, items: list[PlanItem]) -> None: ...
+    def add_to_summary(self, name: str, extra: dict) -> None: ...
+    def record_heliostats(self, night_id: int, rows: list[dict]) -> None: ...
 
 
 def calibration_night(book: NightStore, campaign: Campaign) -> CampaignResult:
@@ -82,7 +84,9 @@ class NightSummary:
     """What one planned night did (the ``campaign night --json`` keys): ``planned`` and
     ``measured`` geometries, ``failed`` planned geometries not measured, the ``lamps`` lit
     (each with its confirmation), the field's daytime error its models now predict (open
-    loop, from their covariance), ``status`` (finished / partial / aborted / interrupted)."""
+    loop, from their covariance), ``status`` (finished / partial / aborted / interrupted);
+    ``unmeasurable``: the heliostats with no measurable geometry tonight, each with why
+    (:class:`controller.calibration.planner.Unmeasurable`)."""
 
     night: int
     name: str
@@ -97,6 +101,7 @@ class NightSummary:
     first_calibrated: list[str] = field(default_factory=list)  # measured at the calibration lamp first
     passes: list[dict] = field(default_factory=list)
     lamp_changes: list[dict] = field(default_factory=list)
+    unmeasurable: list[dict] = field(default_factory=list)
 
     @property
     def exit_code(self) -> int:
@@ -108,19 +113,20 @@ class NightSummary:
                 "measured": self.measured, "failed": self.failed, "lamps": self.lamps,
                 "daytime_error_predicted_mrad": self.daytime_error_predicted_mrad, "status": self.status,
                 "cause": self.cause, "first_calibrated": self.first_calibrated, "passes": self.passes,
-                "lamp_changes": self.lamp_changes}
+                "lamp_changes": self.lamp_changes, "unmeasurable": self.unmeasurable}
 
 
 class PlannedNight:
     """Runs (or resumes) planned night ``name`` (index ``index``) on ``plant`` (module
     docstring). ``heliostat_ids``: tonight's heliostats (default all); ``strategy``: the
     planner's (:data:`STRATEGIES`); ``observers``: handed to every campaign of the night;
-    ``progress(text)``: told of each pass and how far the night is."""
+    ``progress(text)``: told of each pass and how far the night is; ``workers``: processes
+    that plan the field and predict its daytime error (None: one per core for a large field)."""
 
     def __init__(self, plant: Field, book: NightStore, name: str, index: int, *,
                  heliostat_ids: list[str] | None = None, strategy: str = "design",
                  observers: Sequence[CampaignObserver] = (), progress: Callable[[str], None] | None = None,
-                 ask_operator: Callable[[], None] | None = None) -> None:
+                 ask_operator: Callable[[], None] | None = None, workers: int | None = None) -> None:
         if strategy not in STRATEGIES:
             raise ValueError(f"planner strategy must be one of {STRATEGIES}, got {strategy!r}")
         self.field = plant
@@ -138,6 +144,9 @@ class PlannedNight:
         self._live: set[Campaign] = set()
         self._stopped = threading.Event()
         self.plan: list[PlanItem] = []
+        self.unmeasurable: list[dict] = []
+        self.workers = workers
+        self.tally = DaytimeTally(plant.cfg, self.path)
         self.results: list[CampaignResult] = []  # every campaign of this session, as they end
         self.lamps: dict[str, dict] = {}
         self.changes: list[LampChange] = []
@@ -169,6 +178,8 @@ class PlannedNight:
             # A stored plan (a resumed night, or one handed in) is run as it is; a new night
             # first measures the heliostats the planner has no model of.
             stored = self.book.plan(self.name)
+            if stored:  # resumed: why some heliostats had no measurable geometry was said when it was planned
+                self.unmeasurable = list(rec.summary.get("unmeasurable", []))
             first, calib = ([], []) if stored else self._calibrate_new()
             results += calib
             if all(r.status in ("finished", "partial") for r in calib) and not self._stopped.is_set():
@@ -202,14 +213,23 @@ class PlannedNight:
         plan = self.book.plan(self.name)
         if not plan:
             with self.field.time.computing():
-                models = {hid: self.field.model(hid) for hid in self.ids}
-                plan = plan_night(self.field.cfg, models, self.name, strategy=self.strategy,
-                                  night_index=self.index)
+                done = plan_field(self.field.cfg, self.field.models(self.ids), self.name,
+                                  strategy=self.strategy, night_index=self.index, workers=self.workers)
+            plan = done.items
+            self.unmeasurable = [u.to_json() for u in done.unmeasurable]
             self.book.record_plan(plan)
+            self.book.add_to_summary(self.name, {"unmeasurable": self.unmeasurable})
+            if self.unmeasurable:
+                first = self.unmeasurable[0]
+                self.progress(f"{self.name}: {len(self.unmeasurable)} heliostat(s) with no measurable "
+                              f"geometry tonight, e.g. {first['heliostat']}: {first['why']}")
         return plan
 
     def _change_lamp(self, lamp: str, standbys: dict[str, Standby]) -> LampChange:
         self.state["lamp"] = lamp
+        # Every heliostat of the night is made safe for the lamp, those without a geometry
+        # tonight too: their beams under it must not reach a target either.
+        standbys = {**{hid: Standby() for hid in self.ids}, **standbys}
         done = self.changer(lamp, standbys)
         self.changes.append(done)
         self.progress(f"{self.name}: {lamp}: {len(done.parked)} heliostat(s) moved to its standby, "
@@ -225,13 +245,14 @@ class PlannedNight:
         with self._lock:
             self.measured |= {f"{p.name}/{run.heliostat_id}" for run in r.runs if run.status == "measured"}
         if self._watched:
-            # The operator's view of the field as the night goes: the controller's own computing.
+            # The operator's view of the field as the night goes: the controller's own computing,
+            # for the heliostats whose models changed (the whole field the first time).
             with self.field.time.computing():
-                now = predicted_daytime(self.field.cfg, {hid: self.field.model(hid) for hid in self.ids},
-                                        self.path)
-            self.state["daytime_error_predicted_rms"] = now.rms
+                changed = self.ids if not self.tally.sums else [run.heliostat_id for run in r.runs]
+                self.tally.update(self.field.models(changed))
+            self.state["daytime_error_predicted_rms"] = self.tally.rms
             self.progress(f"{self.name}: {len(self.measured)}/{len(self.plan)} geometries measured; "
-                          f"field predicted daytime RMS {now.rms:.2f} mrad")
+                          f"field predicted daytime RMS {self.tally.rms:.2f} mrad")
         return r
 
     def _campaign(self, options: CampaignOptions, ids: list[str]) -> CampaignResult:
@@ -263,9 +284,11 @@ class PlannedNight:
             self.field.lights_out()  # nothing further is measured tonight: every lamp off
         measured = sum(1 for r in results if not r.name.endswith("/calibration") for run in r.runs
                        if run.status == "measured")
-        models = {hid: self.field.model(hid) for hid in self.ids}
         with self.field.time.computing():
-            predicted = predicted_daytime(self.field.cfg, models, self.path).to_json()
+            now = predicted_daytime(self.field.cfg, self.field.models(self.ids), self.path,
+                                    workers=self.workers)
+        predicted = now.to_json()
+        self.book.record_heliostats(rec.id, self._heliostat_rows(results, now.per_heliostat))
         s = NightSummary(self.index, self.name, len(self.ids), len(self.plan), measured,
                          len(self.plan) - measured,
                          list(self.lamps.values()), predicted,
@@ -273,13 +296,34 @@ class PlannedNight:
                          [{"name": r.name, "status": r.status, "cause": r.cause,
                            "measured": sum(run.status in ("measured", "calibrated") for run in r.runs),
                            "heliostats": len(r.runs)} for r in results],
-                         [c.to_json() for c in self.changes])
+                         [c.to_json() for c in self.changes], self.unmeasurable)
         self.book.finish_night(rec.id, status, cause, s.to_json())
         self.progress(f"{self.name}: {status}; {measured}/{len(self.plan)} geometries measured; "
                       "field predicted "
                       f"daytime RMS {s.daytime_error_predicted_mrad['rms']:.2f} mrad")
         return s
 
+
+    def _heliostat_rows(self, results: list[CampaignResult], predicted: dict[str, float]) -> list[dict]:
+        """What each heliostat of the night ended with (the ``night_heliostats`` table): where
+        it stands, its geometries planned and measured tonight, its predicted daytime RMS and,
+        when it had none measurable, why."""
+        planned: dict[str, int] = {}
+        for it in self.plan:
+            planned[it.heliostat_id] = planned.get(it.heliostat_id, 0) + 1
+        measured: dict[str, int] = {}
+        for r in results:
+            for run in r.runs:
+                if run.status == "measured":
+                    measured[run.heliostat_id] = measured.get(run.heliostat_id, 0) + 1
+        why = {u["heliostat"]: u["why"] for u in self.unmeasurable}
+        out = []
+        for hid in self.ids:
+            e, n, _ = self.field.cfg.heliostat(hid).position_enu_m
+            out.append({"heliostat": hid, "east_m": float(e), "north_m": float(n),
+                        "planned": planned.get(hid, 0), "measured": measured.get(hid, 0),
+                        "predicted_rms_mrad": predicted.get(hid), "unmeasurable": why.get(hid)})
+        return out
 
 def _status(results: list[CampaignResult], stopped: bool) -> tuple[str, str | None]:
     """The night's status from its campaigns': the first that did not run to its end decides."""

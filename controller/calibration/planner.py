@@ -5,13 +5,18 @@ A *geometry* is a lamp, a target and an aim point on it (the aim grid of
 at another pose, and the spread of poses is what lets the fit separate the model's terms.
 For every heliostat the planner
 
-1. lists the candidate geometries it can take: each lit lamp × each aim point of tonight's
-   target(s), kept when the heliostat reaches the pose within its soft limits with its
-   present model and the lamp lights the mirror's front (incidence below :data:`MAX_INCIDENCE_DEG`),
-   and whose beam on its way to the aim point enters no person zone (``person_zones``; the
-   approach from standby is checked again by the cycle before anything moves);
+1. lists the candidate geometries it can take (:mod:`controller.calibration.candidates`):
+   each lit lamp × each aim point of tonight's target(s), kept when the heliostat reaches the
+   pose within its soft limits with its present model, the lamp lights the mirror's front
+   (incidence below :data:`MAX_INCIDENCE_DEG`), the beam on its way to the aim point enters no
+   person zone (``person_zones``; the approach from standby is checked again by the cycle
+   before anything moves) and the spot is *measurable*: its predicted size and the
+   uncertainty of its position (:mod:`controller.geometry.spot`) keep its 3σ footprint inside
+   the camera's view, ``planner.view_margin_m`` from the edge. A heliostat left with no
+   candidate has no measurable geometry tonight: it is reported (:class:`Unmeasurable`, with
+   why) and not planned;
 2. scores them by the expected reduction of its *daytime* pointing variance
-   (:mod:`controller.geometry.design`, Eq. 1-2) from its present model covariance, over
+   (:mod:`controller.geometry.design`, Eq. 1-3) from its present model covariance, over
    ``calibration.planner.sun_positions`` positions of the yearly sun path;
 3. picks ``geometries_per_night`` greedily — or ``check_geometries`` when its predicted
    daytime error is already within ``tolerance_mrad``.
@@ -21,6 +26,10 @@ after), stored in the ``plan`` table. :func:`round_robin` is the fixed schedule 
 is measured against (``benchmarks/bench_planner.py``): the same number of measurements,
 cycling through the same candidates in a fixed order.
 
+Each heliostat is one planning decision, independent of the others (only target time couples
+them, and the target of each heliostat is fixed by its index): a large field is planned in a
+pool of processes (:func:`plan_field`), with the same result as one at a time.
+
 Beam safety is not relaxed: the planned geometries are run by the ordinary cycle, which
 approaches from standby and takes the target through its gate.
 """
@@ -28,28 +37,29 @@ approaches from standby and takes the target through its gate.
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass
 
 import numpy as np
 
+from controller.calibration.candidates import (
+    MAX_INCIDENCE_DEG,
+    Candidates,
+    FieldGeometry,
+    evaluate,
+    evaluate_many,
+)
 from controller.calibration.daytime import model_covariance, sun_path
 from controller.calibration.records import ModelRecord
-from controller.config import LampSource, PlantConfig
-from controller.errors import LimitError
-from controller.geometry.aiming import source_direction
-from controller.geometry.design import (
-    beam_jacobians,
-    daytime_variance,
-    fixed_design,
-    greedy_design,
-    normal_jacobian,
-)
-from controller.geometry.kinematics import HeliostatKinematics
+from controller.calibration.workers import map_chunks
+from controller.config import PlantConfig
+from controller.geometry.design import fixed_design, greedy_design
 from controller.geometry.target_frame import TargetFrame
-from controller.geometry.tracking_model import TrackingModel, model_aim, model_normal
-from controller.geometry.zones import zone_boxes, zone_entered
+from controller.geometry.tracking_model import TrackingModel
 
-MAX_INCIDENCE_DEG = 75.0  # beyond this the lamp grazes the mirror: a faint, smeared spot
+__all__ = ["MAX_INCIDENCE_DEG", "Geometry", "NightPlan", "PlanItem", "Unmeasurable", "aim_points", "assess",
+           "assess_many", "candidates", "plan_field", "plan_heliostat", "plan_night", "planner_sun",
+           "round_robin"]
 
 
 @dataclass(frozen=True)
@@ -80,6 +90,31 @@ class PlanItem:
     strategy: str = "design"
 
 
+@dataclass(frozen=True)
+class Unmeasurable:
+    """A heliostat with no measurable geometry tonight, ``why`` (which checks its candidates
+    failed), and its predicted daytime RMS (mrad)."""
+
+    heliostat_id: str
+    why: str
+    predicted_mrad: float
+
+    def to_json(self) -> dict:
+        return {"heliostat": self.heliostat_id, "why": self.why,
+                "predicted_mrad": self.predicted_mrad if math.isfinite(self.predicted_mrad) else None}
+
+
+@dataclass
+class NightPlan:
+    """Tonight's plan: its items, the heliostats with no measurable geometry, the number of
+    planning decisions (heliostats planned) and the wall seconds the planning took."""
+
+    items: list[PlanItem]
+    unmeasurable: list[Unmeasurable]
+    decisions: int
+    seconds: float
+
+
 def aim_points(cfg: PlantConfig, target: str | None = None) -> list[tuple[tuple[int, int], np.ndarray]]:
     """The aim grid over ``target`` (default: the calibration target): ((row, col), point m
     ENU), row 0 at the top."""
@@ -95,34 +130,22 @@ def aim_points(cfg: PlantConfig, target: str | None = None) -> list[tuple[tuple[
 
 
 def candidates(cfg: PlantConfig, heliostat_id: str, model: TrackingModel,
-               targets: tuple[str, ...] | None = None) -> list[Geometry]:
+               targets: tuple[str, ...] | None = None, cov: np.ndarray | None = None) -> list[Geometry]:
     """Every geometry of the module docstring's step 1 for one heliostat, on ``targets``
-    (default: every target of ``calibration.targets``)."""
-    h = cfg.heliostat(heliostat_id)
-    kin = HeliostatKinematics.from_config(h)
-    pos = np.asarray(h.position_enu_m, float)
-    zones = zone_boxes(cfg.person_zones)
+    (default: every target of ``calibration.targets``), measurable with covariance ``cov``
+    (default: none, the spot's size alone decides)."""
+    geo = FieldGeometry(cfg, np.empty((0, 3)), aim_points)
+    cov = np.zeros((len(model.values),) * 2) if cov is None else cov
     out = []
-    for lamp_id in cfg.calibration.planned_lamps():
-        lamp = cfg.light_source(lamp_id)
-        if not isinstance(lamp, LampSource):
-            continue
-        s = np.asarray(source_direction(lamp, pos), float)
-        for tid, (cell, point) in ((t, a) for t in targets or cfg.calibration.parallel_targets()
-                                   for a in aim_points(cfg, t)):
-            try:
-                steps = model_aim(kin, model, s, point)
-            except (LimitError, ValueError):
-                continue
-            n = model_normal(kin, model, *steps)
-            if math.degrees(math.acos(min(1.0, float(s @ n)))) > MAX_INCIDENCE_DEG:
-                continue
-            # The beam runs from the mirror to the aim point, where the target stops it.
-            if len(zones) and zone_entered(pos, point - pos, zones, 1.0) is not None:
-                continue
-            out.append(Geometry(lamp_id, tuple(float(v) for v in point), cell,
-                                (int(steps[0]), int(steps[1])), tid))
+    for tid in targets or cfg.calibration.parallel_targets():
+        c = evaluate(geo, heliostat_id, model, cov, tid)
+        out += _geometries(c, tid)
     return out
+
+
+def _geometries(c: Candidates, target: str) -> list[Geometry]:
+    return [Geometry(lamp, tuple(float(v) for v in p), cell, (int(st[0]), int(st[1])), target)
+            for lamp, p, cell, st in zip(c.lamps, c.points, c.cells, c.steps, strict=True)]
 
 
 def planner_sun(cfg: PlantConfig) -> np.ndarray:
@@ -139,29 +162,63 @@ def plan_heliostat(cfg: PlantConfig, heliostat_id: str, record: ModelRecord | No
     """Tonight's measurements of one heliostat (module docstring) on ``targets`` (default:
     all). ``strategy`` ``design`` (by expected gain) or ``round-robin`` (:func:`round_robin`,
     starting at candidate ``offset``)."""
-    cal = cfg.calibration
-    model, cov = model_covariance(record, cal.model.prior_sigma)
-    kin = HeliostatKinematics.from_config(cfg.heliostat(heliostat_id))
-    geos = candidates(cfg, heliostat_id, model, targets)
-    if not geos:
-        return []
-    a = beam_jacobians(kin, model, sun_dirs, np.asarray(cfg.target().center_enu_m, float))
-    v = daytime_variance(a, cov)
+    geo = FieldGeometry(cfg, sun_dirs, aim_points)
+    return assess(geo, heliostat_id, record, night, strategy, offset, targets)[0]
+
+
+def assess(geo: FieldGeometry, heliostat_id: str, record: ModelRecord | None, night: str, strategy: str,
+           offset: int, targets: tuple[str, ...] | None) -> tuple[list[PlanItem], Unmeasurable | None]:
+    """One planning decision: the items of :func:`plan_heliostat` and, when the heliostat has no
+    measurable geometry tonight, why."""
+    return assess_many(geo, [(heliostat_id, record, night, strategy, offset, targets)])[0]
+
+
+BATCH = 64  # heliostats whose candidates are evaluated together
+
+
+def assess_many(geo: FieldGeometry, tasks: list[tuple]) -> list[tuple[list[PlanItem], Unmeasurable | None]]:
+    """:func:`assess` for each ``(heliostat id, record, night, strategy, offset, targets)`` of
+    ``tasks``: the candidates of :data:`BATCH` heliostats at a time
+    (:func:`controller.calibration.candidates.evaluate_many`), then each heliostat's picks."""
+    cal = geo.cfg.calibration
+    out = []
+    for start in range(0, len(tasks), BATCH):
+        part = tasks[start:start + BATCH]
+        for _, _, _, strategy, _, _ in part:
+            if strategy not in ("design", "round-robin"):
+                raise ValueError(f"unknown planning strategy {strategy!r}")
+        mc = {hid: model_covariance(rec, cal.model.prior_sigma) for hid, rec, *_ in part}
+        jobs = [(hid, *mc[hid], tid) for hid, _, _, _, _, targets in part
+                for tid in targets or cal.parallel_targets()]
+        found = iter(evaluate_many(geo, jobs))
+        for hid, _, night, strategy, offset, targets in part:
+            tids = targets or cal.parallel_targets()
+            out.append(_decide(geo, hid, mc[hid][1], [(tid, next(found)) for tid in tids], night, strategy,
+                               offset))
+    return out
+
+
+def _decide(geo: FieldGeometry, heliostat_id: str, cov: np.ndarray, found: list[tuple[str, Candidates]],
+            night: str, strategy: str, offset: int) -> tuple[list[PlanItem], Unmeasurable | None]:
+    """The picks of one heliostat among its measurable candidates (module docstring, steps 2-3)."""
+    cal = geo.cfg.calibration
+    m = found[0][1].m
+    v = float(np.sum(cov * m))
     predicted = 1e3 * math.sqrt(v) if math.isfinite(v) else float("inf")
     n = cal.planner.check_geometries if predicted <= cal.tolerance_mrad else cal.planner.geometries_per_night
+    geos = [g for tid, c in found for g in _geometries(c, tid)]
     if n == 0:
-        return []
-    hs = [normal_jacobian(kin, model, *g.steps, None, np.asarray(g.aim_enu),
-                          np.asarray(cfg.light_source(g.lamp).position_enu_m, float)) for g in geos]
+        return [], None
+    if not geos:
+        return [], Unmeasurable(heliostat_id, "; ".join(c.why for _, c in found if c.why), predicted)
+    hs = np.concatenate([c.h for _, c in found])
     noise = cal.model.noise_mrad * 1e-3
     if strategy == "round-robin":
-        picks, _ = fixed_design(cov, hs, a, noise, round_robin(len(geos), n, offset))
-    elif strategy == "design":
-        picks, _ = greedy_design(cov, hs, a, noise, n)
+        picks, _ = fixed_design(cov, hs, np.empty(0), noise, round_robin(len(geos), n, offset), weight=m)
     else:
-        raise ValueError(f"unknown planning strategy {strategy!r}")
+        picks, _ = greedy_design(cov, hs, np.empty(0), noise, n, weight=m)
     return [PlanItem(heliostat_id, night, geos[p.index], rank, p.gain, p.rms_before_mrad, p.rms_after_mrad,
-                     strategy) for rank, p in enumerate(picks, start=1)]
+                     strategy) for rank, p in enumerate(picks, start=1)], None
 
 
 def round_robin(count: int, n: int, offset: int) -> list[int]:
@@ -171,16 +228,33 @@ def round_robin(count: int, n: int, offset: int) -> list[int]:
 
 
 def plan_night(cfg: PlantConfig, models: dict[str, ModelRecord | None], night: str, *,
-               strategy: str = "design", night_index: int = 0) -> list[PlanItem]:
+               strategy: str = "design", night_index: int = 0, workers: int | None = None) -> list[PlanItem]:
+    """Tonight's plan for the heliostats in ``models`` (id -> latest model or None): the items
+    of :func:`plan_field`."""
+    return plan_field(cfg, models, night, strategy=strategy, night_index=night_index, workers=workers).items
+
+
+def plan_field(cfg: PlantConfig, models: dict[str, ModelRecord | None], night: str, *,
+               strategy: str = "design", night_index: int = 0, workers: int | None = None) -> NightPlan:
     """Tonight's plan for the heliostats in ``models`` (id -> latest model or None). The queue
     is distributed over ``calibration.targets`` (which run in parallel): heliostat i takes
     tonight target (i + night_index) mod n, so each target gets its share and each heliostat
-    another target the next night."""
-    sun = planner_sun(cfg)
+    another target the next night. Only target time couples the heliostats, so each is
+    planned on its own: in ``workers`` processes (:mod:`controller.calibration.workers`;
+    default one per core for a large field), with the same result as one at a time."""
     targets = cfg.calibration.parallel_targets()
-    out: list[PlanItem] = []
-    for i, (hid, rec) in enumerate(models.items()):
-        per = cfg.calibration.planner.geometries_per_night
-        out += plan_heliostat(cfg, hid, rec, night, sun, strategy=strategy, offset=night_index * per,
-                              targets=(targets[(i + night_index) % len(targets)],))
-    return out
+    per = cfg.calibration.planner.geometries_per_night
+    tasks = [(hid, rec, night, strategy, night_index * per, (targets[(i + night_index) % len(targets)],))
+             for i, (hid, rec) in enumerate(models.items())]
+    t0 = time.perf_counter()
+    done = map_chunks(_plan_chunk, tasks, workers=workers, setup=_setup, setup_args=(cfg,))
+    items = [it for its, _ in done for it in its]
+    return NightPlan(items, [u for _, u in done if u is not None], len(tasks), time.perf_counter() - t0)
+
+
+def _setup(cfg: PlantConfig) -> FieldGeometry:
+    return FieldGeometry(cfg, planner_sun(cfg), aim_points)
+
+
+def _plan_chunk(geo: FieldGeometry, tasks: list[tuple]) -> list[tuple[list[PlanItem], Unmeasurable | None]]:
+    return assess_many(geo, tasks)

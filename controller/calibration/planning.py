@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+from controller.calibration.beam_safety import UnsafePath
 from controller.calibration.pointing import GeometryPointing
 from controller.config import PlantConfig
 from controller.errors import LimitError
@@ -22,9 +23,10 @@ def order_queue(cfg: PlantConfig, ids: list[str], current: dict[str, tuple[int, 
     (ties by id, so the order is reproducible)."""
     def t(hid: str) -> float:
         h = cfg.heliostat(hid)
+        p = pointing[hid]
         try:
-            saz, sel = pointing[hid].standby_steps(None)
-        except (LimitError, ValueError):  # unreachable standby: put it last, its cycle will report why
+            saz, sel = p.standby_steps(p.model)
+        except (LimitError, ValueError, UnsafePath):  # no standby: put it last, its cycle will report why
             return math.inf
         az, el = current.get(hid, (saz, sel))
         ax = h.axes

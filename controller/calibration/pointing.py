@@ -20,9 +20,12 @@ from controller.errors import InputError, LimitError
 from controller.geometry.aiming import aim_normal, source_direction
 from controller.geometry.correction import correction_from_offset
 from controller.geometry.kinematics import HeliostatKinematics
+from controller.geometry.spot import MirrorOptics, predict_spots, standby_clearance_m
 from controller.geometry.target_frame import TargetFrame
-from controller.geometry.tracking_model import TrackingModel, model_aim
+from controller.geometry.tracking_model import TERMS, TrackingModel, model_aim, prior_sigma
 from controller.geometry.vectors import vector_to_azel
+
+PARK_MARGIN_M = 0.5  # a parked spot's 3σ footprint ends at least this far outside the camera's view
 
 
 # -- geometry of one heliostat ------------------------------------------------------------------
@@ -30,7 +33,9 @@ class GeometryPointing(BeamSafety):
     """:class:`controller.calibration.machine.Pointing` on controller.geometry.
 
     The aim point is the target centre; the standby point lies ``standby_offset_m`` beside it in
-    the target plane, on the heliostat's own side, so the approach is a short horizontal slew.
+    the target plane, on the heliostat's own side, so the approach is a short horizontal slew —
+    farther when the parked spot, at 3σ of its size and of its position's uncertainty
+    (``model``'s covariance), would reach into the camera's view (:meth:`park_clearance_m`).
     ``others``: the plant's other targets, which slews must never cross either (their beams
     belong to other pipelines that run at the same time). ``zones``: the plant's person zones
     (config ``person_zones``), which the beam must never enter — at standby, on a slew, on the
@@ -40,38 +45,84 @@ class GeometryPointing(BeamSafety):
     def __init__(self, heliostat: Heliostat, target: Target, source, frame: TargetFrame,
                  standby_offset_m: float, current_steps: tuple[int, int] | None = None,
                  model_settings: ModelSettings | None = None, aim_point=None,
-                 others: tuple[Target, ...] = (), zones: tuple[PersonZone, ...] = ()) -> None:
+                 others: tuple[Target, ...] = (), zones: tuple[PersonZone, ...] = (),
+                 model: ModelRecord | None = None) -> None:
         self.model_settings = model_settings or ModelSettings()
         model_prior(self.model_settings)  # an unknown term is refused before anything moves
+        self.model = model  # the model the standby and the beam-safety checks were computed with
         pos = np.asarray(heliostat.position_enu_m, float)
         super().__init__(heliostat, np.asarray(source_direction(source, pos), float), target, frame, others,
-                         zones)
+                         zones, None if model is None else TrackingModel.from_dict(model.params))
         self.heliostat_pos = pos
         # The target centre, or a point of the aim grid on a planned night.
         self.aim_point = np.asarray(target.center_enu_m if aim_point is None else aim_point, float)
         self.source_pos = (tuple(float(v) for v in source.position_enu_m) if isinstance(source, LampSource)
                            else None)
+        # Parked beside the aim point, the spot must stay out of the camera's view: at least the
+        # configured offset, more for a large or uncertain spot (:meth:`park_clearance_m`).
+        standby_offset_m = max(standby_offset_m, self.park_clearance_m(source, model)
+                               + abs(float((self.aim_point - frame.center) @ frame.u)))
+        self.standby_offset_m = standby_offset_m
         own = frame.side(self.heliostat_pos)
         self.standby_point = self.aim_point + standby_offset_m * own
         if current_steps is not None or self.zone_ids:
-            # Park on the side the slew from the present pose reaches first (azimuth steps
-            # closer to the present ones), so the beam does not pass the target on its way;
-            # without a present pose, on the heliostat's own side. Never on a side whose
-            # standby beam would enter a person zone.
+            # Park on the side where the beam is now (its ray beside the target: what the slew's
+            # beam-safety check traces), else the side the slew from the present pose
+            # reaches first (azimuth steps closer to the present ones), so the beam does not
+            # pass the target on its way; without a present pose, on the heliostat's own side.
+            # Never on a side whose standby beam would enter a person zone.
+            now = self._beam_side(current_steps) if current_steps is not None else 0.0
             best = None
             for side in (own, -own):
                 point = self.aim_point + standby_offset_m * side
-                try:
-                    az, el = self.kin.aim(self.source_dir, point)
+                try:  # the steps the model will take there: far from nominal, a side's may differ
+                    az, el = self._steps(point, model) if model is not None else self.kin.aim(self.source_dir,
+                                                                                              point)
                 except (LimitError, ValueError):  # unreachable side
                     continue
                 if self.beam_in_zone(az, el) is not None:
                     continue
-                cost = abs(az - current_steps[0]) if current_steps is not None else float(side is not own)
+                if now:
+                    cost = float(np.sign(float(side @ frame.u)) != now)
+                else:
+                    cost = abs(az - current_steps[0]) if current_steps is not None else float(side is not own)
                 if best is None or cost < best[0]:
                     best = (cost, point)
             if best is not None:
                 self.standby_point = best[1]
+
+    def _beam_side(self, steps: tuple[int, int]) -> float:
+        """+1 or −1: the side (along the view's u axis) of the target where the ray at ``steps``
+        lands beside it; 0 when it lands on it (grown by its margin) or misses its plane."""
+        c, b = self.rays([steps])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = float((self.frame.center - c[0]) @ self.frame.normal) / float(b[0] @ self.frame.normal)
+        if not np.isfinite(t) or t < 0:
+            return 0.0
+        u = float((c[0] + t * b[0] - self.frame.center) @ self.frame.u)
+        return float(np.sign(u)) if abs(u) > self.target.width_m / 2 + 2.0 else 0.0
+
+    def park_clearance_m(self, source, model: ModelRecord | None) -> float:
+        """The least distance (m) from the target centre, along the view's width, at which the
+        spot of this heliostat stays :data:`PARK_MARGIN_M` outside the camera's view at 3σ: the
+        view's half-width plus 3σ of the spot's size and of its position (the model's covariance,
+        the prior without a model; at least the measured normal's noise doubled, spot Eq. 3), as
+        the spot at the aim point predicts them (:func:`controller.geometry.spot.standby_clearance_m`)."""
+        tm, cov = model_covariance(model, self.model_settings.prior_sigma)
+        try:
+            steps = np.array([self._steps(self.aim_point, model)], float)
+        except (LimitError, ValueError):
+            return 0.0  # the aim point is out of reach: the cycle fails it before it parks
+        optics = MirrorOptics.from_config(self.heliostat.mirror)
+        if isinstance(source, LampSource):
+            light = {"lamp": np.asarray(source.position_enu_m, float), "lamp_diameter_m": source.diameter_m}
+        else:
+            light = {"sun_dir": self.source_dir, "sun_angle_rad": 1e-3 * source.angular_diameter_mrad}
+        aim = self.aim_point[None]
+        spot = predict_spots(self.kin, optics, tm.values, cov, steps, aim, self.frame,
+                             floor_rad=2e-3 * self.model_settings.noise_mrad, **light)
+        return standby_clearance_m(self.frame.width_m / 2.0, float(spot.sigma_m[0, 0]),
+                                   float(spot.position_sigma_m[0, 0]), PARK_MARGIN_M)
 
     def _steps(self, point: np.ndarray, model: ModelRecord | None) -> tuple[int, int]:
         return steps_to_aim(self.kin, model, self.source_dir, point, self.source_pos)
@@ -162,3 +213,14 @@ def nominal_aims(cfg: PlantConfig, ids: list[str]) -> list[NominalAim]:
         a, e = HeliostatKinematics.from_config(h).steps_for_normal(normal)
         out.append(NominalAim(hid, s, normal, float(az), float(el), int(a), int(e)))
     return out
+
+
+def model_covariance(model: ModelRecord | None, prior: dict[str, float] | None = None) -> tuple[TrackingModel,
+                                                                                                 np.ndarray]:
+    """(model, covariance SI²) of a stored model; the nominal model with the prior covariance
+    when there is none (or it predates covariances)."""
+    cov = None if model is None else model.detail.get("covariance_si")
+    if cov is None or len(cov) != len(TERMS):
+        base = TrackingModel.zero() if model is None else TrackingModel.from_dict(model.params)
+        return base, np.diag(prior_sigma(prior, "calibration.model.prior_sigma") ** 2)
+    return TrackingModel.from_dict(model.params), np.asarray(cov, float)

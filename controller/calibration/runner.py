@@ -73,6 +73,7 @@ class RecordStore(Protocol):
     def measurements(self, campaign_id: int | None = None,
                      heliostat_id: str | None = None) -> list[MeasurementRecord]: ...
     def latest_model(self, heliostat_id: str) -> ModelRecord | None: ...
+    def latest_models(self, heliostat_ids=None) -> dict[str, ModelRecord]: ...
 
 
 class ImageSink(Protocol):
@@ -183,7 +184,7 @@ class Campaign:
             pointing = {hid: GeometryPointing(self.cfg.heliostat(hid), target, source, self.chain.frame,
                                               cal.standby_offset_m, current.get(hid), cal.model,
                                               aims.get(hid), others=self.cfg.targets,
-                                              zones=self.cfg.person_zones)
+                                              zones=self.cfg.person_zones, model=self.field.model(hid))
                         for hid in self.ids}
             existing = self.store.campaign_by_name(self.opt.name)
             queue = existing.queue if existing is not None else order_queue(self.cfg, self.ids, current,

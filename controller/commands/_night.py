@@ -55,6 +55,8 @@ def run_night_cli(args: argparse.Namespace) -> int:
         print(f"night {summary['night']} ({summary['name']}): {summary['measured']}/{summary['planned']} "
               f"geometries measured; lamps {lamps}; predicted daytime RMS {p['rms']:.2f} mrad; "
               f"status {summary['status']}{cause}; database {db}")
+        for u in summary.get("unmeasurable", []):
+            print(f"  {u['heliostat']}: {u['why']}")
     if summary["status"] == "aborted":
         print(f"heliocal campaign night: {summary['cause']}", file=sys.stderr)
     return code

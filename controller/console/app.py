@@ -142,7 +142,7 @@ def create_app(console: Console, *, token: str | None = None) -> Starlette:
         return {**views.plant_json(c), "token_required": token is not None, "steps": list(STEPS)}
 
     def api_heliostats(request):
-        return {"heliostats": [views.heliostat_summary(c, h) for h in c.ids]}
+        return {"heliostats": views.heliostat_summaries(c, c.ids)}
 
     def api_heliostat(request):
         return views.heliostat_detail(c, c.known(request.path_params["hid"]))

@@ -120,7 +120,8 @@ class Console:
     # -- devices --------------------------------------------------------------------------------
     def known(self, hid: str) -> str:
         if hid not in self.status:
-            raise InputError(f"unknown heliostat {hid!r} (this console has {', '.join(self.ids)})")
+            shown = ", ".join(self.ids[:20]) + (f", … ({len(self.ids)} in all)" if len(self.ids) > 20 else "")
+            raise InputError(f"unknown heliostat {hid!r} (this console has {shown})")
         return hid
 
     def drive(self, hid: str) -> Drive:

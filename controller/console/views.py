@@ -39,13 +39,30 @@ def model_json(model) -> dict | None:
 
 
 def heliostat_summary(c: Console, hid: str) -> dict:
+    return heliostat_summaries(c, [hid])[0]
+
+
+def heliostat_summaries(c: Console, ids: list[str]) -> list[dict]:
+    """The field page's row of each of ``ids``: a few queries for all of them (the latest
+    models, each heliostat's last measured error), not a few per heliostat — a field of
+    10,000 is one page."""
     camp = c.campaign.snapshot() if c.campaign is not None else None
-    state = next((q["state"] for q in camp["queue"] if q["heliostat"] == hid), None) if camp else None
-    ms = c.store.measurements(heliostat_id=hid)
-    last = next((m.error_mrad for m in reversed(ms) if m.error_mrad is not None), None)
-    return {"id": hid, "status": c.status[hid], "link": c.health[hid].to_json(),
-            "model": model_json(c.store.latest_model(hid)), "last_error_mrad": last,
-            "campaign_state": state, "holds_target": c.holder() == hid}
+    states = {q["heliostat"]: q["state"] for q in camp["queue"]} if camp else {}
+    models = c.store.latest_models(ids)
+    last = last_errors(c.store)
+    holder = c.holder()
+    return [{"id": hid, "status": c.status[hid], "link": c.health[hid].to_json(),
+             "model": model_json(models.get(hid)), "last_error_mrad": last.get(hid),
+             "campaign_state": states.get(hid), "holds_target": holder == hid} for hid in ids]
+
+
+def last_errors(store) -> dict[str, float]:
+    """Each heliostat's last measured pointing error (mrad), one query."""
+    rows = store.query("SELECT r.heliostat_id AS hid, m.error_mrad AS e FROM measurements m "
+                       "JOIN heliostat_runs r ON m.run_id=r.id WHERE m.id IN (SELECT MAX(m2.id) FROM "
+                       "measurements m2 JOIN heliostat_runs r2 ON m2.run_id=r2.id "
+                       "WHERE m2.error_mrad IS NOT NULL GROUP BY r2.heliostat_id)")
+    return {r["hid"]: r["e"] for r in rows}
 
 
 def heliostat_detail(c: Console, hid: str) -> dict:

@@ -13,9 +13,13 @@ k (the heliostat aiming with the model), the expected squared daytime error is
     V(Σ) = mean_k tr(A_k Σ A_kᵀ)                                            (2)
 
 and a candidate's *gain* is V(Σ) − V(Σ'), the expected-variance reduction (an A-optimal
-design weighted by the daytime geometry [1]). :func:`greedy_design` picks candidates one at
-a time by gain, updating Σ after each pick, which is within (1 − 1/e) of the best set for
-this submodular objective [2].
+design weighted by the daytime geometry [1]). With M = mean_k A_kᵀ A_k (p × p) it is
+
+    V(Σ) = tr(Σ M),                                                         (3)
+
+so the sun positions are summed once per heliostat and every candidate's Σ' is scored by one
+trace. :func:`greedy_design` picks candidates one at a time by gain, updating Σ after each
+pick, which is within (1 − 1/e) of the best set for this submodular objective [2].
 
 Units: model terms SI (rad, m); σ_n rad; V in rad².
 
@@ -34,15 +38,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from controller.errors import LimitError
-from controller.geometry.kinematics import BODY_NORMAL, HeliostatKinematics
-from controller.geometry.tracking_model import (
-    TrackingModel,
-    bisector_normal,
-    model_aim,
-    model_normal,
-    poses,
-)
+from controller.geometry.kinematics import HeliostatKinematics
+from controller.geometry.pose_batch import STEP_SI, aim_steps, forward_jacobian, normal_and_center, perturbed
+from controller.geometry.tracking_model import TrackingModel
 from controller.geometry.vectors import unit
 
 
@@ -66,7 +64,24 @@ def tangents(n: np.ndarray) -> np.ndarray:
     return np.stack([t1, np.cross(n, t1)])
 
 
-_STEP = 1e-6  # rad or m: well inside the linear range of every term, far above rounding
+_STEP = STEP_SI  # rad or m: well inside the linear range of every term, far above rounding
+
+
+def normal_jacobians(kin: HeliostatKinematics, model: TrackingModel, steps: np.ndarray, spots: np.ndarray,
+                     source_dirs=None, source_pos=None) -> np.ndarray:
+    """H of Eq. (1) for K measurements at once, (K, 2, p): spots expected at ``spots`` (K, 3)
+    m ENU at motor ``steps`` (K, 2), under sources at ``source_dirs`` (K, 3; the sun) or the
+    lamps at ``source_pos`` (K, 3) or (3,) m ENU — :func:`normal_jacobian` for each."""
+    steps = np.asarray(steps, float).reshape(-1, 2)
+    spots = np.asarray(spots, float).reshape(-1, 3)
+    vals = perturbed(model.values)[:, None, :]  # (p + 1, 1, p)
+    n, c = normal_and_center(kin, vals, steps)  # (p + 1, K, 3)
+    base = tangents_batch(n[0])  # (K, 2, 3)
+    src = unit(np.asarray(source_pos, float) - c) if source_pos is not None else \
+        np.broadcast_to(unit(np.asarray(source_dirs, float)), c.shape)
+    implied = unit(src + unit(spots - c))
+    obs = np.einsum("kij,pkj->pki", base, n - implied)  # (p + 1, K, 2)
+    return forward_jacobian(obs)
 
 
 def normal_jacobian(kin: HeliostatKinematics, model: TrackingModel, az_steps: float, el_steps: float,
@@ -75,15 +90,17 @@ def normal_jacobian(kin: HeliostatKinematics, model: TrackingModel, az_steps: fl
     (the sun) or ``source_pos`` (a lamp, m ENU): ∂(t₁·(n − m), t₂·(n − m))/∂p at the given
     steps, with m the normal the spot implies (it moves with the position terms), (2, p), per
     SI unit of each term."""
-    base = tangents(model_normal(kin, model, az_steps, el_steps))
+    sun = None if source_dir is None else np.asarray(source_dir, float)[None]
+    return normal_jacobians(kin, model, np.array([[az_steps, el_steps]], float),
+                            np.asarray(spot, float)[None], sun, source_pos)[0]
 
-    def observed(v: np.ndarray) -> np.ndarray:
-        m = TrackingModel(v)
-        rot = poses(kin, m, [(az_steps, el_steps)])[0]
-        center = kin.position + m.position_offset() + rot @ kin.concentrator_translation
-        return base @ (rot @ BODY_NORMAL - bisector_normal(center, source_dir, spot, source_pos))
 
-    return jacobian(observed, model.values, np.full(len(model.values), _STEP))
+def tangents_batch(n: np.ndarray) -> np.ndarray:
+    """:func:`tangents` of each unit vector of ``n`` (K, 3): (K, 2, 3)."""
+    n = np.asarray(n, float)
+    helper = np.where((np.abs(n[..., 2]) < 0.9)[..., None], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0])
+    t1 = unit(np.cross(helper, n))
+    return np.stack([t1, np.cross(n, t1)], axis=-2)
 
 
 def beam_jacobians(kin: HeliostatKinematics, model: TrackingModel, source_dirs: np.ndarray,
@@ -92,23 +109,24 @@ def beam_jacobians(kin: HeliostatKinematics, model: TrackingModel, source_dirs: 
     the beam r = 2(s·n)n − s less the direction from the mirror centre to ``aim_point`` (m ENU),
     which the position terms move — at the steps the model aims with for each reachable source
     direction (unit ENU, towards the source). Unreachable directions are left out (k may be 0)."""
+    s = np.asarray(source_dirs, float).reshape(-1, 3)
     aim_point = np.asarray(aim_point, float)
-    out = []
-    for s in np.asarray(source_dirs, float).reshape(-1, 3):
-        try:
-            az, el = model_aim(kin, model, s, aim_point)
-        except (LimitError, ValueError):
-            continue
+    if not len(s):
+        return np.empty((0, 3, len(model.values)))
+    steps, ok = aim_steps(kin, model.values, np.broadcast_to(aim_point, s.shape), source_dirs=s)
+    if not ok.any():
+        return np.empty((0, 3, len(model.values)))
+    s, steps = s[ok], steps[ok]
+    n, c = normal_and_center(kin, perturbed(model.values)[:, None, :], steps)  # (p + 1, k, 3)
+    beam = 2.0 * np.sum(s * n, axis=-1, keepdims=True) * n - s - unit(aim_point - c)
+    return forward_jacobian(beam)
 
-        def beam(v: np.ndarray, s=s, az=az, el=el) -> np.ndarray:
-            m = TrackingModel(v)
-            rot = poses(kin, m, [(az, el)])[0]
-            n = rot @ BODY_NORMAL
-            center = kin.position + m.position_offset() + rot @ kin.concentrator_translation
-            return 2.0 * float(s @ n) * n - s - unit(aim_point - center)
 
-        out.append(jacobian(beam, model.values, np.full(len(model.values), _STEP)))
-    return np.stack(out) if out else np.empty((0, 3, len(model.values)))
+def daytime_weight(a: np.ndarray) -> np.ndarray:
+    """M of Eq. (3), (p, p): V(Σ) of Eq. (2) is tr(Σ M); NaN without any A_k."""
+    if not len(a):
+        return np.full((a.shape[-1],) * 2, np.nan)
+    return np.einsum("kip,kiq->pq", a, a) / len(a)
 
 
 def posterior(cov: np.ndarray, h: np.ndarray, noise_rad: float) -> np.ndarray:
@@ -142,39 +160,48 @@ def _pick(index: int, v_before: float, v_after: float) -> Pick:
                 v_before - v_after)
 
 
+def posteriors(cov: np.ndarray, h: np.ndarray, noise_rad: float) -> np.ndarray:
+    """Σ' of Eq. (1) for each of C candidate observations ``h`` (C, m, p) at once: (C, p, p)."""
+    hc = h @ cov  # (C, m, p)
+    s = noise_rad**2 * np.eye(h.shape[1]) + hc @ np.swapaxes(h, -1, -2)
+    out = cov - np.swapaxes(hc, -1, -2) @ np.linalg.solve(s, hc)
+    return 0.5 * (out + np.swapaxes(out, -1, -2))
+
+
 def greedy_design(cov: np.ndarray, candidates: Sequence[np.ndarray], a: np.ndarray, noise_rad: float,
-                  n: int) -> tuple[list[Pick], np.ndarray]:
+                  n: int, weight: np.ndarray | None = None) -> tuple[list[Pick], np.ndarray]:
     """Pick up to ``n`` of ``candidates`` (each an H of Eq. 1) by greatest gain, updating Σ after
     each, each candidate at most once (a repeat only averages noise; a new geometry separates
-    terms); returns the picks and the final covariance."""
+    terms); returns the picks and the final covariance. Every candidate's posterior is
+    evaluated at once (:func:`posteriors`) and V(Σ') = tr(Σ' M) (:func:`daytime_weight`;
+    ``weight``: M when already known)."""
+    m = daytime_weight(a) if weight is None else weight
+    h = np.asarray(candidates, float).reshape(len(candidates), -1, cov.shape[0])
     picks: list[Pick] = []
-    used: set[int] = set()
-    v = daytime_variance(a, cov)
-    for _ in range(min(n, len(candidates))):
-        best = None
-        for i, h in enumerate(candidates):
-            if i in used:
-                continue
-            c = posterior(cov, h, noise_rad)
-            vi = daytime_variance(a, c)
-            if best is None or vi < best[1]:
-                best = (i, vi, c)
-        i, vi, cov = best
-        used.add(i)
+    free = np.ones(len(h), bool)
+    v = float(np.sum(cov * m))
+    for _ in range(min(n, len(h))):
+        after = posteriors(cov, h, noise_rad)
+        vs = np.einsum("cpq,qp->c", after, m)
+        vs = np.where(free & ~np.isnan(vs), vs, np.inf)
+        i = int(np.argmin(vs)) if np.isfinite(vs).any() else int(np.flatnonzero(free)[0])
+        free[i] = False
+        cov, vi = after[i], float(np.sum(after[i] * m))
         picks.append(_pick(i, v, vi))
         v = vi
     return picks, cov
 
 
 def fixed_design(cov: np.ndarray, candidates: Sequence[np.ndarray], a: np.ndarray, noise_rad: float,
-                 order: Sequence[int]) -> tuple[list[Pick], np.ndarray]:
+                 order: Sequence[int], weight: np.ndarray | None = None) -> tuple[list[Pick], np.ndarray]:
     """The candidates of ``order`` taken as they come (a schedule that does not look at the
     gain), scored like :func:`greedy_design`."""
+    m = daytime_weight(a) if weight is None else weight
     picks: list[Pick] = []
-    v = daytime_variance(a, cov)
+    v = float(np.sum(cov * m))
     for i in order:
-        cov = posterior(cov, candidates[i], noise_rad)
-        vi = daytime_variance(a, cov)
+        cov = posterior(cov, np.asarray(candidates[i], float), noise_rad)
+        vi = float(np.sum(cov * m))
         picks.append(_pick(i, v, vi))
         v = vi
     return picks, cov

@@ -55,18 +55,18 @@ import numpy as np
 
 from controller.errors import InputError
 from controller.geometry.aiming import angle_mrad
-from controller.geometry.design import beam_jacobians, jacobian, tangents
-from controller.geometry.kinematics import BODY_NORMAL, HeliostatKinematics
+from controller.geometry.design import beam_jacobians, tangents
+from controller.geometry.kinematics import HeliostatKinematics
+from controller.geometry.pose_batch import normal_and_center
 from controller.geometry.tracking_model import (
     NAMES,
     PRIOR_SIGMA_SI,
     TERMS,
     TrackingModel,
-    bisector_normal,
     implied_normal,
     model_normal,
-    poses,
 )
+from controller.geometry.vectors import unit
 
 _OFFSETS = np.array([NAMES.index("az_offset"), NAMES.index("el_offset")])
 HUBER_C = 3.0
@@ -165,11 +165,21 @@ def fit_model(kin: HeliostatKinematics, samples: Sequence[Sample], *, noise_mrad
     sig_n = noise_mrad * 1e-3
     # The measured normals move with the mirror centre (position terms, Eq. 4 of the model):
     # they are re-evaluated with the model; the tangent bases stay those at the prior.
-    bases = [tangents(measured_normal(kin, TrackingModel(p0), s)) for s in samples]
+    bases = np.stack([tangents(measured_normal(kin, TrackingModel(p0), s)) for s in samples])  # (S, 2, 3)
     age_w = np.array([s.weight for s in samples])
-    groups: dict[int | None, list[int]] = {}
-    for i, s in enumerate(samples):
-        groups.setdefault(s.epoch if s.epoch in slot else None, []).append(i)
+    steps = np.array([[s.az_steps, s.el_steps] for s in samples], float)
+    spots = np.array([np.ravel(s.spot_enu) for s in samples], float)
+    lamps = np.array([np.ravel(s.source_pos) if s.source_pos is not None else np.zeros(3) for s in samples],
+                     float)
+    has_lamp = np.array([s.source_pos is not None for s in samples])[:, None]
+    src_dir = unit(np.array([np.ravel(s.source_dir) for s in samples], float))
+    # Each sample's terms from the whitened x: p₀ + G_s (x σ₀), G_s adding its night's
+    # reference offsets (Eq. 3) to the newest night's.
+    g = np.zeros((len(samples), npar, len(s0)))
+    g[:, np.arange(npar), np.arange(npar)] = 1.0
+    for i, sm in enumerate(samples):
+        if sm.epoch in slot:
+            g[i, _OFFSETS, slot[sm.epoch] + np.arange(2)] = 1.0
 
     def epoch_model(x: np.ndarray, epoch: int | None) -> TrackingModel:
         """The model of Eq. (3) on night ``epoch`` (None: the newest night's references)."""
@@ -180,18 +190,21 @@ def fit_model(kin: HeliostatKinematics, samples: Sequence[Sample], *, noise_mrad
             p[_OFFSETS] += x[j:j + 2] * s0[j:j + 2]
         return TrackingModel(p)
 
+    def residuals(xs: np.ndarray) -> np.ndarray:
+        """The whitened data residuals (B, 2S) at each row of ``xs`` (B, L), all at once."""
+        params = p0 + np.einsum("snl,bl->bsn", g, xs * s0)
+        n, center = normal_and_center(kin, params, steps)
+        src = np.where(has_lamp, unit(lamps - center), src_dir)
+        implied = unit(src + unit(spots - center))
+        return np.einsum("sij,bsj->bsi", bases, n - implied).reshape(len(xs), -1) / sig_n
+
     def data_res(x: np.ndarray) -> np.ndarray:
-        out = np.empty((len(samples), 2))
-        for epoch, idx in groups.items():
-            m = epoch_model(x, epoch)
-            base = kin.position + m.position_offset()
-            for i, rot in zip(idx, poses(kin, m, [(samples[i].az_steps, samples[i].el_steps) for i in idx]),
-                              strict=True):
-                s = samples[i]
-                center = base + rot @ kin.concentrator_translation
-                implied = bisector_normal(center, s.source_dir, s.spot_enu, s.source_pos)
-                out[i] = bases[i] @ (rot @ BODY_NORMAL - implied)
-        return out.ravel() / sig_n
+        return residuals(x[None])[0]
+
+    def data_jac(x: np.ndarray, step: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(residuals at x, their forward-difference Jacobian (2S, L) with per-term ``step``)."""
+        r = residuals(np.vstack([x, x + np.diag(step)]))
+        return r[0], ((r[1:] - r[0]) / step[:, None]).T
 
     # Gauss-Newton on the prior-whitened terms x (p = p₀ + x σ₀) with iteratively reweighted
     # (Huber) samples: the problem is nearly linear, so a few steps converge.
@@ -201,8 +214,8 @@ def fit_model(kin: HeliostatKinematics, samples: Sequence[Sample], *, noise_mrad
     converged = False
     for _ in range(MAX_STEPS):
         w = np.repeat(np.sqrt(weights * age_w), 2)
-        r = data_res(x)
-        jd = w[:, None] * jacobian(data_res, x, step, r)
+        r, jac = data_jac(x, step)
+        jd = w[:, None] * jac
         dx = -np.linalg.solve(jd.T @ jd + np.eye(len(x)), jd.T @ (w * r) + x)
         x = x + dx
         norms = np.sqrt(age_w) * np.linalg.norm(data_res(x).reshape(-1, 2), axis=1)
@@ -212,7 +225,7 @@ def fit_model(kin: HeliostatKinematics, samples: Sequence[Sample], *, noise_mrad
             break
         weights = new
     w = np.repeat(np.sqrt(weights * age_w), 2)
-    jd = w[:, None] * jacobian(data_res, x, step)
+    jd = w[:, None] * data_jac(x, step)[1]
     post_x = np.linalg.inv(jd.T @ jd + np.eye(len(x)))  # covariance of x (prior-whitened)
     ratio2 = np.clip(np.diag(post_x), 0.0, 1.0)
     p_eff = float(np.sum(1.0 - ratio2))

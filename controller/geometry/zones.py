@@ -44,6 +44,25 @@ def zone_entered(origin: np.ndarray, direction: np.ndarray, boxes: np.ndarray,
     return None if best is None else best[1]
 
 
+def rays_enter_any(origins: np.ndarray, directions: np.ndarray, boxes: np.ndarray,
+                   max_t: float = np.inf) -> np.ndarray:
+    """For each ray origin + t·direction ((N, 3) each), whether it enters any box of ``boxes``
+    (n, 2, 3) before ``max_t`` (a number, or one per ray) — :func:`ray_box_entry`'s slab method
+    for all rays and boxes at once: (N,) bool."""
+    o = np.asarray(origins, float)[:, None, :]
+    d = np.asarray(directions, float)[:, None, :]
+    b = np.asarray(boxes, float).reshape(-1, 2, 3)
+    lo, hi = b[None, :, 0, :], b[None, :, 1, :]
+    flat = np.abs(d) < 1e-12
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a, c = (lo - o) / d, (hi - o) / d
+    near = np.where(flat, -np.inf, np.minimum(a, c)).max(axis=-1)
+    far = np.where(flat, np.inf, np.maximum(a, c)).min(axis=-1)
+    inside_flat = np.all(~flat | ((lo <= o) & (o <= hi)), axis=-1)
+    t = np.maximum(near, 0.0)
+    return np.any(inside_flat & (t <= far) & (t < np.reshape(max_t, (-1, 1))), axis=-1)
+
+
 def zone_boxes(zones) -> np.ndarray:
     """The (n, 2, 3) boxes of config ``person_zones`` (each with ``min_enu_m``, ``max_enu_m``,
     ``margin_m``), grown by their margins."""

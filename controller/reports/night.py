@@ -1,32 +1,51 @@
 """The morning report of a planned night: what the night measured, pass by pass, and where the
-field's models stand.
+field's models stand — readable at any field size.
 
 ``write_night_report(store, out_dir, night)`` writes into ``out_dir``:
 
 * ``report.md`` and ``report.html``: the night (index, name, status and why, lamps lit with
   their confirmation, geometries measured of those planned, the daytime error the models now
   predict — open loop, from their covariance — and, for a simulated plant, the true one), its
-  passes grouped by lamp (lamp, target, measured / heliostats, status) and each heliostat's
-  geometries measured tonight with its latest model;
+  passes grouped by lamp (lamp, target, measured / heliostats, status), the field map and
+  distributions, the :data:`WORST` heliostats of the field by predicted daytime error with a
+  thumbnail of their latest frame, the heliostats that had no measurable geometry
+  tonight and why, and — for a field of at most :data:`TABLE_MAX` heliostats — every
+  heliostat's row;
 * ``passes.png``: measured and planned geometries per lamp and target (bars);
-* ``heliostats.csv``: the per-heliostat table.
+* ``field_map.png``: every heliostat at its position, coloured by predicted daytime RMS;
+* ``distributions.png``: predicted daytime RMS and geometries measured per heliostat;
+* ``thumbs/``: the worst heliostats' HIGH frames, scaled down;
+* ``heliostats.csv``: every heliostat's row.
 
 A pass measures each of its heliostats once; a heliostat measured is never counted as failed.
+What each heliostat ended the night with is read from ``night_heliostats`` (schema v9); a
+night recorded before it has no map, and its per-heliostat table comes from its runs.
 """
 
 from __future__ import annotations
 
 import html
+import re
 from pathlib import Path
 
 from controller.calibration.records import NightRecord
 from controller.io.images import pyplot, save_figure, write_atomic
 from controller.reports.campaign import _inline, _write_csv
+from controller.reports.field_figures import distributions, field_map, thumbnails
 from controller.storage.db import CampaignStore
+from controller.storage.nights import NightBook
+
+WORST = 20  # heliostats shown with a thumbnail
+TABLE_MAX = 200  # beyond this many heliostats the full table is in heliostats.csv only
+UNMEASURABLE_SHOWN = 50
 
 
 def _rms(d: dict | None) -> str:
     return "–" if not d or d.get("rms") is None else f"{d['rms']:.2f} mrad RMS, p95 {d['p95']:.2f}"
+
+
+def _num(v, nd: int = 3) -> str:
+    return "–" if v is None else f"{v:.{nd}f}"
 
 
 def night_campaigns(store: CampaignStore, night: NightRecord):
@@ -40,9 +59,8 @@ def write_night_report(store: CampaignStore, out_dir: str | Path, night: NightRe
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     s = night.summary
-    camps = night_campaigns(store, night)
     rows, per_helio, bars = [], {}, {}
-    for c in camps:
+    for c in night_campaigns(store, night):
         runs = store.runs(c.id)
         done = sum(r.status in ("measured", "calibrated") for r in runs)
         rows.append([c.name.removeprefix(night.name + "/"), c.light_source, c.target,
@@ -55,8 +73,10 @@ def write_night_report(store: CampaignStore, out_dir: str | Path, night: NightRe
             h[0 if r.status in ("measured", "calibrated") else 1] += 1
             if r.fault_cause:
                 h[2].append(r.fault_cause)
+    field = NightBook(store).heliostats(night.id)
     lamps = ", ".join(f"{x['lamp']} ({'confirmed by the panel' if x['confirmed'] else 'operator'})"
                       for x in s.get("lamps", [])) or "none"
+    lost = s.get("unmeasurable", [])
     lines = [f"# Morning report: night {night.index}, `{night.name}`", "",
              f"- started {night.started_utc}, finished {night.finished_utc or '–'}, status **{night.status}**"
              + (f": {night.cause}" if night.cause else ""),
@@ -71,28 +91,69 @@ def write_night_report(store: CampaignStore, out_dir: str | Path, night: NightRe
     if s.get("first_calibrated"):
         lines.append("- measured at the calibration lamp first (no model yet): "
                      + ", ".join(s["first_calibrated"]))
+    if lost:
+        lines.append(f"- heliostats with no measurable geometry tonight: **{len(lost)}** (below)")
     pcols = ["pass", "lamp", "target", "measured", "status", "cause"]
-    lines += ["", "## Passes", "", "| " + " | ".join(pcols) + " |", "|" + " --- |" * len(pcols)]
-    lines += ["| " + " | ".join(x.replace("|", "/") for x in row) + " |" for row in rows]
+    lines += ["", "## Passes", "", *_table(pcols, rows)]
     figs = [("Geometries per lamp and target", _bars(bars, out))] if bars else []
-    hcols = ["heliostat", "measured tonight", "not measured", "model measurements", "model residual mrad",
-             "why not measured"]
-    hrows = []
-    for hid, (ok, bad, why) in sorted(per_helio.items()):
-        m = store.latest_model(hid)
-        hrows.append([hid, str(ok), str(bad), str(m.n_measurements) if m else "–",
-                      f"{m.residual_mrad:.3f}" if m and m.residual_mrad is not None else "–",
-                      "; ".join(why[:2])])
-    lines += ["", "## Heliostats", "", "| " + " | ".join(hcols) + " |", "|" + " --- |" * len(hcols)]
-    lines += ["| " + " | ".join(x.replace("|", "/") for x in row) + " |" for row in hrows]
+    if field:
+        figs += [("The field: predicted daytime error", field_map(field, out)),
+                 ("Distributions", distributions(field, out))]
     for title, png in figs:
         lines += ["", f"## {title}", "", f"![{title}]({png})"]
+    models = store.latest_models([r["heliostat"] for r in field] if field else list(per_helio))
+    hcols = ["heliostat", "predicted daytime RMS mrad", "planned tonight", "measured tonight",
+             "not measured", "model measurements", "model residual mrad", "why not measured"]
+
+    def row(hid: str, r: dict | None) -> list[str]:
+        ok, bad, why = per_helio.get(hid, [0, 0, []])
+        m = models.get(hid)
+        r = r or {}
+        reason = "; ".join(why[:2]) or (r.get("unmeasurable") or "")
+        return [hid, _num(r.get("predicted_rms_mrad"), 2), str(r.get("planned", "–")), str(ok), str(bad),
+                str(m.n_measurements) if m else "–", _num(m.residual_mrad if m else None), reason]
+
+    hrows = [row(r["heliostat"], r) for r in field] if field else [row(h, None) for h in sorted(per_helio)]
+    if field:
+        lines += _worst(store, night, field, out, row)
+    if lost:
+        more = (f"The first {UNMEASURABLE_SHOWN} below; all in heliostats.csv."
+                if len(lost) > UNMEASURABLE_SHOWN else "")
+        lines += ["", "## No measurable geometry tonight", "",
+                  f"{len(lost)} heliostat(s): the planner found no geometry whose 3σ spot stays in the "
+                  f"camera's view (or none it can reach). {more}", "",
+                  *_table(["heliostat", "predicted daytime RMS mrad", "why"],
+                          [[u["heliostat"], _num(u.get("predicted_mrad"), 2), u["why"]]
+                           for u in lost[:UNMEASURABLE_SHOWN]])]
+    if len(hrows) <= TABLE_MAX:
+        lines += ["", "## Heliostats", "", *_table(hcols, hrows)]
+    else:
+        lines += ["", "## Heliostats", "", f"All {len(hrows)} heliostats: heliostats.csv."]
     md = "\n".join(lines) + "\n"
     write_atomic(out / "report.md", lambda t: t.write_text(md, encoding="utf-8"))
     page = _page(f"Morning report: night {night.index}, {night.name}", lines)
     write_atomic(out / "report.html", lambda t: t.write_text(page, encoding="utf-8"))
     write_atomic(out / "heliostats.csv", lambda t: _write_csv(t, hcols, hrows))
     return out / "report.md"
+
+
+def _worst(store: CampaignStore, night: NightRecord, field: list[dict], out: Path, row) -> list[str]:
+    """The :data:`WORST` heliostats by predicted daytime RMS, each with its latest frame."""
+    worst = sorted((r for r in field if r["predicted_rms_mrad"] is not None),
+                   key=lambda r: -r["predicted_rms_mrad"])[:WORST]
+    thumbs = thumbnails(store, [r["heliostat"] for r in worst], out)
+    cols = ["heliostat", "predicted daytime RMS mrad", "planned", "measured", "latest frame",
+            "why not measured"]
+    rows = [[r["heliostat"], _num(r["predicted_rms_mrad"], 2), str(r["planned"]), str(r["measured"]),
+             f"![{r['heliostat']}]({thumbs[r['heliostat']]})" if r["heliostat"] in thumbs else "–",
+             row(r["heliostat"], r)[-1]] for r in worst]
+    return ["", f"## The {len(worst)} heliostats with the largest predicted daytime error", "",
+            *_table(cols, rows)]
+
+
+def _table(cols: list[str], rows: list[list[str]]) -> list[str]:
+    return ["| " + " | ".join(cols) + " |", "|" + " --- |" * len(cols),
+            *["| " + " | ".join(x.replace("|", "/") for x in r) + " |" for r in rows]]
 
 
 def _bars(bars: dict[str, tuple[int, int]], out: Path) -> str:
@@ -112,10 +173,17 @@ STYLE = ("body{font-family:sans-serif;max-width:1100px;margin:auto}table{border-
          "td,th{border:1px solid #bbb;padding:3px 6px;font-size:13px}img{max-width:100%}")
 
 
-def _page(title: str, lines: list[str]) -> str:
-    """The report's Markdown ``lines`` (headings, bullets, tables, images) as one HTML page."""
-    import re
+def _cell(text: str) -> str:
+    """A table cell: an image (``![alt](src)``, a thumbnail) as <img>, else inline Markdown."""
+    m = re.fullmatch(r"!\[(.*)\]\((.*)\)", text)
+    if m:
+        return f"<img src='{html.escape(m[2])}' alt='{html.escape(m[1])}'>"
+    return _inline(text)
 
+
+def _page(title: str, lines: list[str]) -> str:
+    """The report's Markdown ``lines`` (headings, bullets, paragraphs, tables, images) as one
+    HTML page."""
     body, table, bullets = [], [], []
 
     def flush() -> None:
@@ -125,12 +193,15 @@ def _page(title: str, lines: list[str]) -> str:
         if table:
             head, rows = table[0], table[2:]
             body.append("<table><tr>" + "".join(f"<th>{_inline(c)}</th>" for c in head) + "</tr>"
-                        + "".join("<tr>" + "".join(f"<td>{_inline(c)}</td>" for c in r) + "</tr>"
+                        + "".join("<tr>" + "".join(f"<td>{_cell(c)}</td>" for c in r) + "</tr>"
                                   for r in rows)
                         + "</table>")
             table.clear()
 
     for line in lines[1:]:
+        if not line.strip():
+            flush()
+            continue
         if line.startswith("|"):
             table.append([c.strip() for c in line.strip().strip("|").split("|")])
             continue
@@ -142,6 +213,8 @@ def _page(title: str, lines: list[str]) -> str:
             body.append(f"<h2>{_inline(line[3:])}</h2>")
         elif m := re.match(r"!\[(.*)\]\((.*)\)", line):
             body.append(f"<img src='{html.escape(m[2])}' alt='{html.escape(m[1])}'>")
+        else:
+            body.append(f"<p>{_inline(line)}</p>")
     flush()
     return (f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title>"
             f"<style>{STYLE}</style></head><body><h1>{html.escape(title)}</h1>{''.join(body)}</body></html>\n")

@@ -49,7 +49,7 @@ from controller.storage.checks import (
     stored_image_path,
 )
 from controller.storage.lock import CampaignLock
-from controller.storage.rows import campaign_from_row, measurement_from_row, run_from_row
+from controller.storage.rows import campaign_from_row, measurement_from_row, model_from_row, run_from_row
 from controller.storage.schema import MIGRATIONS, SCHEMA_VERSION
 
 
@@ -357,12 +357,16 @@ class CampaignStore:
         with self._lock:
             row = self._db.execute("SELECT * FROM model_params WHERE heliostat_id=? ORDER BY id DESC LIMIT 1",
                                    (heliostat_id,)).fetchone()
-        if row is None:
-            return None
-        return ModelRecord(json_column(self.path, "model_params", row, "params_json", dict),
-                           json_column(self.path, "model_params", row, "sigma_json", dict),
-                           row["residual_mrad"], row["n_measurements"],
-                           json_column(self.path, "model_params", row, "detail_json", dict, {}))
+        return None if row is None else model_from_row(row, self.path)
+
+    def latest_models(self, heliostat_ids=None) -> dict[str, ModelRecord]:
+        """The latest model of each heliostat that has one (of ``heliostat_ids``, or all), in one query."""
+        with self._lock:
+            rows = self._db.execute("SELECT * FROM model_params WHERE id IN "
+                                    "(SELECT MAX(id) FROM model_params GROUP BY heliostat_id)").fetchall()
+        wanted = None if heliostat_ids is None else set(heliostat_ids)
+        return {r["heliostat_id"]: model_from_row(r, self.path) for r in rows
+                if wanted is None or r["heliostat_id"] in wanted}
 
     def query(self, sql: str, args: tuple = ()) -> list[sqlite3.Row]:
         """Rows of one read-only SELECT (for the storage modules beside this one)."""

@@ -18,6 +18,7 @@ from controller.storage.plans import load_plan, record_plan
 
 NIGHTS_SCHEMA = 8  # the schema version that added the nights table
 NIGHT_STATUSES = ("running", *CAMPAIGN_STATUSES)
+HELIOSTATS_SCHEMA = 9  # the schema version that added night_heliostats
 
 
 class NightBook:
@@ -87,6 +88,28 @@ class NightBook:
                                 "ON r.campaign_id=c.id WHERE c.name=? OR substr(c.name, 1, ?)=?",
                                 (night, len(night) + 1, night + "/"))
         return None if rows[0]["t"] is None else float(rows[0]["t"])
+
+    def record_heliostats(self, night_id: int, rows: list[dict]) -> None:
+        """What each heliostat of night ``night_id`` ended with (``night_heliostats``, schema v9:
+        position, geometries planned and measured, predicted daytime RMS, why none was
+        measurable), replacing what a previous session of the night wrote, in one transaction."""
+        with self.store.tx() as db:
+            db.execute("DELETE FROM night_heliostats WHERE night_id=?", (night_id,))
+            db.executemany("INSERT INTO night_heliostats (night_id, heliostat_id, east_m, north_m, planned, "
+                           "measured, predicted_rms_mrad, unmeasurable) VALUES (?,?,?,?,?,?,?,?)",
+                           [(night_id, r["heliostat"], r["east_m"], r["north_m"], r["planned"], r["measured"],
+                             r["predicted_rms_mrad"], r["unmeasurable"]) for r in rows])
+
+    def heliostats(self, night_id: int) -> list[dict]:
+        """The rows :meth:`record_heliostats` wrote for the night (none before schema v9)."""
+        if self.store.schema_version < HELIOSTATS_SCHEMA:
+            return []
+        rows = self.store.query("SELECT * FROM night_heliostats WHERE night_id=? ORDER BY heliostat_id",
+                                (night_id,))
+        return [{"heliostat": r["heliostat_id"], "east_m": r["east_m"], "north_m": r["north_m"],
+                 "planned": r["planned"], "measured": r["measured"],
+                 "predicted_rms_mrad": r["predicted_rms_mrad"], "unmeasurable": r["unmeasurable"]}
+                for r in rows]
 
     def plan(self, night: str) -> list[PlanItem]:
         return load_plan(self.store, night)

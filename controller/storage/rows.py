@@ -11,6 +11,7 @@ from controller.calibration.records import (
     RUN_STATUSES,
     CampaignRecord,
     MeasurementRecord,
+    ModelRecord,
     RunRecord,
 )
 from controller.storage.checks import enum_column, json_column
@@ -51,3 +52,11 @@ def measurement_from_row(row: sqlite3.Row) -> MeasurementRecord:
         runner_up_label=row["runner_up_label"], runner_up_distance=row["runner_up_distance"],
         measured_utc=row["measured_utc"], source_pos_enu=xyz("source_pos"), id=int(row["id"]),
         run_id=int(row["run_id"]), campaign_id=int(row["campaign_id"]), heliostat_id=row["heliostat_id"])
+
+
+def model_from_row(row: sqlite3.Row, path: Path) -> ModelRecord:
+    """A ``model_params`` row as its record; RecordError when a JSON column was tampered with."""
+    def js(col: str, default=None) -> dict:
+        return json_column(path, "model_params", row, col, dict, default)
+    return ModelRecord(js("params_json"), js("sigma_json"), row["residual_mrad"], row["n_measurements"],
+                       js("detail_json", {}))

@@ -170,6 +170,27 @@ MIGRATIONS: tuple[str, ...] = (
     );
     CREATE INDEX campaigns_name ON campaigns(name);
     """,
+    # v9: a field of thousands of heliostats. Indices for the queries of a night, its morning
+    # report and the console (a heliostat's runs and measurements, a run's corrections, a
+    # measurement's images), and what each heliostat of a planned night ended with: where it
+    # stands, its geometries planned and measured, the daytime error its model predicts and, when
+    # it had none, why no geometry was measurable.
+    """
+    CREATE INDEX heliostat_runs_heliostat ON heliostat_runs(heliostat_id, id);
+    CREATE INDEX corrections_run ON corrections(run_id);
+    CREATE INDEX images_measurement ON images(measurement_id);
+    CREATE TABLE night_heliostats (
+        night_id INTEGER NOT NULL REFERENCES nights(id),
+        heliostat_id TEXT NOT NULL,
+        east_m REAL NOT NULL,
+        north_m REAL NOT NULL,
+        planned INTEGER NOT NULL,
+        measured INTEGER NOT NULL,
+        predicted_rms_mrad REAL,
+        unmeasurable TEXT,
+        PRIMARY KEY (night_id, heliostat_id)
+    );
+    """,
 )
 
 SCHEMA_VERSION = len(MIGRATIONS)

@@ -270,3 +270,24 @@ def small_config(tmp_path) -> Path:
     p = tmp_path / "small.yaml"
     p.write_text(yaml.safe_dump(data))
     return p
+
+
+def calibrated_record(cfg, hid: str, observations: int = 3) -> ModelRecord:
+    """The model record of ``hid`` as a closed-loop calibration leaves it: the nominal model
+    with the prior covariance updated by ``observations`` measurements at the calibration lamp
+    and the calibration target's centre (Eq. 1 of controller.geometry.design)."""
+    from controller.calibration.daytime import model_covariance
+    from controller.geometry.design import normal_jacobian, posterior
+    from controller.geometry.kinematics import HeliostatKinematics
+    from controller.geometry.tracking_model import model_aim
+
+    cal = cfg.calibration
+    model, cov = model_covariance(None, cal.model.prior_sigma)
+    kin = HeliostatKinematics.from_config(cfg.heliostat(hid))
+    lamp = np.asarray(cfg.light_source().position_enu_m, float)
+    centre = np.asarray(cfg.target().center_enu_m, float)
+    steps = model_aim(kin, model, None, centre, lamp_position=lamp)
+    for _ in range(observations):
+        h = normal_jacobian(kin, model, *steps, None, centre, lamp)
+        cov = posterior(cov, h, cal.model.noise_mrad * 1e-3)
+    return ModelRecord(model.to_dict(), {}, 0.2, observations, {"covariance_si": cov.tolist()})

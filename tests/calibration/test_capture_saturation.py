@@ -34,7 +34,7 @@ class _Camera(DoubleCcdCamera):
 def test_saturated_core_is_recaptured_shorter_and_exposures_restored():
     cam = _Camera(peak_counts_per_s=80_000.0)  # LOW peak 800, 400, 200 counts at 10, 5, 2.5 ms
     pair = capture_unsaturated(cam, bit_depth=8)
-    assert pair.metadata == {"saturated_px": 0, "recaptures": 2}  # 10 → 5 → 2.5 ms
+    assert pair.metadata == {"saturated_px": 0, "recaptures": 2, "lengthened": 0}  # 10 → 5 → 2.5 ms
     assert pair.exposures == (0.0025, 0.005) and saturated_both(pair, 8) == 0
     assert cam.exposures == (0.010, 0.020)  # the next heliostat starts at the configured ones
 
@@ -50,3 +50,21 @@ def test_tries_are_bounded_and_the_count_is_reported():
     pair = capture_unsaturated(cam, bit_depth=8)
     assert len(cam.taken) == 1 + RECAPTURES
     assert pair.metadata["recaptures"] == RECAPTURES and pair.metadata["saturated_px"] > 0
+
+
+def test_dim_beam_is_recaptured_longer_until_bright_enough_and_exposures_restored():
+    cam = _Camera(peak_counts_per_s=1_000.0)  # HIGH peak 20 counts at 20 ms: 8 % of full scale
+    pair = capture_unsaturated(cam, bit_depth=8)
+    # 20 → 40 → 80 ms: the HIGH peak 80 counts is over a quarter of full scale.
+    assert pair.metadata["lengthened"] == 2 and pair.exposures == (0.040, 0.080)
+    assert np.max(pair.high) >= 0.25 * 255 and saturated_both(pair, 8) == 0
+    assert cam.exposures == (0.010, 0.020)
+
+
+def test_a_dim_beam_is_never_lengthened_into_saturation_nor_forever():
+    cam = _Camera(peak_counts_per_s=0.0)  # nothing in view: bounded tries
+    pair = capture_unsaturated(cam, bit_depth=8)
+    assert pair.metadata["lengthened"] == 5 and len(cam.taken) == 6
+    cam = _Camera(peak_counts_per_s=3_000.0)  # HIGH 60 counts: doubled once to 120 (LOW 60)
+    pair = capture_unsaturated(cam, bit_depth=8)
+    assert pair.metadata["lengthened"] == 1 and saturated_both(pair, 8) == 0

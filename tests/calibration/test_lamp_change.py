@@ -13,7 +13,7 @@ import yaml
 
 from controller.calibration.lamp_change import LampChangeError, LampChanger, Standby, clear_targets
 from controller.calibration.planner import plan_night
-from controller.commands._cheap_night import cheap_field, run_cheap_night
+from controller.commands._cheap_night import calibrate_from_truth, cheap_field, run_cheap_night
 from controller.errors import LimitError
 from controller.storage.db import CampaignStore
 from simplant.cheap_night import CheapField, field_data
@@ -31,15 +31,24 @@ def _stray(night) -> dict[str, int]:
     return {tid: sum(1 for beams in caps if len(beams) > 1) for tid, caps in night.beams_in_view.items()}
 
 
+def _calibrated(data: dict, path: Path) -> CheapField:
+    """The cheap field with its night 0 (every heliostat's model) from the plant's truth."""
+    field = CheapField(data, path)
+    calibrate_from_truth(field, "field")
+    return field
+
+
 def test_night_with_lamp_changes_never_has_a_second_beam_in_view(base, tmp_path):
     data = field_data(base, 24, 3, 3)
-    cfg = CheapField(data, tmp_path / "plan").cfg
-    plan = plan_night(cfg, {h.id: None for h in cfg.heliostats}, "n1")
+    first = _calibrated(data, tmp_path / "plan")
+    with CampaignStore(first.db_path, readonly=True) as store:
+        models = store.latest_models()
+    plan = plan_night(first.cfg, {h.id: models.get(h.id) for h in first.cfg.heliostats}, "n1")
     assert len({it.geometry.lamp for it in plan}) > 1  # the night changes lamps
 
-    unsafe = run_cheap_night(CheapField(data, tmp_path / "without"), plan, "n1", 8 * 3600.0,
+    unsafe = run_cheap_night(_calibrated(data, tmp_path / "without"), plan, "n1", 8 * 3600.0,
                              unsafe_lamp_change=True)
-    safe = run_cheap_night(CheapField(data, tmp_path / "with"), plan, "n1", 8 * 3600.0)
+    safe = run_cheap_night(_calibrated(data, tmp_path / "with"), plan, "n1", 8 * 3600.0)
 
     # Without the lamp change, heliostats parked for an earlier lamp throw the next one into a
     # target's view (the defect); with it, never — and the night still measures what it did.

@@ -19,6 +19,7 @@ from controller.config import load_config
 from controller.errors import ConfigError, LimitError
 from controller.storage.db import CampaignStore
 from simplant.cheap_night import CheapField, field_data
+from tests.calibration.conftest import calibrated_record
 
 ROOT = Path(__file__).resolve().parents[2]
 # Beside the upper target, where standby beams on its east side pass (a stair landing).
@@ -31,7 +32,7 @@ def base() -> dict:
 
 
 def _field(base, tmp_path, zones, n=8, targets=1):
-    data = field_data(base, n, targets, 1)
+    data = field_data(base, n, targets, 1, span_deg=70.0)  # the zones below are placed for this layout
     data["person_zones"] = zones
     return CheapField(data, tmp_path)
 
@@ -84,7 +85,7 @@ def test_planned_geometries_keep_their_beams_out_of_a_person_zone(base, tmp_path
     field = _field(base, tmp_path, [crane])
     pos = {h.id: h.position_enu_m for h in field.cfg.heliostats}
     unaware = field.cfg.model_copy(update={"person_zones": ()})
-    models = {h.id: None for h in field.cfg.heliostats}
+    models = {h.id: calibrated_record(field.cfg, h.id) for h in field.cfg.heliostats}
     blind = plan_night(unaware, models, "n1")
     assert any(_crosses(pos[i.heliostat_id], i.geometry.aim_enu, crane) for i in blind)
     plan = plan_night(field.cfg, models, "n1")

@@ -14,7 +14,7 @@ from controller.config import parse_config
 from controller.errors import ConfigError
 from controller.geometry.design import daytime_variance, posterior
 from controller.geometry.tracking_model import TERMS, TrackingModel
-from tests.calibration.conftest import REPO
+from tests.calibration.conftest import REPO, calibrated_record
 
 
 @pytest.fixture(scope="module")
@@ -33,7 +33,7 @@ def test_candidates_span_lamps_and_aim_points(cfg):
 
 
 def test_each_pick_lowers_the_predicted_daytime_error(cfg):
-    items = plan_heliostat(cfg, "H03", None, "n1", planner_sun(cfg))
+    items = plan_heliostat(cfg, "H03", calibrated_record(cfg, "H03"), "n1", planner_sun(cfg))
     assert len(items) == cfg.calibration.planner.geometries_per_night
     assert [i.rank for i in items] == list(range(1, len(items) + 1))
     for a, b in zip(items, items[1:], strict=False):
@@ -45,8 +45,9 @@ def test_each_pick_lowers_the_predicted_daytime_error(cfg):
 def test_design_beats_round_robin_on_predicted_daytime_error(cfg):
     sun = planner_sun(cfg)
     for hid in ("H01", "H09", "H16"):
-        design = plan_heliostat(cfg, hid, None, "n", sun)
-        fixed = plan_heliostat(cfg, hid, None, "n", sun, strategy="round-robin")
+        rec = calibrated_record(cfg, hid)
+        design = plan_heliostat(cfg, hid, rec, "n", sun)
+        fixed = plan_heliostat(cfg, hid, rec, "n", sun, strategy="round-robin")
         assert len(design) == len(fixed)
         assert design[-1].predicted_after_mrad < fixed[-1].predicted_after_mrad
 
@@ -58,8 +59,9 @@ def test_greedy_gain_matches_the_covariance_update(cfg):
     from controller.geometry.kinematics import HeliostatKinematics
 
     sun = planner_sun(cfg)
-    item = plan_heliostat(cfg, "H05", None, "n", sun)[0]
-    model, cov = model_covariance(None, cfg.calibration.model.prior_sigma)
+    rec = calibrated_record(cfg, "H05")
+    item = plan_heliostat(cfg, "H05", rec, "n", sun)[0]
+    model, cov = model_covariance(rec, cfg.calibration.model.prior_sigma)
     kin = HeliostatKinematics.from_config(cfg.heliostat("H05"))
     a = beam_jacobians(kin, model, sun, np.asarray(cfg.target().center_enu_m, float))
     lamp = np.asarray(cfg.light_source(item.geometry.lamp).position_enu_m, float)
@@ -71,14 +73,14 @@ def test_greedy_gain_matches_the_covariance_update(cfg):
 def test_a_well_known_heliostat_gets_only_a_check(cfg):
     tiny = np.diag(np.full(len(TERMS), 1e-5)) ** 2  # σ 10 µrad / 10 µm on every term
     rec = ModelRecord(TrackingModel.zero().to_dict(), {}, 0.1, 20, {"covariance_si": tiny.tolist()})
-    items = plan_night(cfg, {"H04": rec, "H05": None}, "n")
+    items = plan_night(cfg, {"H04": rec, "H05": calibrated_record(cfg, "H05")}, "n")
     per = {h: sum(1 for i in items if i.heliostat_id == h) for h in ("H04", "H05")}
     assert per == {"H04": cfg.calibration.planner.check_geometries,
                    "H05": cfg.calibration.planner.geometries_per_night}
 
 
 def test_passes_group_by_lamp_with_one_run_per_heliostat(cfg):
-    items = plan_night(cfg, {"H01": None, "H02": None, "H03": None}, "night-1")
+    items = plan_night(cfg, {h: calibrated_record(cfg, h) for h in ("H01", "H02", "H03")}, "night-1")
     passes = night_passes(items, "night-1")
     assert sum(len(p.aims) for p in passes) == len(items)
     lamps = [p.lamp for p in passes]

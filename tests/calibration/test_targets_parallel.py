@@ -25,6 +25,7 @@ from controller.geometry.kinematics import HeliostatKinematics
 from controller.geometry.target_frame import TargetFrame
 from controller.storage.db import CampaignStore
 from controller.storage.schema import MIGRATIONS
+from tests.calibration.conftest import calibrated_record
 from tests.conftest import scaled_s
 
 REPO = Path(__file__).resolve().parents[2]
@@ -123,7 +124,7 @@ def test_slew_to_standby_goes_around_the_other_target():
 def test_a_nights_queue_is_shared_by_the_targets():
     cfg = load_config(REPO / "configs" / "demo.yaml")
     ids = [h.id for h in cfg.heliostats][:6]
-    plan = plan_night(cfg, dict.fromkeys(ids), "n")
+    plan = plan_night(cfg, {h: calibrated_record(cfg, h) for h in ids}, "n")
     per = {t: {i.heliostat_id for i in plan if i.geometry.target == t}
            for t in cfg.calibration.parallel_targets()}
     assert len(per["tower-target"]) == len(per["tower-lower"]) == 3
@@ -134,7 +135,7 @@ def test_a_nights_queue_is_shared_by_the_targets():
 
 
 def _plan(cfg):
-    return plan_night(cfg, dict.fromkeys([h.id for h in cfg.heliostats][:4]), "n")
+    return plan_night(cfg, {h.id: calibrated_record(cfg, h.id) for h in cfg.heliostats[:4]}, "n")
 
 
 def test_targets_of_a_lamp_run_side_by_side_and_a_failed_pass_stops_the_night():

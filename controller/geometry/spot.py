@@ -1,0 +1,214 @@
+"""Where a heliostat's spot lands on a target, how large it is and whether a camera sees all of it.
+
+**Size.** A lamp of diameter D at distance d from the mirror subtends α = D/d. The spot on a
+target plane at distance L along the beam is the blur of independent contributions, which
+add in quadrature per mirror axis (width w along the target's u axis, height h along v):
+
+    σ² = (α L / 4)² + (2 σ_s L)² + (w |1 − L/f|)² / 12                         (1)
+
+— the lamp's disc imaged at L (a uniform disc of radius r has σ = r/2 per axis), the mirror's
+slope error σ_s doubled on reflection, and the mirror focused at f, whose reflected bundle
+has width w |1 − L/f| at L (a uniform band of width W has σ = W/√12). A beam meeting the plane
+obliquely (cos θ = |b·N|) stretches the footprint by 1/cos θ along its in-plane direction d:
+
+    Σ_spot = S diag(σ_u², σ_v²) Sᵀ,   S = I + (1/cos θ − 1) d dᵀ                 (2)
+
+**Position.** The model aims the spot's centre at the aim point; a model error δp ~ N(0, Σ_p)
+moves it by J δp, J = ∂(u, v)/∂p of the hit point (the reflected central ray meeting the
+plane), so its covariance is
+
+    Σ_pos = J Σ_p Jᵀ + (ε L)² I                                                 (3)
+
+with ε a floor of the beam's error that no covariance knows: a model is not known better than
+the noise of the measurements it was fitted to, and a real heliostat has effects no term has
+(the callers take ε = 2 σ_n, the measured normal's noise doubled on reflection).
+
+**In view.** A camera sees the target plane over a rectangle of half-size (H_u, H_v) about the
+target centre (:class:`controller.geometry.target_frame.TargetFrame`: W × H). A spot aimed at
+offset (o_u, o_v) from the centre is measurable when, per axis, its k-σ footprint displaced by
+its centre's k-σ uncertainty stays a margin m inside:
+
+    |o| + k (σ_spot + σ_pos) + m ≤ H,     k = 3                                  (4)
+
+(3σ of a Gaussian spot holds 98.9 % of its power; the sum of the two σ is the conservative
+bound of the footprint's edge). Parked beams are the converse: a standby spot must end at
+least that far *outside* every view (:func:`standby_clearance_m`).
+
+Units: metres, radians; arrays broadcast over leading axes.
+
+References
+----------
+.. [1] W. B. Stine, M. Geyer, "Power From The Sun", 2001, ch. 8.4 (beam spread of a heliostat
+   image: sun shape, slope error, astigmatism, added in quadrature).
+.. [2] C. J. Noone, M. Torrilhon, A. Mitsos, "Heliostat field optimization: a new
+   computationally efficient model and biomimetic layout", Solar Energy 86, 2012
+   (σ of the spot from independent Gaussian error sources, obliquity on the receiver).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from controller.geometry.kinematics import HeliostatKinematics
+from controller.geometry.pose_batch import KinStack, forward_jacobian, normal_and_center, perturbed
+from controller.geometry.target_frame import TargetFrame
+
+SIGMAS = 3.0  # k of Eq. (4)
+
+
+@dataclass(frozen=True)
+class MirrorOptics:
+    """What sizes a heliostat's spot: mirror width and height (m), focal length (m) and slope
+    error (rad, 1-σ)."""
+
+    width_m: float
+    height_m: float
+    focal_m: float
+    slope_error_rad: float
+
+    @classmethod
+    def from_config(cls, mirror) -> MirrorOptics:
+        """From a :class:`controller.config.Mirror` (slope error in mrad)."""
+        return cls(mirror.width_m, mirror.height_m, mirror.focal_length_m, 1e-3 * mirror.slope_error_mrad)
+
+
+def spot_covariance(distance_m, lamp_angle_rad, slope_error_rad, mirror_w_m, mirror_h_m, focal_m,
+                    beam, normal, u_axis, v_axis) -> np.ndarray:
+    """Σ_spot of Eq. (1)-(2), m², in the target plane's (u, v) axes, shape (..., 2, 2).
+
+    ``distance_m`` L and ``lamp_angle_rad`` α (...,); ``slope_error_rad`` σ_s, mirror width,
+    height and focal length (m, scalars or (...,)); ``beam`` (..., 3) the unit beam direction;
+    ``normal``, ``u_axis``, ``v_axis`` ((3,) or broadcast against ``beam``) the target plane's
+    unit normal and in-plane axes."""
+    L = np.asarray(distance_m, float)
+    common = (np.asarray(lamp_angle_rad, float) * L / 4.0) ** 2 + (2.0 * np.asarray(slope_error_rad) * L) ** 2
+    defocus = np.abs(1.0 - L / np.asarray(focal_m, float))
+    var_u = common + (np.asarray(mirror_w_m) * defocus) ** 2 / 12.0
+    var_v = common + (np.asarray(mirror_h_m) * defocus) ** 2 / 12.0
+    b = np.asarray(beam, float)
+    cos_t = np.maximum(np.abs(_dot(b, normal)), 0.05)  # grazing: bounded stretch
+    d = np.stack([_dot(b, u_axis), _dot(b, v_axis)], axis=-1)
+    dn = np.linalg.norm(d, axis=-1, keepdims=True)
+    d = np.where(dn > 1e-9, d / np.where(dn > 1e-9, dn, 1.0), 0.0)
+    s = np.eye(2) + (1.0 / cos_t - 1.0)[..., None, None] * d[..., :, None] * d[..., None, :]
+    base = np.zeros((*np.shape(var_u), 2, 2))
+    base[..., 0, 0], base[..., 1, 1] = var_u, var_v
+    return s @ base @ np.swapaxes(s, -1, -2)
+
+
+def hit_uv(center, beam, plane_point, normal, u_axis, v_axis) -> np.ndarray:
+    """(u, v) in m, from ``plane_point``, where rays from ``center`` (..., 3) along ``beam``
+    (..., 3) meet the plane through ``plane_point`` with unit ``normal``: t = ((p₀ − o)·N)/(b·N).
+    NaN where a ray is parallel to the plane or the plane is behind it. The plane's point and
+    axes are (3,) or broadcast against the rays."""
+    o, b = np.asarray(center, float), np.asarray(beam, float)
+    p0 = np.asarray(plane_point, float)
+    denom = _dot(b, normal)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = _dot(p0 - o, normal) / denom
+    t = np.where((np.abs(denom) > 1e-12) & (t >= 0.0), t, np.nan)
+    hit = o + t[..., None] * b - p0
+    return np.stack([_dot(hit, u_axis), _dot(hit, v_axis)], axis=-1)
+
+
+def _dot(a, b) -> np.ndarray:
+    return np.sum(np.asarray(a, float) * np.asarray(b, float), axis=-1)
+
+
+def position_covariance(jacobian_uv: np.ndarray, model_covariance: np.ndarray) -> np.ndarray:
+    """Σ_pos of Eq. (3), m², (..., 2, 2), from J (..., 2, p) in m per SI unit of each term and
+    the model's covariance Σ_p (p, p), SI²."""
+    j = np.asarray(jacobian_uv, float)
+    return j @ np.asarray(model_covariance, float) @ np.swapaxes(j, -1, -2)
+
+
+@dataclass(frozen=True, eq=False)  # numpy fields
+class PredictedSpot:
+    """Predicted spots (arrays over candidates): aim offset from the target centre (..., 2) m,
+    the spot's 1-σ and its centre's 1-σ along u and v (..., 2) m."""
+
+    offset_m: np.ndarray
+    sigma_m: np.ndarray
+    position_sigma_m: np.ndarray
+
+    def reach_m(self, k: float = SIGMAS) -> np.ndarray:
+        """How far from the target centre the k-σ footprint can reach along u and v (..., 2):
+        |o| + k (σ_spot + σ_pos), the left side of Eq. (4) without the margin."""
+        return np.abs(self.offset_m) + k * (self.sigma_m + self.position_sigma_m)
+
+    def in_view(self, half_view_m, margin_m: float, k: float = SIGMAS) -> np.ndarray:
+        """Eq. (4) on both axes, for a view of half-size ``half_view_m`` (2,) m: (...,) bool."""
+        return np.all(self.reach_m(k) + margin_m <= np.asarray(half_view_m, float), axis=-1)
+
+
+def predicted_spot(offset_m, spot_cov: np.ndarray, position_cov: np.ndarray) -> PredictedSpot:
+    """:class:`PredictedSpot` from the aim offsets (..., 2) and the covariances of Eq. (2) and
+    (3) (..., 2, 2): per axis σ = √Σ_ii (a conservative bound along the axes of a tilted
+    ellipse: each marginal σ)."""
+    return PredictedSpot(np.asarray(offset_m, float),
+                         np.sqrt(np.clip(np.diagonal(spot_cov, axis1=-2, axis2=-1), 0.0, None)),
+                         np.sqrt(np.clip(np.diagonal(position_cov, axis1=-2, axis2=-1), 0.0, None)))
+
+
+def standby_clearance_m(half_view_m: float, spot_sigma_m: float, position_sigma_m: float, margin_m: float,
+                        k: float = SIGMAS) -> float:
+    """The least distance (m) from the target centre, along one axis of the view, at which a
+    parked spot's k-σ footprint, displaced by k σ of its centre, stays a margin outside a view
+    of half-size ``half_view_m``: H + k (σ_spot + σ_pos) + m (the converse of Eq. 4)."""
+    return float(half_view_m + k * (spot_sigma_m + position_sigma_m) + margin_m)
+
+
+def predict_spots(kin: HeliostatKinematics | KinStack, optics: MirrorOptics, values: np.ndarray,
+                  covariance: np.ndarray, steps: np.ndarray, aims: np.ndarray, frame: TargetFrame, *,
+                  lamp=None, lamp_diameter_m: float | np.ndarray = 0.0, sun_dir=None,
+                  sun_angle_rad: float = 0.0, floor_rad: float = 0.0) -> PredictedSpot:
+    """The spots of one heliostat at K poses on ``frame``'s plane (Eq. 1-3): aimed at ``aims``
+    (K, 3) m ENU with motor ``steps`` (K, 2) by the model ``values`` (p,) SI, whose covariance
+    is ``covariance`` (p, p) SI². The source is a lamp at ``lamp`` ((3,) or (K, 3) m ENU) of
+    diameter ``lamp_diameter_m`` (its angular size is the diameter over its distance from the
+    mirror), or the sun along ``sun_dir`` ((3,) unit ENU, towards it) of angular diameter
+    ``sun_angle_rad``. The spot's size is taken along the aimed beam (mirror centre to aim
+    point); its position's Jacobian is that of the reflected central ray's hit point
+    (:func:`hit_uv`) by forward differences over the model's terms. ``floor_rad``: a beam error
+    the covariance cannot know (what a measurement's noise leaves, effects no term has), added in
+    quadrature as (floor · L)² on each axis.
+
+    A stack of H heliostats at once: ``kin`` a :class:`controller.geometry.pose_batch.KinStack`,
+    ``values`` (H, p), ``covariance`` (H, p, p), ``steps`` (H, K, 2), ``aims`` and ``lamp``
+    (H, K, 3), ``optics`` fields and ``lamp_diameter_m`` broadcast against (H, K), ``frame``'s
+    ``center``, ``normal``, ``u``, ``v`` (3,) or (H, 1, 3)."""
+    values = np.asarray(values, float)
+    aims = np.asarray(aims, float)
+    steps = np.asarray(steps, float)
+    vals = perturbed(values)[..., :, None, :]  # (..., P, 1, p): the P parameter sets at every pose
+    if hasattr(kin, "shaped"):
+        kin = kin.shaped(vals.ndim - 1)
+    n, c = normal_and_center(kin, vals, steps[..., None, :, :])  # (..., P, K, 3)
+    plane = [_lift(np.asarray(x, float)) for x in (frame.center, frame.normal, frame.u, frame.v)]
+    if lamp is not None:
+        to_lamp = _lift(np.asarray(lamp, float)) - c
+        s = to_lamp / np.linalg.norm(to_lamp, axis=-1, keepdims=True)
+        angle = np.asarray(lamp_diameter_m, float) / np.linalg.norm(to_lamp[..., 0, :, :], axis=-1)
+    else:
+        s = np.broadcast_to(np.asarray(sun_dir, float) / np.linalg.norm(sun_dir), c.shape)
+        angle = np.full(aims.shape[:-1], float(sun_angle_rad))
+    beam = 2.0 * np.sum(s * n, axis=-1, keepdims=True) * n - s
+    uv = hit_uv(c, beam, *plane)  # (..., P, K, 2)
+    j = np.nan_to_num(forward_jacobian(uv, axis=-3), nan=1e9)  # a beam off the plane: never in view
+    to_aim = aims - c[..., 0, :, :]
+    dist = np.linalg.norm(to_aim, axis=-1)
+    o = optics
+    cov = spot_covariance(dist, angle, o.slope_error_rad, o.width_m, o.height_m, o.focal_m,
+                          to_aim / dist[..., None], frame.normal, frame.u, frame.v)
+    rel = aims - np.asarray(frame.center, float)
+    offset = np.stack([_dot(rel, frame.u), _dot(rel, frame.v)], axis=-1)
+    pos_cov = position_covariance(j, np.asarray(covariance, float)[..., None, :, :])
+    pos_cov = pos_cov + ((floor_rad * dist) ** 2)[..., None, None] * np.eye(2)
+    return predicted_spot(offset, cov, pos_cov)
+
+
+def _lift(x: np.ndarray) -> np.ndarray:
+    """A per-pose array (..., K, 3) given the parameter-set axis: (..., 1, K, 3); (3,) as is."""
+    return x if x.ndim < 2 else x[..., None, :, :]

@@ -1,0 +1,99 @@
+"""The figures of a night's morning report that stay readable at any field size: the field
+map coloured by predicted daytime error, the distributions, and thumbnails of a few heliostats'
+frames (never one per heliostat: a field of 10,000 is read from its map and its worst few).
+
+Conventions: positions ENU metres (x east, y north), errors mrad.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from controller.errors import InputError
+from controller.io.images import pyplot, read_image, save_figure, write_atomic
+from controller.storage.db import CampaignStore
+
+THUMB_PX = 160
+
+
+def field_map(rows: list[dict], out: Path, name: str = "field_map.png") -> str:
+    """Every heliostat at its position, coloured by the daytime RMS its model predicts; those
+    with no measurable geometry tonight are crossed. Returns the file name."""
+    plt = pyplot()
+    e = np.array([r["east_m"] for r in rows], float)
+    n = np.array([r["north_m"] for r in rows], float)
+    v = np.array([np.nan if r["predicted_rms_mrad"] is None else r["predicted_rms_mrad"] for r in rows],
+                 float)
+    fig, ax = plt.subplots(figsize=(7.5, 6))
+    size = float(np.clip(4000.0 / max(len(rows), 1), 1.0, 40.0))
+    known = np.isfinite(v)
+    hi = float(np.nanpercentile(v, 99)) if known.any() else 1.0
+    sc = ax.scatter(e[known], n[known], c=v[known], s=size, cmap="viridis", vmin=0.0, vmax=max(hi, 1e-3),
+                    linewidths=0)
+    fig.colorbar(sc, ax=ax, label="predicted daytime RMS, mrad (open loop)")
+    lost = np.array([bool(r["unmeasurable"]) for r in rows])
+    if lost.any():
+        ax.scatter(e[lost], n[lost], marker="x", s=max(size, 6.0), color="#c92a2a", linewidths=0.8,
+                   label=f"no measurable geometry tonight ({int(lost.sum())})")
+        ax.legend(loc="lower left", fontsize=8)
+    ax.plot([0.0], [0.0], marker="^", color="k", markersize=8)
+    ax.set_aspect("equal")
+    ax.set_xlabel("east, m")
+    ax.set_ylabel("north, m")
+    save_figure(fig, out / name, dpi=110, bbox_inches="tight")
+    return name
+
+
+def distributions(rows: list[dict], out: Path, name: str = "distributions.png") -> str:
+    """Histograms of the predicted daytime RMS and of the geometries measured per heliostat."""
+    plt = pyplot()
+    v = np.array([r["predicted_rms_mrad"] for r in rows if r["predicted_rms_mrad"] is not None], float)
+    got = np.array([r["measured"] for r in rows], int)
+    fig, (a, b) = plt.subplots(1, 2, figsize=(10, 3.4))
+    if v.size:
+        a.hist(v, bins=min(60, max(10, int(np.sqrt(v.size)))), color="#1971c2")
+        a.axvline(float(np.percentile(v, 95)), color="k", lw=0.8, ls="--", label="p95")
+        a.legend(fontsize=8)
+    a.set_xlabel("predicted daytime RMS per heliostat, mrad")
+    a.set_ylabel("heliostats")
+    counts = np.bincount(got, minlength=1) if got.size else np.zeros(1, int)
+    b.bar(np.arange(len(counts)), counts, color="#2f9e44")
+    b.set_xlabel("geometries measured tonight")
+    b.set_ylabel("heliostats")
+    save_figure(fig, out / name, dpi=110, bbox_inches="tight")
+    return name
+
+
+def thumbnails(store: CampaignStore, heliostat_ids: list[str], out: Path) -> dict[str, str]:
+    """Per heliostat of ``heliostat_ids``: the thumbnail (path relative to ``out``) of the HIGH
+    frame of its latest measurement (tonight's when it was measured tonight), scaled to at most
+    :data:`THUMB_PX` wide. One query for all of them; frames no longer on disk are left out."""
+    import cv2
+
+    if not heliostat_ids:
+        return {}
+    marks = ",".join("?" * len(heliostat_ids))
+    rows = store.query(
+        "SELECT r.heliostat_id AS hid, i.path AS path FROM images i "
+        "JOIN measurements m ON i.measurement_id=m.id JOIN heliostat_runs r ON m.run_id=r.id "
+        f"WHERE i.kind='high' AND r.heliostat_id IN ({marks}) ORDER BY m.id", tuple(heliostat_ids))
+    last = {r["hid"]: r["path"] for r in rows}  # the latest frame wins
+    out_paths = {}
+    for hid, path in last.items():
+        try:  # the bounded reader: a stored path may since hold anything
+            img = read_image(path)
+        except InputError:
+            continue
+        scale = min(1.0, THUMB_PX / img.shape[1])
+        small = cv2.resize(img, (max(1, int(img.shape[1] * scale)), max(1, int(img.shape[0] * scale))),
+                           interpolation=cv2.INTER_AREA)
+        rel = f"thumbs/{hid}.png"
+
+        def w(t: Path, small=small) -> None:
+            if not cv2.imwrite(str(t), small):
+                raise OSError(f"could not write {t}")
+        write_atomic(out / rel, w)
+        out_paths[hid] = rel
+    return out_paths

@@ -1,0 +1,166 @@
+"""The spot on a target (controller.geometry.spot) and the tracking model for many poses at once
+(controller.geometry.pose_batch): against the scalar model, by the equations' limits, and
+against the simulated plant's independent truth."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import yaml
+
+from controller.config import parse_config
+from controller.errors import LimitError
+from controller.geometry import pose_batch
+from controller.geometry.kinematics import HeliostatKinematics
+from controller.geometry.spot import (
+    MirrorOptics,
+    PredictedSpot,
+    predict_spots,
+    spot_covariance,
+    standby_clearance_m,
+)
+from controller.geometry.target_frame import TargetFrame
+from controller.geometry.tracking_model import (
+    PRIOR_SIGMA_SI,
+    TrackingModel,
+    model_aim,
+    model_mirror_center,
+    model_normal,
+)
+from tests.calibration.conftest import REPO
+
+N, U, V = np.array([0.0, 1.0, 0.0]), np.array([-1.0, 0.0, 0.0]), np.array([0.0, 0.0, -1.0])
+
+
+@pytest.fixture(scope="module")
+def cfg():
+    return parse_config(yaml.safe_load((REPO / "configs" / "demo.yaml").read_text()), "demo.yaml")
+
+
+def test_batched_aim_and_pose_equal_the_scalar_model(cfg):
+    rng = np.random.default_rng(3)
+    centre = np.asarray(cfg.target().center_enu_m, float)
+    points = centre + np.array([[x, 0.0, z] for x in (-2.0, 0.0, 2.0) for z in (-1.5, 1.5)])
+    for h in cfg.heliostats[::4]:
+        kin = HeliostatKinematics.from_config(h)
+        model = TrackingModel(rng.normal(0.0, PRIOR_SIGMA_SI))
+        for lamp in (s for s in cfg.light_sources if s.kind == "lamp"):
+            pos = np.asarray(lamp.position_enu_m, float)
+            steps, ok = pose_batch.aim_steps(kin, model.values, points, lamp=pos)
+            for k, p in enumerate(points):
+                try:
+                    want = model_aim(kin, model, None, p, lamp_position=pos)
+                except (LimitError, ValueError):
+                    assert not ok[k]
+                    continue
+                assert ok[k] and tuple(steps[k]) == want
+            n, c = pose_batch.normal_and_center(kin, model.values[None, None], steps[ok])
+            for k, st in enumerate(steps[ok]):
+                assert n[0, k] == pytest.approx(model_normal(kin, model, *st), abs=1e-12)
+                assert c[0, k] == pytest.approx(model_mirror_center(kin, model, *st), abs=1e-12)
+
+
+def test_spot_size_terms_and_their_limits():
+    beam = np.array([0.0, -1.0, 0.0])  # head-on to a north-facing... plane whose normal is N
+    # A mirror focused on the target, without slope error: only the lamp's disc, σ = αL/4.
+    only_lamp = spot_covariance(100.0, 2e-3, 0.0, 3.0, 2.0, 100.0, beam, N, U, V)
+    assert np.sqrt(np.diag(only_lamp)) == pytest.approx([0.05, 0.05])
+    # Slope error alone: σ = 2 σ_s L.
+    slope = spot_covariance(100.0, 0.0, 1e-3, 3.0, 2.0, 100.0, beam, N, U, V)
+    assert np.sqrt(np.diag(slope)) == pytest.approx([0.2, 0.2])
+    # Defocus alone: a band of width w|1 − L/f|, σ = that / √12, along each mirror axis.
+    flat = spot_covariance(100.0, 0.0, 0.0, 3.0, 2.0, 50.0, beam, N, U, V)
+    assert np.sqrt(np.diag(flat)) == pytest.approx([3.0 / math.sqrt(12), 2.0 / math.sqrt(12)])
+    # Independent blurs add in quadrature.
+    both = spot_covariance(100.0, 2e-3, 1e-3, 3.0, 2.0, 100.0, beam, N, U, V)
+    assert both[0, 0] == pytest.approx(only_lamp[0, 0] + slope[0, 0])
+    # A beam at 60° to the normal, tilted along u, stretches the spot by 2 along u only.
+    tilted = np.array([-math.sin(math.radians(60)), -math.cos(math.radians(60)), 0.0])
+    long = spot_covariance(100.0, 0.0, 1e-3, 3.0, 2.0, 100.0, tilted, N, U, V)
+    assert np.sqrt(np.diag(long)) == pytest.approx([0.4, 0.2])
+
+
+def test_in_view_is_eq_4_on_both_axes():
+    spots = PredictedSpot(np.array([[1.0, 0.0], [1.0, 0.0], [0.0, 2.5]]), np.array([[0.5, 0.3]] * 3),
+                          np.array([[0.2, 0.1]] * 3))
+    # reach = |o| + 3 (σ + σ_pos): 1 + 2.1 = 3.1 along u; 2.5 + 1.2 = 3.7 along v for the third.
+    assert spots.reach_m()[0] == pytest.approx([3.1, 1.2])
+    assert spots.in_view([3.3, 3.5], 0.2).tolist() == [True, True, False]
+    assert spots.in_view([3.29, 3.5], 0.2).tolist() == [False, False, False]
+    assert standby_clearance_m(4.0, 0.5, 0.2, 0.5) == pytest.approx(4.0 + 2.1 + 0.5)
+
+
+def test_position_uncertainty_follows_the_covariance_and_distance(cfg):
+    """σ_pos of Eq. (3): nil without uncertainty, proportional to the model's σ, larger for a
+    heliostat farther away (a rotation moves the spot by 2 × distance)."""
+    frame = TargetFrame.from_config(cfg.target(), (cfg.camera.height_px, cfg.camera.width_px))
+    lamp = cfg.light_source()
+    pos = np.asarray(lamp.position_enu_m, float)
+    centre = np.asarray(cfg.target().center_enu_m, float)
+    got = {}
+    for hid in ("H04", "H13"):  # 40 m and 74 m from the tower
+        h = cfg.heliostat(hid)
+        kin = HeliostatKinematics.from_config(h)
+        model = TrackingModel.zero()
+        steps, ok = pose_batch.aim_steps(kin, model.values, centre[None], lamp=pos)
+        assert ok[0]
+        optics = MirrorOptics.from_config(h.mirror)
+        for scale in (0.0, 1.0, 2.0):
+            cov = np.diag((scale * PRIOR_SIGMA_SI) ** 2)
+            sp = predict_spots(kin, optics, model.values, cov, steps, centre[None], frame, lamp=pos,
+                               lamp_diameter_m=lamp.diameter_m)
+            got[hid, scale] = sp
+        assert got[hid, 0.0].position_sigma_m[0] == pytest.approx([0.0, 0.0], abs=1e-6)
+        doubled = 2 * got[hid, 1.0].position_sigma_m[0]
+        assert got[hid, 2.0].position_sigma_m[0] == pytest.approx(doubled, rel=1e-6)
+        assert got[hid, 1.0].offset_m[0] == pytest.approx([0.0, 0.0], abs=1e-9)
+    assert np.all(got["H13", 1.0].position_sigma_m[0] > 1.2 * got["H04", 1.0].position_sigma_m[0])
+
+
+def test_measurable_spots_are_whole_in_the_simulated_plants_view(tmp_path):
+    """Against the simulated plant's own optics (simplant.cheap_camera draws each spot from the
+    hidden heliostat's true beam, with its own spot model): on a field calibrated at night 0,
+    every spot the planner calls measurable is drawn whole inside the camera's view, and the
+    true centres fall within the predicted 3σ of the aim point as often as 3σ promises
+    (the truth has effects no model term has: a few may fall outside)."""
+    from controller.calibration.candidates import FieldGeometry, evaluate
+    from controller.calibration.daytime import model_covariance
+    from controller.calibration.planner import aim_points, planner_sun
+    from controller.commands._cheap_night import calibrate_from_truth
+    from controller.storage.db import CampaignStore
+    from simplant.cheap_camera import SPOT_EXTENT_SIGMA
+    from simplant.cheap_camera import spot_covariance as true_spot
+    from simplant.cheap_night import CheapField, field_data
+
+    base = yaml.safe_load((REPO / "configs" / "demo.yaml").read_text())
+    field = CheapField(field_data(base, 30, 1, 3), tmp_path)
+    calibrate_from_truth(field, "f")
+    with CampaignStore(field.db_path, readonly=True) as store:
+        models = store.latest_models()
+    cfg = field.cfg
+    geo = FieldGeometry(cfg, planner_sun(cfg), aim_points)
+    view = geo.views["T1"]
+    fr = view.frame
+    within, count = 0, 0
+    for h in cfg.heliostats:
+        model, cov = model_covariance(models.get(h.id), cfg.calibration.model.prior_sigma)
+        c = evaluate(geo, h.id, model, cov, "T1")
+        for k, (lamp, point, st) in enumerate(zip(c.lamps, c.points, c.steps, strict=True)):
+            hit = field.true_hit(h.id, *st, lamp, "T1")
+            c_true = field.plant.true_mirror_center(h.id, *st)
+            beam = (hit - c_true) / np.linalg.norm(hit - c_true)
+            source = cfg.light_source(lamp)
+            angle = source.diameter_m / np.linalg.norm(np.asarray(source.position_enu_m, float) - c_true)
+            m = h.mirror
+            sig = np.sqrt(np.diag(true_spot(np.linalg.norm(hit - c_true), angle, 1e-3 * m.slope_error_mrad,
+                                            m.width_m, m.height_m, m.focal_length_m, beam, fr.normal, fr.u,
+                                            fr.v)))
+            at = np.abs([(hit - fr.center) @ fr.u, (hit - fr.center) @ fr.v])
+            assert np.all(at + SPOT_EXTENT_SIGMA * sig <= view.half_view_m), (h.id, lamp, at, sig)
+            miss = np.abs([(hit - point) @ fr.u, (hit - point) @ fr.v])
+            within += bool(np.all(miss <= 3.0 * c.spots.position_sigma_m[k]))
+            count += 1
+    assert count > 100
+    assert within >= 0.95 * count
