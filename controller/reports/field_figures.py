@@ -13,6 +13,7 @@ import numpy as np
 
 from controller.errors import InputError
 from controller.io.images import pyplot, read_image, save_figure, write_atomic
+from controller.storage.checks import resolved_image_path
 from controller.storage.db import CampaignStore
 
 THUMB_PX = 160
@@ -79,7 +80,8 @@ def thumbnails(store: CampaignStore, heliostat_ids: list[str], out: Path) -> dic
         "SELECT r.heliostat_id AS hid, i.path AS path FROM images i "
         "JOIN measurements m ON i.measurement_id=m.id JOIN heliostat_runs r ON m.run_id=r.id "
         f"WHERE i.kind='high' AND r.heliostat_id IN ({marks}) ORDER BY m.id", tuple(heliostat_ids))
-    last = {r["hid"]: r["path"] for r in rows}  # the latest frame wins
+    # The latest frame wins; paths are stored relative to the database (or absolute, before that).
+    last = {r["hid"]: resolved_image_path(store.path, r["path"]) for r in rows}
     out_paths = {}
     for hid, path in last.items():
         try:  # the bounded reader: a stored path may since hold anything

@@ -18,6 +18,8 @@ from __future__ import annotations
 
 import argparse
 
+from controller.commands._numbers import Number
+
 
 def register(subparsers) -> None:
     from controller.commands._common import add_config_option, add_json_option
@@ -27,26 +29,22 @@ def register(subparsers) -> None:
     add_config_option(p)
     p.add_argument("--db", required=True, metavar="DB", help="campaign database (SQLite)")
     p.add_argument("--heliostats", default=None, metavar="IDS", help="comma-separated ids (default: all)")
-    p.add_argument("--workers", type=int, default=None, metavar="N",
+    p.add_argument("--workers", type=Number(1, 256, integer=True), default=None, metavar="N",
                    help="worker processes (default: one per core for a large field)")
     add_json_option(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    from pathlib import Path
 
     from controller.calibration.refit import refit_models
     from controller.commands._common import print_json
     from controller.commands._field import open_store
     from controller.config import load_config
-    from controller.errors import InputError
+    from controller.storage.db import open_existing
     from controller.storage.field_records import measurements_by_heliostat, record_models
 
-    if args.workers is not None and not 1 <= args.workers <= 256:
-        raise InputError(f"--workers must be in [1, 256], got {args.workers}")
-    if not Path(args.db).is_file():
-        raise InputError(f"database not found: {args.db}")
+    open_existing(args.db).close()  # an existing heliocal database (not any file), before writing
     cfg = load_config(args.config)
     ids = None
     if args.heliostats:
