@@ -10,7 +10,7 @@ import pytest
 
 from controller.devices.camera import CameraError
 from controller.devices.gige import GigeCamera
-from controller.devices.gige_device import GigeImager, ImagerSettings, discovered_devices
+from controller.devices.gige_device import GigeImager, ImagerSettings, IncompleteFrame, discovered_devices
 from tests.conftest import scaled_s
 from tests.devices.conftest import FAKE_SKEW_MS
 
@@ -156,10 +156,19 @@ def test_thousand_pairs_leak_no_buffers_or_descriptors(fake_gv, camera_config):
         cam.capture()
         fds = _open_fds()
         ids = set()
-        for _ in range(1000):
-            pair = cam.capture()
-            ids.add(tuple(pair.metadata["frame_ids"]))
-        assert len(ids) == 1000  # every pair is a new pair of frames
+        incomplete = 0
+        while len(ids) < 1000:
+            try:
+                pair = cam.capture()
+            except IncompleteFrame:
+                # UDP on a loaded machine may drop a packet: the driver refuses the frame (its
+                # buffer goes back to the stream), which is what this test checks for leaks too.
+                incomplete += 1
+                assert incomplete <= 50, "more than 5 % of the frames incomplete"
+                continue
+            frame_ids = tuple(pair.metadata["frame_ids"])
+            assert frame_ids not in ids  # every pair is a new pair of frames
+            ids.add(frame_ids)
         # <=: a lost camera of an earlier test may still be releasing its sockets (background).
         assert _open_fds() <= fds
         for imager in cam.imagers:
