@@ -4,8 +4,8 @@ beam at a time while the targets work side by side (docs/campaigns.md, "Several 
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor, wait
 from typing import TypeVar
 
 R = TypeVar("R")
@@ -22,17 +22,34 @@ def run_per_target(jobs: dict[str, Callable[[], R]],
     if len(jobs) == 1:
         ((tid, job),) = jobs.items()
         return {tid: job()}
-    with ThreadPoolExecutor(max_workers=len(jobs), thread_name_prefix="target") as pool:
-        futures = {}
+    results: dict[str, R] = {}
+    errors: dict[str, BaseException] = {}
+
+    def runner(tid: str, job: Callable[[], R]) -> None:
         try:
-            for tid, job in jobs.items():
-                futures[tid] = pool.submit(job)
-            # Short waits: the main thread must stay interruptible by Ctrl-C.
-            while wait(futures.values(), timeout=0.2).not_done:
-                pass
-        except KeyboardInterrupt:
-            if stop_all is not None:
-                stop_all()
-            pool.shutdown(wait=True)
-            raise
-    return {tid: f.result() for tid, f in futures.items()}
+            results[tid] = job()
+        except BaseException as exc:  # raised by the main thread once every job has ended
+            errors[tid] = exc
+
+    threads: list[threading.Thread] = []
+    try:
+        for tid, job in jobs.items():
+            t = threading.Thread(target=runner, args=(tid, job), name=f"target-{tid}", daemon=True)
+            # Listed before it starts: a Ctrl-C between the start and the listing would leave a
+            # running job nobody waits for.
+            threads.append(t)
+            t.start()
+        for t in threads:
+            while t.is_alive():
+                t.join(0.2)  # short joins: the main thread must stay interruptible by Ctrl-C
+    except KeyboardInterrupt:
+        if stop_all is not None:
+            stop_all()
+        for t in threads:
+            if t.ident is not None:  # started (a job interrupted before its start never ran)
+                t.join()
+        raise
+    for tid in jobs:
+        if tid in errors:
+            raise errors[tid]
+    return {tid: results[tid] for tid in jobs}
