@@ -269,7 +269,6 @@ def _thumbnails(store: CampaignStore, camp: CampaignRecord, runs: list[RunRecord
     """Per heliostat: (label, thumbnail path relative to ``out``, stored image) of its first
     and last measurement's HIGH frame, scaled to at most ``THUMB_PX`` wide. Frames no longer on
     disk are left out."""
-    import cv2
 
     by_run: dict[int, list] = {}
     for m in store.measurements(campaign_id=camp.id):
@@ -279,23 +278,30 @@ def _thumbnails(store: CampaignStore, camp: CampaignRecord, runs: list[RunRecord
         ms = by_run.get(r.id, [])
         for label, m in (("first", ms[0]), ("last", ms[-1])) if ms else ():
             high = next((im for im in store.images(m.id) if im.kind == "high"), None)
-            try:  # the bounded reader: a stored path may since hold anything
-                img = read_image(high.path) if high is not None else None
-            except InputError:
-                img = None
-            if img is None:
-                continue
-            scale = min(1.0, THUMB_PX / img.shape[1])
-            small = cv2.resize(img, (max(1, int(img.shape[1] * scale)), max(1, int(img.shape[0] * scale))),
-                               interpolation=cv2.INTER_AREA)
             rel = f"thumbs/{r.heliostat_id}-{label}.png"
-
-            def w(t: Path, small=small) -> None:
-                if not cv2.imwrite(str(t), small):
-                    raise OSError(f"could not write {t}")
-            write_atomic(out / rel, w)
-            thumbs.setdefault(r.heliostat_id, []).append((label, rel, Path(high.path).resolve().as_uri()))
+            if high is not None and write_thumbnail(high.path, out / rel):
+                thumbs.setdefault(r.heliostat_id, []).append((label, rel, Path(high.path).resolve().as_uri()))
     return thumbs
+
+
+def write_thumbnail(image: str | Path, dest: Path) -> bool:
+    """Write ``image`` scaled to at most ``THUMB_PX`` wide to ``dest`` (atomically); False when
+    the stored frame is gone or no longer an image (the bounded reader refuses it)."""
+    import cv2
+
+    try:
+        img = read_image(image)
+    except InputError:
+        return False
+    scale = min(1.0, THUMB_PX / img.shape[1])
+    small = cv2.resize(img, (max(1, int(img.shape[1] * scale)), max(1, int(img.shape[0] * scale))),
+                       interpolation=cv2.INTER_AREA)
+
+    def w(t: Path) -> None:
+        if not cv2.imwrite(str(t), small):
+            raise OSError(f"could not write {t}")
+    write_atomic(dest, w)
+    return True
 
 
 def _inline(text: str) -> str:

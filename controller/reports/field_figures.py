@@ -11,12 +11,10 @@ from pathlib import Path
 
 import numpy as np
 
-from controller.errors import InputError
-from controller.io.images import pyplot, read_image, save_figure, write_atomic
+from controller.io.images import pyplot, save_figure
+from controller.reports.campaign import write_thumbnail
 from controller.storage.checks import resolved_image_path
 from controller.storage.db import CampaignStore
-
-THUMB_PX = 160
 
 
 def field_map(rows: list[dict], out: Path, name: str = "field_map.png") -> str:
@@ -70,8 +68,8 @@ def distributions(rows: list[dict], out: Path, name: str = "distributions.png") 
 def thumbnails(store: CampaignStore, heliostat_ids: list[str], out: Path) -> dict[str, str]:
     """Per heliostat of ``heliostat_ids``: the thumbnail (path relative to ``out``) of the HIGH
     frame of its latest measurement (tonight's when it was measured tonight), scaled to at most
-    :data:`THUMB_PX` wide. One query for all of them; frames no longer on disk are left out."""
-    import cv2
+    :data:`controller.reports.campaign.THUMB_PX` wide. One query for all of them; frames no
+    longer on disk are left out."""
 
     if not heliostat_ids:
         return {}
@@ -84,18 +82,8 @@ def thumbnails(store: CampaignStore, heliostat_ids: list[str], out: Path) -> dic
     last = {r["hid"]: resolved_image_path(store.path, r["path"]) for r in rows}
     out_paths = {}
     for hid, path in last.items():
-        try:  # the bounded reader: a stored path may since hold anything
-            img = read_image(path)
-        except InputError:
-            continue
-        scale = min(1.0, THUMB_PX / img.shape[1])
-        small = cv2.resize(img, (max(1, int(img.shape[1] * scale)), max(1, int(img.shape[0] * scale))),
-                           interpolation=cv2.INTER_AREA)
         rel = f"thumbs/{hid}.png"
-
-        def w(t: Path, small=small) -> None:
-            if not cv2.imwrite(str(t), small):
-                raise OSError(f"could not write {t}")
-        write_atomic(out / rel, w)
+        if not write_thumbnail(path, out / rel):
+            continue
         out_paths[hid] = rel
     return out_paths
