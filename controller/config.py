@@ -220,6 +220,9 @@ class Calibration(_Model):
     settle_s: float = Field(default=0.5, ge=0, le=60, description="settling time after a move, s")
     pipeline_depth: int = Field(default=6, ge=1, le=64,
                                 description="heliostats in their cycle at once (slewing to standby)")
+    beams_per_target: int = Field(default=1, ge=1, le=8,
+                                  description="heliostats measured in one capture on a target, each at "
+                                              "its own slot (lamps at night only, docs/campaigns.md)")
     tolerance_mrad: float = Field(default=0.5, gt=0, le=50)
     max_iterations: int = Field(default=4, ge=1, le=50)
     standby_offset_m: float = Field(default=15.0, gt=0, le=200,
@@ -270,6 +273,14 @@ class PlantConfig(_Model):
                                  "of light_sources")
             if lamp in self.calibration.lamps[:index]:
                 raise ValueError(f"calibration.lamps[{index}]: {lamp!r} is listed twice")
+        if self.calibration.beams_per_target > 1:
+            sun = [s for s in (self.calibration.light_source, *self.calibration.lamps)
+                   if s not in lamps]
+            if sun:
+                k = self.calibration.beams_per_target
+                raise ValueError(f"calibration.beams_per_target: {k} beams on one target need lamps; "
+                                 f"light source {sun[0]!r} is the sun (one concentrated sunlight beam "
+                                 "per target)")
         if self.calibration.target not in {t.id for t in self.targets}:
             raise ValueError(f"calibration.target: {self.calibration.target!r} "
                              "is not the id of any entry of targets")

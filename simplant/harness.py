@@ -52,6 +52,8 @@ class TruthRecorder(CampaignObserver):
 
     def measured(self, heliostat_id: str, measurement: MeasurementRecord) -> None:
         err = self.plant.true_error_mrad(heliostat_id)
+        if measurement.centroid_enu is not None:  # whose spot it really was (several beams per target)
+            self.plant.spot_truth.misassigned(heliostat_id, measurement.centroid_enu)
         with self._lock:
             self._errors.setdefault(heliostat_id, []).append(err)
 

@@ -54,6 +54,7 @@ from simplant.plant_camera import RENDER_RAYS, PlantCamera
 from simplant.poses import true_pose
 from simplant.safety import BeamSafetyMonitor
 from simplant.settings import SimulationSettings
+from simplant.spot_truth import SpotTruth
 from simplant.truth import hidden_truth
 
 NIGHT_ONE = datetime(2026, 3, 1, 20, 0, tzinfo=UTC)  # first simulated night, plant calendar
@@ -115,6 +116,7 @@ class SimulatedPlant:
         self.serial: dict[str, object] = {}
         self.modbus = None
         self.safety = BeamSafetyMonitor(self)
+        self.spot_truth = SpotTruth()  # whose spot is where in each render; the identity-swap fault
         self.camera: PlantCamera | None = None  # the calibration target's camera
         self.cameras: dict[str, PlantCamera] = {}  # target id -> its camera
         self.config: PlantConfig | None = None
@@ -353,7 +355,8 @@ class SimulatedPlant:
         coarse = coarse_grid(grid)
         img = np.zeros(coarse.shape)
         half = np.array([grid.width_m, grid.height_m]) / 2 + 1.5  # margin for the spot size
-        for hid, hh in self.hidden.items():
+        seen = {}
+        for hid in self.hidden:
             n, pos = true_pose(self, hid)
             s = unit(lamp - pos)
             beam = 2.0 * (s @ n) * n - s
@@ -366,11 +369,18 @@ class SimulatedPlant:
             rel = pos + t * beam - grid.center
             if abs(rel @ grid.u_axis) > half[0] or abs(rel @ grid.v_axis) > half[1]:
                 continue
+            seen[hid] = (pos, rel)
+        shifts = self.spot_truth.shifts({hid: rel for hid, (_, rel) in seen.items()})
+        for hid, (pos, rel) in seen.items():
+            hh = self.hidden[hid]
             diameter = float(src.diameter_m) / float(np.linalg.norm(lamp - pos))
             normals = self.beam_normals(hid)
+            own = np.zeros(coarse.shape)
             for nn in normals:
-                img += render_spot(pos, nn, lamp, diameter, hh.mirror, coarse, rng=rng,
+                own += render_spot(pos, nn, lamp, diameter, hh.mirror, coarse, rng=rng,
                                    n_rays=RENDER_RAYS // len(normals)) / len(normals)
+            img += self.spot_truth.place(own, coarse, grid.center + rel, shifts.get(hid))
+        self.spot_truth.record({h: grid.center + rel + shifts.get(h, 0.0) for h, (_, rel) in seen.items()})
         if coarse.shape == grid.shape:
             return img
         # Pixel centres of both grids span the same plane area: resize maps them consistently.

@@ -19,7 +19,9 @@ class BeamSafetyMonitor:
     """Watches the plant's truth: whose reflected central ray is on each target right now.
 
     Samples every ``period_s`` of wall time; ``violations`` counts the (sample, target) pairs
-    with more than one beam on the target (the controller must never cause one), ``report()`` summarises;
+    with more beams on the target than the lit source allows (the controller must never cause
+    one): one beam of concentrated *sunlight*, ``calibration.beams_per_target`` beams of a
+    *lamp* (weak at night, docs/campaigns.md); ``report()`` summarises;
     ``intervals`` lists, per target, the plant-clock spans (start, end, heliostat) during
     which one beam was on it."""
 
@@ -118,10 +120,11 @@ class BeamSafetyMonitor:
         now = self.plant.clock()
         self.samples += 1
         beams = self.beams()
+        allowed = self.allowed_beams()
         for t in self.plant.cfg.targets:
             on = self.on_target(t.id, beams)
             self.max_on_target = max(self.max_on_target, len(on))
-            if len(on) > 1:
+            if len(on) > allowed:
                 self.violations += 1
                 self.offenders.add(tuple(sorted(on)))
             held = self._open.get(t.id)
@@ -130,6 +133,14 @@ class BeamSafetyMonitor:
                 del self._open[t.id]
             if len(on) == 1 and t.id not in self._open:
                 self._open[t.id] = (now, on[0])
+
+    def allowed_beams(self) -> int:
+        """Beams a target may hold now: ``calibration.beams_per_target`` under a lamp, one under
+        the sun (and one while dark: any beam then is a fault of the simulation)."""
+        src = self.plant.lamp()
+        if src is not None and src.kind == "lamp":
+            return self.plant.cfg.calibration.beams_per_target
+        return 1
 
     def _run(self) -> None:
         while not self._stop.wait(self.period_s):

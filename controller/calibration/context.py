@@ -62,6 +62,7 @@ class CycleContext:
     observe_only: bool = False  # a planned observation: one measurement, no correction
     coarse_confidence: float | None = None  # apply a match's coarse correction at >= this; None: never
     backlash_steps: tuple[int, int] = (0, 0)  # (az, el): measuring moves end moving up by more
+    group: Any = None  # several beams on the target: controller.calibration.group.SharedCapture
 
 
 class CycleObserver:

@@ -1,4 +1,5 @@
-"""One beam on the target at a time: the target is handed out in queue order."""
+"""Beams on the target: handed out in queue order, one at a time — or, under a lamp at night
+with ``calibration.beams_per_target`` K > 1, up to K at once, each at its own slot."""
 
 from __future__ import annotations
 
@@ -7,37 +8,98 @@ from collections.abc import Callable
 
 
 class TargetGate:
-    """Hands the target to one heliostat at a time, in queue order (tickets 0, 1, 2, …).
+    """Hands the target to heliostats in queue order (tickets 0, 1, 2, …), ``beams`` at a time.
 
-    ``acquire(ticket)`` blocks until every smaller ticket was released (or skipped);
+    ``acquire(ticket)`` blocks until every smaller ticket acquired the target (or was skipped)
+    and, with ``beams`` K, ticket ``t − K`` released it: ticket t uses slot ``t mod K``
+    (:meth:`slot`), which only one beam holds at a time. With K = 1 this is one beam at a
+    time, in queue order. ``acquire_alone(ticket)``: for a heliostat measured again alone (its
+    spot could not be told from the others): waits until no other beam holds the target and
+    keeps every other ticket off it until released; it goes before tickets not yet admitted.
     ``blocked`` becomes True when a beam may have been left on the target, after which nobody
     gets the target again.
     """
 
-    def __init__(self, first_ticket: int = 0) -> None:
-        self._cv = threading.Condition()
-        self._next = first_ticket
+    def __init__(self, first_ticket: int = 0, beams: int = 1) -> None:
+        if beams < 1:
+            raise ValueError(f"beams per target must be at least 1, got {beams}")
+        self.beams = beams
+        self.cv = threading.Condition()
+        self._next = first_ticket  # the next ticket to admit, in queue order
+        self._first = first_ticket
         self._done: set[int] = set()
-        self.holder: int | None = None
+        self.holders: set[int] = set()
+        self.alone: int | None = None  # the ticket measured alone now
+        self._alone_waiting: set[int] = set()
+        self.waiting: set[int] = set()  # tickets blocked in acquire
         self.blocked = False
 
+    @property
+    def holder(self) -> int | None:
+        """The one holder (K = 1), or None."""
+        return next(iter(self.holders), None) if len(self.holders) == 1 else None
+
+    def slot(self, ticket: int) -> int:
+        """The slot (0 … K − 1) of ``ticket``: its aim point on the target."""
+        return (ticket - self._first) % self.beams
+
+    def admissible(self, ticket: int) -> bool:
+        """Could ``ticket`` take the target now (the caller holds ``cv``)?"""
+        return (self._next == ticket and not self.blocked and self.alone is None and not self._alone_waiting
+                and len(self.holders) < self.beams
+                and (ticket - self.beams < self._first or ticket - self.beams in self._done))
+
     def acquire(self, ticket: int, cancelled: Callable[[], bool], poll_s: float = 0.05) -> bool:
-        with self._cv:
-            while not (self._next == ticket and self.holder is None) or self.blocked:
-                if cancelled() or self.blocked:
-                    return False
-                self._cv.wait(poll_s)
-            self.holder = ticket
-            return True
+        with self.cv:
+            self.waiting.add(ticket)
+            try:
+                while not self.admissible(ticket):
+                    if cancelled() or self.blocked:
+                        return False
+                    self.cv.wait(poll_s)
+                self.holders.add(ticket)
+                self._next += 1
+                while self._next in self._done:
+                    self._next += 1
+                self.cv.notify_all()
+                return True
+            finally:
+                self.waiting.discard(ticket)
+
+    def acquire_alone(self, ticket: int, cancelled: Callable[[], bool], poll_s: float = 0.05) -> bool:
+        """Take the target with no other beam on it (module docstring); the ticket must have
+        given its slot back first (:meth:`give_back`)."""
+        with self.cv:
+            self._alone_waiting.add(ticket)
+            try:
+                while self.holders or self.alone is not None or min(self._alone_waiting) != ticket:
+                    if cancelled() or self.blocked:
+                        return False
+                    self.cv.wait(poll_s)
+                self.alone = ticket
+                return True
+            finally:
+                self._alone_waiting.discard(ticket)
+                self.cv.notify_all()
+
+    def give_back(self, ticket: int, beam_off_target: bool = True) -> None:
+        """Give the slot back without ending the ticket (its beam parked, to be measured alone)."""
+        with self.cv:
+            if not beam_off_target:
+                self.blocked = True
+            self.holders.discard(ticket)
+            self.cv.notify_all()
 
     def release(self, ticket: int, beam_off_target: bool = True) -> None:
         """Give the target back (or skip this ticket if it never held it)."""
-        with self._cv:
+        with self.cv:
             if not beam_off_target:
                 self.blocked = True
-            if self.holder == ticket:
-                self.holder = None
+            self.holders.discard(ticket)
+            if self.alone == ticket:
+                self.alone = None
             self._done.add(ticket)
-            while self._next in self._done:
-                self._next += 1
-            self._cv.notify_all()
+            if self._next == ticket:  # skipped before its turn came
+                while self._next in self._done:
+                    self._next += 1
+            self.cv.notify_all()

@@ -16,8 +16,8 @@ as the machine has left that state. An exception in a ``do_`` method fires ``fai
 Beam safety:
 * a heliostat approaches the target only from its standby point (``preparing`` parks it
   there first, ``slewing`` starts from ``standby``);
-* the target is used by one heliostat at a time: :class:`TargetGate` hands it out in queue
-  order, and it is given back only once the beam is parked off the target again;
+* :class:`TargetGate` hands the target out in queue order, one beam at a time (K under lamps
+  at night, :mod:`controller.calibration.group`), back only once the beam is parked off it;
 * after its measurement (or a fault) the beam is always moved back to standby before the
   cycle ends; if that fails the heliostat is stowed, and if even that fails the cycle ends
   *aborted* with ``beam_maybe_on_target`` set, so the campaign stops using the target.
@@ -30,8 +30,7 @@ or ``max_iterations`` measurements were taken (one on a planned night's observat
 ``Pointing.fit`` refits the heliostat's model. Measuring moves end moving up on both axes
 (:mod:`controller.calibration.approach`, backlash).
 
-Units: motor steps (int), angles in degrees at this edge, errors in mrad (reflected-beam
-angle), ENU metres, plant-clock seconds.
+Units: motor steps (int), degrees at this edge, mrad (reflected beam), ENU m, plant-clock s.
 """
 
 from __future__ import annotations
@@ -140,6 +139,7 @@ class CalibrationCycle:
         self.fault_state: str | None = None
         self.frame = None
         self.hdr: np.ndarray | None = None
+        self.isolate = None  # HDR -> the HDR with only this heliostat's spot (several beams)
         self.obs: Observation | None = None
         self.match: Match | None = None
         self.coarse_done = False
@@ -148,7 +148,6 @@ class CalibrationCycle:
         self.run_rec = RunRecord(ctx.heliostat_id, ctx.queue_index, "running", "idle", 0,
                                  start_s=ctx.time.now(), end_s=ctx.time.now())
 
-    # -- machine plumbing ---------------------------------------------------------------------
     state: str  # set by transitions
 
     def _state_changed(self) -> None:
@@ -218,7 +217,6 @@ class CalibrationCycle:
                 self.trigger(nxt)
         return self._finish()
 
-    # -- helpers -------------------------------------------------------------------------------
     @property
     def _ticket(self) -> int:
         return self.ctx.queue_index if self.ctx.ticket is None else self.ctx.ticket
@@ -243,7 +241,6 @@ class CalibrationCycle:
         self.az, self.el = st.az_steps, st.el_steps
         self.at = (st.az_steps, st.el_steps)
 
-    # -- the work of each state ----------------------------------------------------------------
     def do_preparing(self) -> str:
         p = self.ctx.pointing
         self.aim = p.aim_steps(self.ctx.model)
@@ -287,7 +284,10 @@ class CalibrationCycle:
         return "settled"
 
     def do_capturing(self) -> str:
-        self.frame = self.ctx.camera.capture()
+        if self.ctx.group is None:
+            self.frame = self.ctx.camera.capture()
+        else:  # several beams on the target: one capture for all, whose spot confirmed by a step
+            self.frame, self.isolate = self.ctx.group.capture(self)
         return "captured"
 
     def do_merging(self) -> str:
@@ -295,7 +295,8 @@ class CalibrationCycle:
         return "merged"
 
     def do_analysing(self) -> str:
-        self.obs = self.ctx.analyze(self.hdr)  # raises BeamNotFound with the reason
+        hdr = self.hdr if self.isolate is None else self.isolate(self.hdr)  # its own spot only
+        self.obs = self.ctx.analyze(hdr)  # raises BeamNotFound with the reason
         return "analysed"
 
     def do_matching(self) -> str:
@@ -379,7 +380,6 @@ class CalibrationCycle:
             self.cause = f"{self.cause}; standby failed ({first}); stow failed ({second})"
             return "give_up"
 
-    # -- end ----------------------------------------------------------------------------------
     def _release_target(self) -> None:
         self.ctx.gate.release(self._ticket, beam_off_target=not self.beam_on_target)
         self.holds_target = False

@@ -34,12 +34,14 @@ from dataclasses import dataclass, field, replace
 from typing import Any, Protocol
 
 from controller.calibration.beam_chain import BeamChain
+from controller.calibration.beams import beams_allowed
 from controller.calibration.context import CycleContext
 from controller.calibration.exposure import capture_unsaturated
 from controller.calibration.field import Field, LampLit
 from controller.calibration.gate import TargetGate
+from controller.calibration.group import SharedCapture
 from controller.calibration.lamp_change import clear_targets
-from controller.calibration.machine import CalibrationCycle
+from controller.calibration.machine import STATES, CalibrationCycle
 from controller.calibration.no_beam import NoBeamWatch
 from controller.calibration.observers import CampaignObserver, Observers
 from controller.calibration.outcome import CampaignResult, outcome
@@ -53,6 +55,7 @@ from controller.calibration.records import (
     RunRecord,
 )
 from controller.calibration.registration_step import register_chain
+from controller.calibration.slots import slot_layout, spot_reach_m
 from controller.config import PlantConfig
 from controller.devices.drive import DriveError
 from controller.errors import InputError
@@ -140,6 +143,8 @@ class Campaign:
         self._go = threading.Event()
         self._go.set()
         self._cycles: dict[str, CalibrationCycle] = {}
+        self.slots = None  # controller.calibration.slots.SlotLayout with several beams per target
+        self.group: SharedCapture | None = None
 
     def request_stop(self) -> None:
         """Stop the campaign from another thread, as Ctrl-C does: every cycle in flight parks
@@ -180,12 +185,24 @@ class Campaign:
                 current[hid] = (st.az_steps, st.el_steps)
             except DriveError:  # unreachable now: its cycle will record the failure
                 pass
+        # Several beams per target only under a lamp at night (InputError naming the key otherwise).
+        beams = beams_allowed(self.cfg, source.id, self.time.utc())
         with self.time.computing():
-            pointing = {hid: GeometryPointing(self.cfg.heliostat(hid), target, source, self.chain.frame,
-                                              cal.standby_offset_m, current.get(hid), cal.model,
-                                              aims.get(hid), others=self.cfg.targets,
-                                              zones=self.cfg.person_zones, model=self.field.model(hid))
-                        for hid in self.ids}
+            models = self.field.models(self.ids)
+
+            def pointing_at(hid: str, aim) -> GeometryPointing:
+                return GeometryPointing(self.cfg.heliostat(hid), target, source, self.chain.frame,
+                                        cal.standby_offset_m, current.get(hid), cal.model, aim,
+                                        others=self.cfg.targets, zones=self.cfg.person_zones,
+                                        model=models[hid])
+
+            self._pointing_at = pointing_at
+            pointing = {hid: pointing_at(hid, aims.get(hid)) for hid in self.ids}
+            self.slots = None
+            if beams > 1:
+                reach = spot_reach_m(self.cfg, target.id, source.id, models, target.center_enu_m)
+                layout = slot_layout(self.chain.frame, beams, reach, cal.planner.view_margin_m)
+                self.slots = layout if layout.k > 1 else None
             existing = self.store.campaign_by_name(self.opt.name)
             queue = existing.queue if existing is not None else order_queue(self.cfg, self.ids, current,
                                                                             pointing)
@@ -223,7 +240,14 @@ class Campaign:
                  pointing: dict[str, GeometryPointing]) -> CampaignResult:
         done = self.store.done_heliostats(cid)
         todo = [(i, hid) for i, hid in enumerate(queue) if hid not in done]
-        gate = TargetGate()
+        gate = TargetGate(beams=1 if self.slots is None else self.slots.k)
+        self.group = None
+        if self.slots is not None:
+            # Each heliostat at its ticket's slot; one capture for all beams, identity by a step.
+            with self.time.computing():
+                for ticket, (_, hid) in enumerate(todo):
+                    pointing[hid] = self._pointing_at(hid, self.slots.aim(gate.slot(ticket)))
+            self.group = SharedCapture(gate, self._capture, self.chain.merge, self.chain.frame)
         t0 = self.time.now()
         session: list[RunRecord] = []
         cycles = self._cycles
@@ -288,6 +312,9 @@ class Campaign:
         name = self.opt.name
         images = self.field.images
         h = self.cfg.heliostat(hid)
+        timeouts = dict(self.opt.timeouts)
+        if self.group is not None:  # capturing waits for the others and may measure again alone
+            timeouts.setdefault("capturing", dict((s, t) for s, t, _ in STATES)["standby"])
 
         def save(frame, hdr, iteration):
             return images.save(name, hid, iteration, frame) if images is not None else []
@@ -302,8 +329,8 @@ class Campaign:
             observe_only=self.opt.observe, settle_s=self.opt.settle_s,
             coarse_confidence=None if self.opt.observe else cal.coarse_correction,
             backlash_steps=(h.axes.azimuth.backlash_steps, h.axes.elevation.backlash_steps),
-            move_timeout_s=self.opt.move_timeout_s, time=self.time, timeouts=self.opt.timeouts,
-            save_images=save, observer=self.observer)
+            move_timeout_s=self.opt.move_timeout_s, time=self.time, timeouts=timeouts,
+            save_images=save, observer=self.observer, group=self.group)
 
 
 class _StateTable(CampaignObserver):

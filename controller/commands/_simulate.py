@@ -82,6 +82,7 @@ def _merge_safety(plant, into: dict | None, on_target: dict | None) -> None:
         into["samples"] = into.get("samples", 0) + r["samples"]
         into["violations"] = into.get("violations", 0) + r["violations"]
         into["max_beams_on_target"] = max(into.get("max_beams_on_target", 0), r["max_beams_on_target"])
+        into["misassigned"] = into.get("misassigned", 0) + plant.spot_truth.misassigned_count
     if on_target is not None:
         for tid, spans in plant.safety.intervals.items():
             on_target.setdefault(tid, []).extend(spans)

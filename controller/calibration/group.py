@@ -1,0 +1,230 @@
+"""One capture for several beams on a target, and whose spot is whose (``beams_per_target`` K > 1).
+
+The heliostats holding the target's slots (:class:`controller.calibration.gate.TargetGate`)
+meet at a *round* (:meth:`SharedCapture.capture`, called by each one's cycle in *capturing*):
+
+1. the round forms when every heliostat on the target is settled at its slot and waits in
+   *capturing*, and no further heliostat is about to take a free slot; one capture (frame 1)
+   serves them all;
+2. each steps by its own known amount (motor steps in its own direction, both axes moving up
+   as the approach ended, so backlash stays taken up), settles, and a second capture (frame 2)
+   is taken once all have;
+3. the spots of both frames are separated and each heliostat's spot is the one that moved by
+   its predicted displacement and sits at its slot (:func:`controller.imaging.spots.assign_by_step`).
+   Its measurement is frame 1 with every other spot replaced by the background, at the pose
+   of frame 1;
+4. a heliostat whose spot is missing or ambiguous is **measured again alone**: it parks at
+   standby, gives its slot back, waits until no other beam is on the target
+   (:meth:`TargetGate.acquire_alone`, no newcomer admitted meanwhile), approaches its pose
+   again and is captured with its beam the only one. A measurement is never taken from a
+   spot whose identity was not confirmed.
+
+Corrections (a calibration campaign) repeat this per measurement with the other beams in place.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from dataclasses import dataclass, field
+from functools import partial
+from typing import Any
+
+import numpy as np
+
+from controller.calibration.approach import approach_path
+from controller.calibration.slots import IDENTITY_STEP_M
+from controller.imaging.spots import assign_by_step, centroids_px, isolate, spot_regions
+
+
+@dataclass
+class _Round:
+    members: dict[int, tuple[np.ndarray, np.ndarray]]  # ticket -> (slot uv m, predicted step uv m)
+    frame1: Any = None
+    frame2: Any = None
+    stepped: set[int] = field(default_factory=set)
+    left: set[int] = field(default_factory=set)
+    second_started: bool = False
+    failed: bool = False  # a capture of the round failed: every member leaves it
+    assigned: dict[int, int | None] | None = None
+    labels: np.ndarray | None = None
+
+
+class SharedCapture:
+    """The rounds of one target's campaign (module docstring). ``capture()`` takes one frame
+    pair from the target's camera (serialised by the campaign), ``merge`` makes its HDR image,
+    ``frame`` maps pixels to the target (:class:`controller.geometry.target_frame.TargetFrame`)."""
+
+    def __init__(self, gate, capture, merge, frame) -> None:
+        self.gate = gate
+        self._capture = capture
+        self.merge = merge
+        self.frame = frame
+        self._round: _Round | None = None
+        self._ready: set[int] = set()
+        self._lock = threading.Lock()  # the round's identification, computed once
+        self.rounds = 0
+        self.alone: list[str] = []  # heliostats measured again alone (ambiguous or missing spot)
+
+    # -- geometry -------------------------------------------------------------------------------
+    def uv(self, enu) -> np.ndarray:
+        rel = np.asarray(enu, float) - self.frame.center
+        return np.array([rel @ self.frame.u, rel @ self.frame.v])
+
+    def identity_step(self, cyc) -> tuple[tuple[int, int], np.ndarray]:
+        """The known step of ``cyc``'s heliostat (motor steps, both ≥ 0) and the spot's
+        predicted displacement (u, v) m: direction θ = 90° · slot / (K − 1) in step space,
+        scaled to move the spot about IDENTITY_STEP_M (the pointing's Jacobian)."""
+        p, k = cyc.ctx.pointing, self.gate.beams
+        theta = 0.5 * math.pi * self.gate.slot(cyc._ticket) / max(k - 1, 1)
+        # Steps that move the spot by one metre along u and along v (fine correction: the step
+        # that takes a spot seen at the offset back onto the aim moves it by minus the offset).
+        cols = []
+        for axis in (self.frame.u, self.frame.v):
+            s = p.fine_correction(cyc.az, cyc.el, -np.asarray(axis, float))
+            cols.append((s.daz_steps, s.del_steps))
+        m = np.array(cols, float).T  # steps per metre of (u, v)
+        per_step = np.linalg.inv(m)  # metres of (u, v) per step
+        want = np.array([math.cos(theta), math.sin(theta)])
+        scale = IDENTITY_STEP_M / max(np.linalg.norm(per_step @ want), 1e-12)
+        step = np.rint(want * scale).astype(int)
+        return (int(step[0]), int(step[1])), per_step @ step
+
+    # -- the round -----------------------------------------------------------------------------
+    def _fires(self) -> bool:
+        g = self.gate
+        if self._round is not None or not g.holders or not g.holders <= self._ready:
+            return False
+        return not any(g.admissible(t) for t in g.waiting)
+
+    def capture(self, cyc):
+        """Frame 1 of this heliostat's round and a function isolating its spot in the HDR image
+        (None when it was measured alone); module docstring."""
+        g, ticket = self.gate, cyc._ticket
+        cancelled = lambda: cyc.state != "capturing"  # noqa: E731
+        pose = (cyc.az, cyc.el)
+        step, disp = self.identity_step(cyc)
+        slot_uv = self.uv(cyc.ctx.pointing.aim_point)
+        leader = False
+        with g.cv:
+            self._ready.add(ticket)
+            g.cv.notify_all()
+            try:
+                while True:
+                    rnd = self._round
+                    if rnd is not None and ticket in rnd.members:
+                        break
+                    if self._fires():  # every beam on the target waits here: one capture for all
+                        rnd = self._round = _Round(dict.fromkeys(g.holders))
+                        leader = True
+                        break
+                    cyc._check_current("capturing")
+                    g.cv.wait(0.02)
+            finally:
+                self._ready.discard(ticket)
+            rnd.members[ticket] = (slot_uv, disp)
+        try:
+            if leader:
+                frame1 = self._capture()
+                with g.cv:
+                    rnd.frame1 = frame1
+                    self.rounds += 1
+                    g.cv.notify_all()
+            with g.cv:
+                while rnd.frame1 is None:
+                    if rnd.failed or cancelled():
+                        raise _Left
+                    g.cv.wait(0.02)
+            if cancelled():
+                raise _Left
+            cyc._move("capturing", pose[0] + step[0], pose[1] + step[1])
+            cyc._wait("capturing", cyc.ctx.settle_s)
+        except BaseException:
+            if leader and rnd.frame1 is None:
+                rnd.failed = True
+            self._leave(rnd, ticket, stepped=True)
+            raise
+        try:
+            self._second(rnd, ticket, cancelled)
+        except BaseException:
+            self._leave(rnd, ticket)
+            raise
+        cyc.az, cyc.el = pose  # the measurement is frame 1's, at frame 1's pose
+        label = self._identify(rnd, ticket)
+        self._leave(rnd, ticket)
+        if label is not None:
+            return rnd.frame1, partial(isolate, labels=rnd.labels, keep=label + 1)
+        return self._alone(cyc, pose), None
+
+    def _second(self, rnd: _Round, ticket: int, cancelled) -> None:
+        g = self.gate
+        with g.cv:
+            rnd.stepped.add(ticket)
+            g.cv.notify_all()
+            while rnd.frame2 is None:
+                if not rnd.second_started and set(rnd.members) <= rnd.stepped | rnd.left:
+                    rnd.second_started = True
+                    break
+                if rnd.failed or cancelled():
+                    raise _Left
+                g.cv.wait(0.02)
+            else:
+                return
+        try:
+            frame2 = self._capture()
+        except BaseException:
+            rnd.failed = True
+            raise
+        with g.cv:
+            rnd.frame2 = frame2
+            g.cv.notify_all()
+
+    def _identify(self, rnd: _Round, ticket: int) -> int | None:
+        with self._lock:
+            if rnd.assigned is None:
+                tickets = sorted(t for t, v in rnd.members.items() if v is not None)
+                spots = []
+                for fr in (rnd.frame1, rnd.frame2):
+                    hdr = self.merge(fr)
+                    labels, n = spot_regions(hdr)
+                    px = centroids_px(hdr, labels, n)
+                    uv = [self.uv(self.frame.pixel_to_enu(x, y)) for x, y in px]
+                    spots.append(np.array(uv).reshape(-1, 2))
+                    if rnd.labels is None:
+                        rnd.labels = labels
+                slots = np.array([rnd.members[t][0] for t in tickets])
+                steps = np.array([rnd.members[t][1] for t in tickets])
+                who = assign_by_step(spots[0], spots[1], slots, steps)
+                rnd.assigned = dict(zip(tickets, who, strict=True))
+            return rnd.assigned.get(ticket)
+
+    def _leave(self, rnd: _Round, ticket: int, stepped: bool = False) -> None:
+        g = self.gate
+        with g.cv:
+            if stepped:
+                rnd.stepped.add(ticket)
+            rnd.left.add(ticket)
+            if set(rnd.members) <= rnd.left and self._round is rnd:
+                self._round = None
+            g.cv.notify_all()
+
+    def _alone(self, cyc, pose: tuple[int, int]):
+        """Park, give the slot back, take the target alone, come back to ``pose``, capture."""
+        g, ticket = self.gate, cyc._ticket
+        cyc._park("capturing")
+        cyc.beam_on_target = False
+        g.give_back(ticket)
+        if not g.acquire_alone(ticket, lambda: cyc.state != "capturing"):
+            cyc._check_current("capturing")
+            raise RuntimeError("target blocked: another heliostat's beam may still be on it")
+        self.alone.append(cyc.ctx.heliostat_id)
+        cyc.beam_on_target = True
+        for waypoint in approach_path(cyc.at, pose, cyc.ctx.backlash_steps, cyc.ctx.drive.limits):
+            cyc._move("capturing", *waypoint)
+        cyc.az, cyc.el = pose
+        cyc._wait("capturing", cyc.ctx.settle_s)
+        return self._capture()
+
+
+class _Left(Exception):
+    """This heliostat left its round (its cycle was stopped)."""

@@ -1,0 +1,77 @@
+"""Whose spot is where: the truth of every rendered scene, and a fault that exchanges two spots.
+
+Each render of the plant's scene records, per heliostat whose beam is in view, where its spot's
+centre is on the target plane (m ENU). A measurement recorded
+under heliostat h is **misassigned** when its centroid lies nearer another heliostat's spot of
+the recent renders than any spot of h's own (:meth:`SpotTruth.misassigned`).
+
+The fault :meth:`SpotTruth.swap` exchanges two heliostats' spots while both beams are in view:
+each lands where the other's was when they first met (a frozen offset, so each spot still
+moves with its own heliostat's steps) — what two heliostats pointing far off, each onto the
+other's slot, would look like. Its truth follows the light: the spot made by a is recorded
+as a's, where it lands.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections import deque
+
+import numpy as np
+
+
+class SpotTruth:
+    def __init__(self, keep: int = 32) -> None:
+        self.log: deque[dict[str, np.ndarray]] = deque(maxlen=keep)
+        self.pair: tuple[str, str] | None = None
+        self._offsets: dict[str, np.ndarray] | None = None
+        self._lock = threading.Lock()
+        self.misassigned_count = 0
+        self.checked = 0
+
+    def swap(self, a: str, b: str) -> None:
+        """Exchange the spots of ``a`` and ``b`` whenever both beams are in view (module docstring)."""
+        with self._lock:
+            self.pair, self._offsets = (a, b), None
+
+    def shifts(self, rels: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """Offsets (m ENU) of the swapped spots for this render (empty when the fault is off or
+        only one of the two beams is in view)."""
+        with self._lock:
+            if self.pair is None or not all(h in rels for h in self.pair):
+                self._offsets = None
+                return {}
+            if self._offsets is None:
+                a, b = self.pair
+                self._offsets = {a: rels[b] - rels[a], b: rels[a] - rels[b]}
+            return dict(self._offsets)
+
+    @staticmethod
+    def place(image: np.ndarray, grid, at_enu, shift) -> np.ndarray:
+        """``image`` (one spot rendered on ``grid``) moved by ``shift`` m ENU (None: as is)."""
+        if shift is None:
+            return image
+        import cv2
+
+        x0, y0 = grid.enu_to_pixel(np.asarray(at_enu, float))
+        x1, y1 = grid.enu_to_pixel(np.asarray(at_enu, float) + shift)
+        m = np.float32([[1, 0, float(x1 - x0)], [0, 1, float(y1 - y0)]])
+        rows, cols = image.shape
+        return cv2.warpAffine(image.astype(np.float32), m, (cols, rows), flags=cv2.INTER_LINEAR).astype(float)
+
+    def record(self, spots: dict[str, np.ndarray]) -> None:
+        """One render's spots: heliostat -> spot centre, m ENU."""
+        with self._lock:
+            self.log.append({h: np.asarray(r, float) for h, r in spots.items()})
+
+    def misassigned(self, hid: str, centroid_rel: np.ndarray) -> bool:
+        """Is a centroid (m ENU) recorded under ``hid`` another's spot?
+        Counted in ``misassigned_count`` (of ``checked``)."""
+        c = np.asarray(centroid_rel, float)
+        with self._lock:
+            own = [np.linalg.norm(s[hid] - c) for s in self.log if hid in s]
+            other = [np.linalg.norm(r - c) for s in self.log for h, r in s.items() if h != hid]
+            wrong = bool(other) and (not own or min(other) < min(own))
+            self.checked += 1
+            self.misassigned_count += wrong
+        return wrong

@@ -1,0 +1,147 @@
+"""Several beams on one target (calibration.beams_per_target): refused with the sun and in
+daylight, the gate's K slots in queue order, the measured-alone hold, slots that keep the
+predicted spots apart and inside the view, and whose spot is whose by a known step."""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+import pytest
+import yaml
+
+from controller.calibration.beams import beams_allowed
+from controller.calibration.gate import TargetGate
+from controller.calibration.slots import GAP_M, IDENTITY_STEP_M, slot_layout, spot_reach_m, target_frame
+from controller.config import load_config
+from controller.errors import ConfigError, InputError
+from controller.imaging.spots import assign_by_step, centroids_px, isolate, spot_regions
+from tests.calibration.conftest import calibrated_record
+
+NIGHT = "2026-03-01T22:00:00+00:00"
+NOON = "2026-03-01T12:00:00+00:00"
+
+
+def _config(small_config, tmp_path, **cal):
+    data = yaml.safe_load(small_config.read_text())
+    data["calibration"].update(cal)
+    p = tmp_path / "k.yaml"
+    p.write_text(yaml.safe_dump(data))
+    return p, data
+
+
+def test_more_than_one_beam_is_refused_with_the_sun_naming_the_key(small_config, tmp_path):
+    p, data = _config(small_config, tmp_path, beams_per_target=4)
+    if not any(s["kind"] == "sun" for s in data["light_sources"]):
+        data["light_sources"].append({"kind": "sun", "id": "sun"})
+    data["calibration"]["light_source"] = next(s["id"] for s in data["light_sources"] if s["kind"] == "sun")
+    data["calibration"]["lamps"] = [s["id"] for s in data["light_sources"] if s["kind"] == "lamp"]
+    p.write_text(yaml.safe_dump(data))
+    with pytest.raises((ConfigError, InputError)) as e:
+        load_config(p)
+    assert "calibration.beams_per_target" in str(e.value) and "sun" in str(e.value)
+    assert str(p) in str(e.value) or p.name in str(e.value)
+
+
+def test_more_than_one_beam_is_refused_in_daylight_and_allowed_under_a_lamp_at_night(small_config, tmp_path):
+    p, _ = _config(small_config, tmp_path, beams_per_target=4)
+    cfg = load_config(p)
+    lamp = cfg.calibration.light_source
+    assert beams_allowed(cfg, lamp, NIGHT) == 4
+    with pytest.raises(InputError, match="calibration.beams_per_target.*sun is up"):
+        beams_allowed(cfg, lamp, NOON)
+    assert beams_allowed(load_config(small_config), lamp, NOON) == 1  # K = 1: as ever
+
+
+def test_the_gate_admits_k_beams_in_queue_order_each_at_its_slot():
+    gate = TargetGate(beams=3)
+    never = lambda: False  # noqa: E731
+    assert [gate.acquire(t, never) for t in range(3)] == [True, True, True]
+    assert [gate.slot(t) for t in range(6)] == [0, 1, 2, 0, 1, 2]
+    got = []
+    th = threading.Thread(target=lambda: got.append(gate.acquire(3, never)))
+    th.start()
+    th.join(0.2)
+    assert not got  # ticket 3 uses slot 0: it waits for ticket 0
+    gate.release(1)
+    th.join(0.2)
+    assert not got  # slot 1 freed, not slot 0
+    gate.release(0)
+    th.join(2.0)
+    assert got == [True] and gate.holders == {2, 3}
+
+
+def test_measured_alone_waits_for_every_other_beam_and_keeps_newcomers_off():
+    gate = TargetGate(beams=2)
+    never = lambda: False  # noqa: E731
+    gate.acquire(0, never), gate.acquire(1, never)
+    gate.give_back(0)  # ticket 0 parked: to be measured alone
+    alone = []
+    th = threading.Thread(target=lambda: alone.append(gate.acquire_alone(0, never)))
+    th.start()
+    th.join(0.2)
+    assert not alone  # ticket 1's beam is still on the target
+    gate.release(1)
+    th.join(2.0)
+    assert alone == [True] and gate.alone == 0
+    assert not gate.acquire(2, lambda: True)  # nobody joins a heliostat measured alone
+    gate.release(0)
+    assert gate.acquire(2, never) and gate.alone is None
+
+
+def test_slots_keep_predicted_spots_apart_and_inside_the_view(small_config):
+    cfg = load_config(small_config)
+    tid, lamp = cfg.calibration.target, cfg.calibration.light_source
+    frame = target_frame(cfg, tid)
+    centre = cfg.target().center_enu_m
+    models = {h.id: calibrated_record(cfg, h.id) for h in cfg.heliostats}
+    reach = spot_reach_m(cfg, tid, lamp, models, centre)
+    assert np.all(reach > 0)
+    # Without a model the spot's position is too uncertain for more than one slot.
+    unknown = spot_reach_m(cfg, tid, lamp, dict.fromkeys(models), centre)
+    assert np.all(unknown > reach) and slot_layout(frame, 4, unknown, 0.2).k == 1
+    margin = cfg.calibration.planner.view_margin_m
+    lay = slot_layout(frame, 4, reach, margin)
+    assert 1 < lay.k <= 4
+    half = np.array([frame.width_m, frame.height_m]) / 2
+    r = reach + IDENTITY_STEP_M
+    assert np.all(np.abs(lay.offsets_m) + r + margin <= half + 1e-9)  # inside the view at 3σ
+    for i in range(lay.k):
+        for j in range(i + 1, lay.k):  # footprints (stepped too) apart on at least one axis
+            assert np.any(np.abs(lay.offsets_m[i] - lay.offsets_m[j]) >= 2 * r + GAP_M - 1e-9)
+    # A spot too large for several slots: one slot, at the centre.
+    one = slot_layout(frame, 4, half, margin)
+    assert one.k == 1 and np.allclose(one.offsets_m, 0)
+
+
+def _spots(shape, centres, sigma=3.0):
+    rows, cols = np.indices(shape)
+    img = np.full(shape, 10.0)
+    for x, y in centres:
+        img += 1000.0 * np.exp(-((cols - x) ** 2 + (rows - y) ** 2) / (2 * sigma**2))
+    return img
+
+
+def test_spots_are_separated_and_isolated():
+    img = _spots((120, 160), [(30, 30), (120, 40), (40, 90)])
+    labels, n = spot_regions(img)
+    assert n == 3
+    c = centroids_px(img, labels, n)
+    assert sorted(np.round(c).astype(int).tolist()) == [[30, 30], [40, 90], [120, 40]]
+    one = isolate(img, labels, 2)
+    assert spot_regions(one)[1] == 1
+
+
+def test_identity_by_step_confirms_each_and_catches_a_swap():
+    slots = np.array([[-2.0, -1.5], [2.0, -1.5], [-2.0, 1.5], [2.0, 1.5]])
+    ang = np.radians([0, 30, 60, 90])
+    steps = 0.3 * np.stack([np.cos(ang), np.sin(ang)], axis=-1)
+    first = slots + 0.05  # each spot near its slot, a little off (model error)
+    assert assign_by_step(first, first + steps, slots, steps) == [0, 1, 2, 3]
+    order = [3, 0, 2, 1]  # the spots in another order in the image: still told apart by the step
+    assert assign_by_step(first[order], (first + steps)[order], slots, steps) == [1, 3, 2, 0]
+    swapped = first.copy()
+    swapped[[0, 1]] = first[[1, 0]]  # heliostat 0's spot sits at 1's slot and moves with 0's step
+    who = assign_by_step(swapped, swapped + steps, slots, steps)
+    assert who[0] is None and who[1] is None and who[2:] == [2, 3]
+    assert assign_by_step(first[:3], first[:3] + steps[:3], slots, steps) == [None] * 4  # a spot missing
