@@ -73,5 +73,5 @@ class SpotTruth:
             other = [np.linalg.norm(r - c) for s in self.log for h, r in s.items() if h != hid]
             wrong = bool(other) and (not own or min(other) < min(own))
             self.checked += 1
-            self.misassigned_count += wrong
+            self.misassigned_count += int(wrong)
         return wrong

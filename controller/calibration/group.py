@@ -101,6 +101,8 @@ class SharedCapture:
         """Frame 1 of this heliostat's round and a function isolating its spot in the HDR image
         (None when it was measured alone); module docstring."""
         g, ticket = self.gate, cyc._ticket
+        if g.alone == ticket:  # measured alone (a correction, a look at a clipped spot): its beam only
+            return self._capture(), None
         cancelled = lambda: cyc.state != "capturing"  # noqa: E731
         pose = (cyc.az, cyc.el)
         step, disp = self.identity_step(cyc)
@@ -150,8 +152,10 @@ class SharedCapture:
             self._leave(rnd, ticket)
             raise
         cyc.az, cyc.el = pose  # the measurement is frame 1's, at frame 1's pose
-        label = self._identify(rnd, ticket)
-        self._leave(rnd, ticket)
+        try:
+            label = self._identify(rnd, ticket)
+        finally:
+            self._leave(rnd, ticket)
         if label is not None:
             return rnd.frame1, partial(isolate, labels=rnd.labels, keep=label + 1)
         return self._alone(cyc, pose), None
