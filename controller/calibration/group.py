@@ -34,7 +34,8 @@ import numpy as np
 
 from controller.calibration.approach import approach_path
 from controller.calibration.slots import IDENTITY_STEP_M
-from controller.imaging.spots import assign_by_step, centroids_px, isolate, spot_regions
+from controller.geometry.spot import hit_uv
+from controller.imaging.spots import confirm_by_step, isolate, window_spots
 
 
 @dataclass
@@ -47,16 +48,18 @@ class _Round:
     second_started: bool = False
     failed: bool = False  # a capture of the round failed: every member leaves it
     assigned: dict[int, int | None] | None = None
-    labels: np.ndarray | None = None
+    windows: list[tuple[int, int, int, int]] | None = None
 
 
 class SharedCapture:
     """The rounds of one target's campaign (module docstring). ``capture()`` takes one frame
     pair from the target's camera (serialised by the campaign), ``merge`` makes its HDR image,
-    ``frame`` maps pixels to the target (:class:`controller.geometry.target_frame.TargetFrame`)."""
+    ``frame`` maps pixels to the target (:class:`controller.geometry.target_frame.TargetFrame`),
+    ``layout`` the slots (:class:`controller.calibration.slots.SlotLayout`)."""
 
-    def __init__(self, gate, capture, merge, frame) -> None:
+    def __init__(self, gate, capture, merge, frame, layout) -> None:
         self.gate = gate
+        self.layout = layout
         self._capture = capture
         self.merge = merge
         self.frame = frame
@@ -71,24 +74,40 @@ class SharedCapture:
         rel = np.asarray(enu, float) - self.frame.center
         return np.array([rel @ self.frame.u, rel @ self.frame.v])
 
+    def window(self, slot_uv) -> tuple[int, int, int, int]:
+        """The pixels (r0, r1, c0, c1, half-open) of the window around a slot at ``slot_uv`` m:
+        the spot's reach plus the identity step each side (slots.py, Eq. 1)."""
+        f = self.frame
+        rows, cols = f.shape
+        du, dv = f.width_m / cols, f.height_m / rows
+        half = np.asarray(self.layout.reach_m, float) + IDENTITY_STEP_M
+        c0, c1 = ((slot_uv[0] + f.width_m / 2 + s * half[0]) / du - 0.5 for s in (-1, 1))
+        r0, r1 = ((slot_uv[1] + f.height_m / 2 + s * half[1]) / dv - 0.5 for s in (-1, 1))
+        return (max(0, math.floor(r0)), min(rows, math.ceil(r1) + 1),
+                max(0, math.floor(c0)), min(cols, math.ceil(c1) + 1))
+
     def identity_step(self, cyc) -> tuple[tuple[int, int], np.ndarray]:
-        """The known step of ``cyc``'s heliostat (motor steps, both ≥ 0) and the spot's
-        predicted displacement (u, v) m: direction θ = 90° · slot / (K − 1) in step space,
-        scaled to move the spot about IDENTITY_STEP_M (the pointing's Jacobian)."""
-        p, k = cyc.ctx.pointing, self.gate.beams
+        """The known step of ``cyc``'s heliostat (motor steps, both ≥ 0: the approach ended
+        moving up on both axes, so the step takes up no backlash) and the spot's predicted
+        displacement (u, v) m: direction θ = 90° · slot / (K − 1) in step space, scaled to move
+        the spot about IDENTITY_STEP_M. The displacement is the reflected central ray's hit
+        point on the target plane (:func:`controller.geometry.spot.hit_uv`) traced with the
+        heliostat's model (:meth:`BeamSafety.rays`) after the step minus before it."""
+        p, k, f = cyc.ctx.pointing, self.gate.beams, self.frame
+        pose = np.array([cyc.az, cyc.el], float)
+
+        def moved(steps) -> np.ndarray:  # (n, 2) steps -> (n, 2) m of (u, v)
+            c, b = p.rays(pose + np.asarray(steps, float))
+            uv = hit_uv(c, b, f.center, f.normal, f.u, f.v)
+            return uv[1:] - uv[:1]
+
+        probe = 1000.0
+        per_step = moved([(0, 0), (probe, 0), (0, probe)]).T / probe  # m of (u, v) per step
         theta = 0.5 * math.pi * self.gate.slot(cyc._ticket) / max(k - 1, 1)
-        # Steps that move the spot by one metre along u and along v (fine correction: the step
-        # that takes a spot seen at the offset back onto the aim moves it by minus the offset).
-        cols = []
-        for axis in (self.frame.u, self.frame.v):
-            s = p.fine_correction(cyc.az, cyc.el, -np.asarray(axis, float))
-            cols.append((s.daz_steps, s.del_steps))
-        m = np.array(cols, float).T  # steps per metre of (u, v)
-        per_step = np.linalg.inv(m)  # metres of (u, v) per step
         want = np.array([math.cos(theta), math.sin(theta)])
-        scale = IDENTITY_STEP_M / max(np.linalg.norm(per_step @ want), 1e-12)
+        scale = IDENTITY_STEP_M / max(float(np.linalg.norm(per_step @ want)), 1e-12)
         step = np.rint(want * scale).astype(int)
-        return (int(step[0]), int(step[1])), per_step @ step
+        return (int(step[0]), int(step[1])), moved([(0, 0), tuple(step)])[0]
 
     # -- the round -----------------------------------------------------------------------------
     def _fires(self) -> bool:
@@ -157,7 +176,7 @@ class SharedCapture:
         finally:
             self._leave(rnd, ticket)
         if label is not None:
-            return rnd.frame1, partial(isolate, labels=rnd.labels, keep=label + 1)
+            return rnd.frame1, partial(isolate, windows=rnd.windows, keep=label)
         return self._alone(cyc, pose), None
 
     def _second(self, rnd: _Round, ticket: int, cancelled) -> None:
@@ -187,19 +206,15 @@ class SharedCapture:
         with self._lock:
             if rnd.assigned is None:
                 tickets = sorted(t for t, v in rnd.members.items() if v is not None)
+                rnd.windows = [self.window(rnd.members[t][0]) for t in tickets]
                 spots = []
                 for fr in (rnd.frame1, rnd.frame2):
-                    hdr = self.merge(fr)
-                    labels, n = spot_regions(hdr)
-                    px = centroids_px(hdr, labels, n)
-                    uv = [self.uv(self.frame.pixel_to_enu(x, y)) for x, y in px]
-                    spots.append(np.array(uv).reshape(-1, 2))
-                    if rnd.labels is None:
-                        rnd.labels = labels
-                slots = np.array([rnd.members[t][0] for t in tickets])
+                    px = window_spots(self.merge(fr), rnd.windows)
+                    spots.append(np.array([self.uv(self.frame.pixel_to_enu(x, y)) if np.isfinite(x)
+                                           else (np.nan, np.nan) for x, y in px]).reshape(-1, 2))
                 steps = np.array([rnd.members[t][1] for t in tickets])
-                who = assign_by_step(spots[0], spots[1], slots, steps)
-                rnd.assigned = dict(zip(tickets, who, strict=True))
+                ok = confirm_by_step(spots[0], spots[1], steps)
+                rnd.assigned = {t: (k if ok[k] else None) for k, t in enumerate(tickets)}
             return rnd.assigned.get(ticket)
 
     def _leave(self, rnd: _Round, ticket: int, stepped: bool = False) -> None:

@@ -72,6 +72,7 @@ class RecordStore(Protocol):
     def done_heliostats(self, campaign_id: int) -> set[str]: ...
     def record_run(self, campaign_id: int, run: RunRecord) -> int: ...
     def finish_campaign(self, campaign_id: int, status: str, cause: str | None = None) -> None: ...
+    def update_meta(self, campaign_id: int, meta: dict) -> None: ...
     def runs(self, campaign_id: int) -> list[RunRecord]: ...
     def measurements(self, campaign_id: int | None = None,
                      heliostat_id: str | None = None) -> list[MeasurementRecord]: ...
@@ -233,6 +234,9 @@ class Campaign:
             raise
 
     def _finish(self, cid: int, status: str, cause: str | None) -> None:
+        if self.group is not None:  # several beams: how the captures went (docs/campaigns.md)
+            self.store.update_meta(cid, {"beams": {"slots": self.slots.k, "rounds": self.group.rounds,
+                                                   "measured_alone": self.group.alone}})
         self.store.finish_campaign(cid, status, cause)
         self.observer.campaign_finished(cid, status)
 
@@ -247,7 +251,7 @@ class Campaign:
             with self.time.computing():
                 for ticket, (_, hid) in enumerate(todo):
                     pointing[hid] = self._pointing_at(hid, self.slots.aim(gate.slot(ticket)))
-            self.group = SharedCapture(gate, self._capture, self.chain.merge, self.chain.frame)
+            self.group = SharedCapture(gate, self._capture, self.chain.merge, self.chain.frame, self.slots)
         t0 = self.time.now()
         session: list[RunRecord] = []
         cycles = self._cycles

@@ -4,11 +4,14 @@
 target plane at distance L along the beam is the blur of independent contributions, which
 add in quadrature per mirror axis (width w along the target's u axis, height h along v):
 
-    σ² = (α L / 4)² + (2 σ_s L)² + (w |1 − L/f|)² / 12                         (1)
+    σ² = (α L / 4)² + (2 σ_s L)² + (w |1 − L (1/f − 1/d)|)² / 12               (1)
 
 — the lamp's disc imaged at L (a uniform disc of radius r has σ = r/2 per axis), the mirror's
-slope error σ_s doubled on reflection, and the mirror focused at f, whose reflected bundle
-has width w |1 − L/f| at L (a uniform band of width W has σ = W/√12). A beam meeting the plane
+slope error σ_s doubled on reflection, and the mirror of focal length f, which images a point
+source at d at the distance d' of 1/d' = 1/f − 1/d (the thin-mirror equation), so that its
+reflected bundle has width w |1 − L/d'| at L (a uniform band of width W has σ = W/√12). For
+the sun d = ∞ and the bundle converges at f; a lamp a few tens of metres away is imaged far
+behind the target and its spot is nearly as wide as the mirror. A beam meeting the plane
 obliquely (cos θ = |b·N|) stretches the footprint by 1/cos θ along its in-plane direction d:
 
     Σ_spot = S diag(σ_u², σ_v²) Sᵀ,   S = I + (1/cos θ − 1) d dᵀ                 (2)
@@ -75,16 +78,18 @@ class MirrorOptics:
 
 
 def spot_covariance(distance_m, lamp_angle_rad, slope_error_rad, mirror_w_m, mirror_h_m, focal_m,
-                    beam, normal, u_axis, v_axis) -> np.ndarray:
+                    beam, normal, u_axis, v_axis, source_distance_m=np.inf) -> np.ndarray:
     """Σ_spot of Eq. (1)-(2), m², in the target plane's (u, v) axes, shape (..., 2, 2).
 
     ``distance_m`` L and ``lamp_angle_rad`` α (...,); ``slope_error_rad`` σ_s, mirror width,
     height and focal length (m, scalars or (...,)); ``beam`` (..., 3) the unit beam direction;
     ``normal``, ``u_axis``, ``v_axis`` ((3,) or broadcast against ``beam``) the target plane's
-    unit normal and in-plane axes."""
+    unit normal and in-plane axes; ``source_distance_m`` d (...,) the lamp's distance from the
+    mirror (∞ for the sun)."""
     L = np.asarray(distance_m, float)
     common = (np.asarray(lamp_angle_rad, float) * L / 4.0) ** 2 + (2.0 * np.asarray(slope_error_rad) * L) ** 2
-    defocus = np.abs(1.0 - L / np.asarray(focal_m, float))
+    image = 1.0 / np.asarray(focal_m, float) - 1.0 / np.asarray(source_distance_m, float)  # 1/d'
+    defocus = np.abs(1.0 - L * image)
     var_u = common + (np.asarray(mirror_w_m) * defocus) ** 2 / 12.0
     var_v = common + (np.asarray(mirror_h_m) * defocus) ** 2 / 12.0
     b = np.asarray(beam, float)
@@ -190,8 +195,10 @@ def predict_spots(kin: HeliostatKinematics | KinStack, optics: MirrorOptics, val
     if lamp is not None:
         to_lamp = _lift(np.asarray(lamp, float)) - c
         s = to_lamp / np.linalg.norm(to_lamp, axis=-1, keepdims=True)
-        angle = np.asarray(lamp_diameter_m, float) / np.linalg.norm(to_lamp[..., 0, :, :], axis=-1)
+        source_m = np.linalg.norm(to_lamp[..., 0, :, :], axis=-1)
+        angle = np.asarray(lamp_diameter_m, float) / source_m
     else:
+        source_m = np.inf
         s = np.broadcast_to(np.asarray(sun_dir, float) / np.linalg.norm(sun_dir), c.shape)
         angle = np.full(aims.shape[:-1], float(sun_angle_rad))
     beam = 2.0 * np.sum(s * n, axis=-1, keepdims=True) * n - s
@@ -201,7 +208,7 @@ def predict_spots(kin: HeliostatKinematics | KinStack, optics: MirrorOptics, val
     dist = np.linalg.norm(to_aim, axis=-1)
     o = optics
     cov = spot_covariance(dist, angle, o.slope_error_rad, o.width_m, o.height_m, o.focal_m,
-                          to_aim / dist[..., None], frame.normal, frame.u, frame.v)
+                          to_aim / dist[..., None], frame.normal, frame.u, frame.v, source_m)
     rel = aims - np.asarray(frame.center, float)
     offset = np.stack([_dot(rel, frame.u), _dot(rel, frame.v)], axis=-1)
     pos_cov = position_covariance(j, np.asarray(covariance, float)[..., None, :, :])

@@ -1,104 +1,108 @@
-"""Several beam spots in one image: separate them, and tell whose spot is whose by a known step.
+"""Several beam spots in one image, each in its own slot's window, and whose spot is whose by a
+known step (``calibration.beams_per_target`` K > 1, docs/campaigns.md).
 
-**Separation.** Pixels more than ``SNR`` background noise σ (median absolute deviation) above
-the background (median) and above ``floor`` of the brightest pixel, grown by ``grow_px``
-(a spot's dim lobes stay with it), form connected regions; each region of at least
-``min_px`` pixels is one spot (:func:`spot_regions`). :func:`isolate` keeps one region and
-replaces the others by the background, so the one-spot analysis sees that spot alone.
+**Windows.** Slot i's window is the rectangle of pixels ``windows[i] = (r0, r1, c0, c1)``
+(half-open) around its aim point, as large as a spot's reach plus the identity step
+(:mod:`controller.calibration.slots`, Eq. 1); the slot layout keeps the windows disjoint.
 
-**Identity by a known step.** Between two captures every heliostat of the group moved by its
-own known step, whose displacement on the target d_i is predicted from its model (distinct
-directions, :data:`controller.calibration.slots.IDENTITY_STEP_M` long). A spot at a in the
-first image and b in the second belong to heliostat i when
+**Background and noise.** The image is smoothed by a Gaussian of σ = ``SMOOTH_PX`` pixels;
+the background b is the median and the noise σ_b 1.4826 × the median absolute deviation of
+the smoothed pixels *outside every window* (the lit target away from the spots).
 
-    |b − (a + d_i)| < tol,    tol = ½ min_{i≠j} |d_i − d_j|                          (1)
+**A spot in a window** when the window's peak smoothed excess over b is above ``SNR`` σ_b.
+Its position is the energy centroid of the excess s = I − b over the window's pixels whose
+smoothed excess is above ``FLOOR`` of that peak and above 3 σ_b (x = column, y = row).
 
-Heliostat i's spot is *confirmed* when exactly one pair (a, b) satisfies (1) for i, no other
-heliostat's displacement explains that pair, both images hold exactly one spot per heliostat,
-and a is also the spot nearest i's slot (position and motion agree). Anything else — a spot
-missing, an extra spot, two candidates, a spot that moved with i but sits at another's slot
-— is *ambiguous*: the heliostat is measured again alone (:mod:`controller.calibration.group`).
+**Identity by a known step.** Between two captures every heliostat of the capture moved by
+its own known step, whose displacement on the target d_i (m, target axes u, v) is predicted
+from its model, all distinct. Heliostat i's spot is *confirmed* when its window holds a spot
+in both captures and that spot moved with i's step:
 
-Units: positions and displacements in metres on the target plane (u, v); image x = column,
-y = row.
+    |Δ_i − d_i| < tol,   Δ_i = c_i'' − c_i',   tol = ½ min_{j≠i} |d_i − d_j|       (1)
+
+(with one heliostat, tol = ½ |d_i|: its spot must move at all). Since the d_j are at least
+2 tol apart, a Δ_i within tol of d_i is farther than tol from every other d_j: a spot that
+moved with another heliostat's step — two heliostats whose spots were exchanged — is never
+confirmed. Anything else (a window empty in either capture, a spot that did not move as
+predicted) leaves i *unconfirmed*: it is measured again alone
+(:mod:`controller.calibration.group`).
 """
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
-from scipy import ndimage
 
+SMOOTH_PX = 2.0
 SNR = 8.0
+FLOOR = 0.05
 
 
-def spot_regions(hdr: np.ndarray, *, floor: float = 0.02, grow_px: int = 3, min_px: int = 4
-                 ) -> tuple[np.ndarray, int]:
-    """Label image (int, 0 = background) and count of the spots of ``hdr`` (module docstring)."""
-    img = np.asarray(hdr, float)
-    bg = float(np.median(img))
-    noise = 1.4826 * float(np.median(np.abs(img - bg))) or 1e-12
-    sig = img - bg
-    peak = float(sig.max()) if sig.size else 0.0
-    mask = (sig > SNR * noise) & (sig > floor * peak)
-    if grow_px > 0:
-        mask = ndimage.binary_dilation(mask, iterations=grow_px)
-    labels, n = ndimage.label(mask)
-    if n == 0:
-        return labels, 0
-    sizes = ndimage.sum_labels(np.ones_like(labels), labels, index=np.arange(1, n + 1))
-    keep = np.flatnonzero(sizes >= min_px) + 1
-    out = np.zeros_like(labels)
-    for new, old in enumerate(keep, start=1):
-        out[labels == old] = new
-    return out, len(keep)
+def _smooth(img: np.ndarray) -> np.ndarray:
+    return cv2.GaussianBlur(img, (0, 0), SMOOTH_PX)
 
 
-def centroids_px(hdr: np.ndarray, labels: np.ndarray, count: int) -> np.ndarray:
-    """Energy centroid (x, y) px of each labelled spot (count, 2), background subtracted."""
-    sig = np.clip(np.asarray(hdr, float) - float(np.median(hdr)), 0.0, None)
-    if count == 0:
-        return np.zeros((0, 2))
-    idx = np.arange(1, count + 1)
-    rows, cols = np.indices(sig.shape)
-    w = ndimage.sum_labels(sig, labels, idx)
-    w = np.where(w > 0, w, 1.0)
-    return np.stack([ndimage.sum_labels(sig * cols, labels, idx) / w,
-                     ndimage.sum_labels(sig * rows, labels, idx) / w], axis=-1)
+def _outside(shape: tuple[int, int], windows) -> np.ndarray:
+    out = np.ones(shape, bool)
+    for r0, r1, c0, c1 in windows:
+        out[r0:r1, c0:c1] = False
+    return out
 
 
-def isolate(hdr: np.ndarray, labels: np.ndarray, keep: int) -> np.ndarray:
-    """``hdr`` with every spot but label ``keep`` replaced by the background level."""
+def background(hdr: np.ndarray, windows) -> tuple[float, float]:
+    """(b, σ_b) of ``hdr`` outside every window (module docstring)."""
+    sm = _smooth(np.asarray(hdr, np.float32))
+    out = sm[_outside(sm.shape, windows)]
+    if out.size == 0:
+        out = sm.ravel()
+    b = float(np.median(out))
+    return b, max(1.4826 * float(np.median(np.abs(out - b))), 1e-9)
+
+
+def window_spots(hdr: np.ndarray, windows) -> np.ndarray:
+    """The spot of each of the n ``windows`` (r0, r1, c0, c1): its (x, y) px, NaN when the
+    window holds none (module docstring): (n, 2)."""
+    img = np.asarray(hdr, np.float32)
+    b, noise = background(img, windows)
+    sm = _smooth(img) - b
+    out = np.full((len(windows), 2), np.nan)
+    for k, (r0, r1, c0, c1) in enumerate(windows):
+        w, s = sm[r0:r1, c0:c1], img[r0:r1, c0:c1] - b
+        if w.size == 0:
+            continue
+        peak = float(w.max())
+        if peak <= SNR * noise:
+            continue
+        keep = w > max(FLOOR * peak, 3.0 * noise)
+        e = np.where(keep, np.clip(s, 0.0, None), 0.0)
+        total = float(e.sum())
+        if total <= 0:
+            continue
+        rows, cols = np.indices(w.shape)
+        out[k] = (c0 + float((e * cols).sum()) / total, r0 + float((e * rows).sum()) / total)
+    return out
+
+
+def isolate(hdr: np.ndarray, windows, keep: int) -> np.ndarray:
+    """``hdr`` with every window but ``keep`` replaced by the background level b."""
     img = np.asarray(hdr, float).copy()
-    img[(labels > 0) & (labels != keep)] = float(np.median(img))
+    b, _ = background(img, windows)
+    for k, (r0, r1, c0, c1) in enumerate(windows):
+        if k != keep:
+            img[r0:r1, c0:c1] = b
     return img
 
 
-def assign_by_step(first_m: np.ndarray, second_m: np.ndarray, slots_m: np.ndarray, steps_m: np.ndarray
-                   ) -> list[int | None]:
-    """Per heliostat i (rows of ``slots_m`` (n, 2), its slot, and ``steps_m`` (n, 2), its
-    predicted displacement): the index of its spot in ``first_m`` (m, 2), or None when
-    ambiguous (module docstring, Eq. 1). ``second_m`` (m', 2): the spots after the step."""
-    n = len(slots_m)
+def confirm_by_step(first_m: np.ndarray, second_m: np.ndarray, steps_m: np.ndarray) -> list[bool]:
+    """Eq. (1) per heliostat i: ``first_m`` and ``second_m`` (n, 2) m its window's spot in the
+    two captures (NaN: none), ``steps_m`` (n, 2) m its predicted displacement."""
     a, b = np.asarray(first_m, float).reshape(-1, 2), np.asarray(second_m, float).reshape(-1, 2)
     d = np.asarray(steps_m, float).reshape(-1, 2)
-    if len(a) != n or len(b) != n or n == 0:
-        return [None] * n
-    if n == 1:
-        pair = np.linalg.norm(b[0] - a[0] - d[0]) < 0.5 * np.linalg.norm(d[0])
-        return [0 if pair else None]
-    gaps = [np.linalg.norm(d[i] - d[j]) for i in range(n) for j in range(n) if i != j]
-    tol = 0.5 * min(gaps)
-    # moved[i, p, q]: spot p of the first image went to spot q of the second by heliostat i's step
-    moved = np.linalg.norm(b[None, None, :, :] - a[None, :, None, :] - d[:, None, None, :], axis=-1) < tol
-    slots = np.asarray(slots_m, float)
-    nearest = np.argmin(np.linalg.norm(a[None, :, :] - slots[:, None, :], axis=-1), axis=1)
-    out: list[int | None] = []
+    n = len(d)
+    out = []
     for i in range(n):
-        pairs = np.argwhere(moved[i])
-        if len(pairs) != 1:
-            out.append(None)
-            continue
-        p, q = pairs[0]
-        others = [j for j in range(n) if j != i and moved[j, p, q]]
-        out.append(int(p) if not others and nearest[i] == p else None)
+        gaps = [np.linalg.norm(d[i] - d[j]) for j in range(n) if j != i] or [np.linalg.norm(d[i])]
+        tol = 0.5 * min(gaps)
+        delta = b[i] - a[i]
+        out.append(bool(np.all(np.isfinite(delta)) and np.linalg.norm(delta - d[i]) < tol))
     return out

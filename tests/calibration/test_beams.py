@@ -15,7 +15,8 @@ from controller.calibration.gate import TargetGate
 from controller.calibration.slots import GAP_M, IDENTITY_STEP_M, slot_layout, spot_reach_m, target_frame
 from controller.config import load_config
 from controller.errors import ConfigError, InputError
-from controller.imaging.spots import assign_by_step, centroids_px, isolate, spot_regions
+from controller.imaging.spots import confirm_by_step, isolate, window_spots
+from simplant.far_lamps import far_lamp_config
 from tests.calibration.conftest import calibrated_record
 
 NIGHT = "2026-03-01T22:00:00+00:00"
@@ -89,8 +90,13 @@ def test_measured_alone_waits_for_every_other_beam_and_keeps_newcomers_off():
     assert gate.acquire(2, never) and gate.alone is None
 
 
-def test_slots_keep_predicted_spots_apart_and_inside_the_view(small_config):
-    cfg = load_config(small_config)
+def test_slots_keep_predicted_spots_apart_and_inside_the_view(small_config, tmp_path):
+    near = load_config(small_config)  # a lamp 50-60 m from the mirrors: spots nearly mirror-wide
+    models = {h.id: calibrated_record(near, h.id) for h in near.heliostats}
+    reach = spot_reach_m(near, near.calibration.target, near.calibration.light_source, models,
+                         near.target().center_enu_m)
+    assert slot_layout(target_frame(near, near.calibration.target), 4, reach, 0.2).k == 1
+    cfg = load_config(far_lamp_config(small_config, tmp_path, 4))
     tid, lamp = cfg.calibration.target, cfg.calibration.light_source
     frame = target_frame(cfg, tid)
     centre = cfg.target().center_enu_m
@@ -116,32 +122,38 @@ def test_slots_keep_predicted_spots_apart_and_inside_the_view(small_config):
 
 def _spots(shape, centres, sigma=3.0):
     rows, cols = np.indices(shape)
-    img = np.full(shape, 10.0)
+    img = np.full(shape, 10.0) + np.random.default_rng(1).normal(0.0, 1.0, shape)
     for x, y in centres:
         img += 1000.0 * np.exp(-((cols - x) ** 2 + (rows - y) ** 2) / (2 * sigma**2))
     return img
 
 
-def test_spots_are_separated_and_isolated():
-    img = _spots((120, 160), [(30, 30), (120, 40), (40, 90)])
-    labels, n = spot_regions(img)
-    assert n == 3
-    c = centroids_px(img, labels, n)
-    assert sorted(np.round(c).astype(int).tolist()) == [[30, 30], [40, 90], [120, 40]]
-    one = isolate(img, labels, 2)
-    assert spot_regions(one)[1] == 1
+WINDOWS = [(10, 60, 10, 60), (10, 60, 90, 140), (70, 120, 10, 60)]  # (r0, r1, c0, c1)
+
+
+def test_each_window_finds_its_own_spot_and_isolation_keeps_only_one():
+    img = _spots((130, 160), [(30.5, 30.2), (120.0, 40.0)])  # windows 0 and 1; window 2 empty
+    found = window_spots(img, WINDOWS)
+    assert np.allclose(found[0], (30.5, 30.2), atol=0.2) and np.allclose(found[1], (120.0, 40.0), atol=0.2)
+    assert np.all(np.isnan(found[2]))
+    one = isolate(img, WINDOWS, 1)
+    left = window_spots(one, WINDOWS)
+    assert np.all(np.isnan(left[0])) and np.allclose(left[1], (120.0, 40.0), atol=0.2)
 
 
 def test_identity_by_step_confirms_each_and_catches_a_swap():
-    slots = np.array([[-2.0, -1.5], [2.0, -1.5], [-2.0, 1.5], [2.0, 1.5]])
     ang = np.radians([0, 30, 60, 90])
     steps = 0.3 * np.stack([np.cos(ang), np.sin(ang)], axis=-1)
-    first = slots + 0.05  # each spot near its slot, a little off (model error)
-    assert assign_by_step(first, first + steps, slots, steps) == [0, 1, 2, 3]
-    order = [3, 0, 2, 1]  # the spots in another order in the image: still told apart by the step
-    assert assign_by_step(first[order], (first + steps)[order], slots, steps) == [1, 3, 2, 0]
-    swapped = first.copy()
-    swapped[[0, 1]] = first[[1, 0]]  # heliostat 0's spot sits at 1's slot and moves with 0's step
-    who = assign_by_step(swapped, swapped + steps, slots, steps)
-    assert who[0] is None and who[1] is None and who[2:] == [2, 3]
-    assert assign_by_step(first[:3], first[:3] + steps[:3], slots, steps) == [None] * 4  # a spot missing
+    first = np.array([[-2.0, -1.5], [2.0, -1.5], [-2.0, 1.5], [2.0, 1.5]]) + 0.05
+    noise = np.random.default_rng(2).normal(0.0, 0.01, first.shape)  # centroid noise, m
+    assert confirm_by_step(first, first + steps + noise, steps) == [True] * 4
+    moved = first + steps[[1, 0, 2, 3]]  # 0 and 1 exchanged: each window moves with the other's step
+    assert confirm_by_step(first, moved, steps) == [False, False, True, True]
+    still = first + steps
+    still[2] = first[2]  # a spot that did not move is not heliostat 2's
+    assert confirm_by_step(first, still, steps) == [True, True, False, True]
+    gone = first + steps
+    gone[3] = np.nan  # window 3 empty after the step
+    assert confirm_by_step(first, gone, steps) == [True, True, True, False]
+    one = confirm_by_step(first[:1], first[:1] + 0.2 * steps[:1], steps[:1])  # moved too little
+    assert one == [False]
