@@ -1,9 +1,9 @@
 """Whose spot is where: the truth of every rendered scene, and a fault that exchanges two spots.
 
 Each render of the plant's scene records, per heliostat whose beam is in view, where its spot's
-centre is on the target plane (m ENU). A measurement recorded
-under heliostat h is **misassigned** when its centroid lies nearer another heliostat's spot of
-the recent renders than any spot of h's own (:meth:`SpotTruth.misassigned`).
+centre is on the target plane (m ENU). A measurement recorded under heliostat h is
+**misassigned** when its centroid lies nearer another heliostat's spot than h's own in the
+latest render with h's beam in view (:meth:`SpotTruth.misassigned`).
 
 The fault :meth:`SpotTruth.swap` exchanges two heliostats' spots while both beams are in view:
 each lands where the other's was when they first met (a frozen offset, so each spot still
@@ -65,13 +65,15 @@ class SpotTruth:
             self.log.append({h: np.asarray(r, float) for h, r in spots.items()})
 
     def misassigned(self, hid: str, centroid_rel: np.ndarray) -> bool:
-        """Is a centroid (m ENU) recorded under ``hid`` another's spot?
-        Counted in ``misassigned_count`` (of ``checked``)."""
+        """Is a centroid (m ENU) recorded under ``hid`` another's spot? Judged on the latest
+        render with ``hid``'s beam in view (the capture its measurement came from, or the step's
+        capture just after it): the centroid is nearer another heliostat's spot there than its
+        own. Counted in ``misassigned_count`` (of ``checked``)."""
         c = np.asarray(centroid_rel, float)
         with self._lock:
-            own = [np.linalg.norm(s[hid] - c) for s in self.log if hid in s]
-            other = [np.linalg.norm(r - c) for s in self.log for h, r in s.items() if h != hid]
-            wrong = bool(other) and (not own or min(other) < min(own))
+            last = next((s for s in reversed(self.log) if hid in s), None)
+            wrong = last is None or any(np.linalg.norm(r - c) < np.linalg.norm(last[hid] - c)
+                                        for h, r in last.items() if h != hid)
             self.checked += 1
             self.misassigned_count += int(wrong)
         return wrong

@@ -157,3 +157,14 @@ def test_identity_by_step_confirms_each_and_catches_a_swap():
     assert confirm_by_step(first, gone, steps) == [True, True, True, False]
     one = confirm_by_step(first[:1], first[:1] + 0.2 * steps[:1], steps[:1])  # moved too little
     assert one == [False]
+
+
+def test_the_plant_truth_counts_a_centroid_of_another_heliostats_spot():
+    from simplant.spot_truth import SpotTruth
+
+    truth = SpotTruth()
+    a, b = np.array([1.0, 0.0, 30.0]), np.array([-1.5, 0.0, 30.0])
+    truth.record({"A": a, "B": b})
+    assert not truth.misassigned("A", a + 0.05) and truth.misassigned("A", b + 0.05)
+    assert truth.misassigned("C", a)  # no spot of C's in view: whatever it measured was not its own
+    assert (truth.checked, truth.misassigned_count) == (3, 2)
