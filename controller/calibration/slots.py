@@ -66,7 +66,8 @@ def spot_reach_m(cfg: PlantConfig, target_id: str, lamp_id: str, heliostats: dic
         model, cov = model_covariance(rec, cfg.calibration.model.prior_sigma)
         steps, _ = aim_steps(kin, model.values, aims, lamp=np.asarray(lamp.position_enu_m, float))
         sp = predict_spots(kin, MirrorOptics.from_config(h.mirror), model.values, cov, steps, aims, frame,
-                           lamp=np.asarray(lamp.position_enu_m, float), lamp_diameter_m=lamp.diameter_m)
+                           lamp=np.asarray(lamp.position_enu_m, float), lamp_diameter_m=lamp.diameter_m,
+                           lamp_image=True)
         reach = np.maximum(reach, np.max(SIGMAS * (sp.sigma_m + sp.position_sigma_m), axis=0))
     return reach
 

@@ -168,7 +168,8 @@ def standby_clearance_m(half_view_m: float, spot_sigma_m: float, position_sigma_
 def predict_spots(kin: HeliostatKinematics | KinStack, optics: MirrorOptics, values: np.ndarray,
                   covariance: np.ndarray, steps: np.ndarray, aims: np.ndarray, frame: TargetFrame, *,
                   lamp=None, lamp_diameter_m: float | np.ndarray = 0.0, sun_dir=None,
-                  sun_angle_rad: float = 0.0, floor_rad: float = 0.0) -> PredictedSpot:
+                  sun_angle_rad: float = 0.0, floor_rad: float = 0.0, lamp_image: bool = False
+                  ) -> PredictedSpot:
     """The spots of one heliostat at K poses on ``frame``'s plane (Eq. 1-3): aimed at ``aims``
     (K, 3) m ENU with motor ``steps`` (K, 2) by the model ``values`` (p,) SI, whose covariance
     is ``covariance`` (p, p) SI². The source is a lamp at ``lamp`` ((3,) or (K, 3) m ENU) of
@@ -178,7 +179,9 @@ def predict_spots(kin: HeliostatKinematics | KinStack, optics: MirrorOptics, val
     point); its position's Jacobian is that of the reflected central ray's hit point
     (:func:`hit_uv`) by forward differences over the model's terms. ``floor_rad``: a beam error
     the covariance cannot know (what a measurement's noise leaves, effects no term has), added in
-    quadrature as (floor · L)² on each axis.
+    quadrature as (floor · L)² on each axis. ``lamp_image``: focus the lamp at its own distance
+    d (Eq. 1); False takes d = ∞, as for the sun (what the planner's measurability and the
+    standby clearance use; it underestimates the spot of a lamp a few tens of metres away).
 
     A stack of H heliostats at once: ``kin`` a :class:`controller.geometry.pose_batch.KinStack`,
     ``values`` (H, p), ``covariance`` (H, p, p), ``steps`` (H, K, 2), ``aims`` and ``lamp``
@@ -195,8 +198,9 @@ def predict_spots(kin: HeliostatKinematics | KinStack, optics: MirrorOptics, val
     if lamp is not None:
         to_lamp = _lift(np.asarray(lamp, float)) - c
         s = to_lamp / np.linalg.norm(to_lamp, axis=-1, keepdims=True)
-        source_m = np.linalg.norm(to_lamp[..., 0, :, :], axis=-1)
-        angle = np.asarray(lamp_diameter_m, float) / source_m
+        lamp_m = np.linalg.norm(to_lamp[..., 0, :, :], axis=-1)
+        angle = np.asarray(lamp_diameter_m, float) / lamp_m
+        source_m = lamp_m if lamp_image else np.inf
     else:
         source_m = np.inf
         s = np.broadcast_to(np.asarray(sun_dir, float) / np.linalg.norm(sun_dir), c.shape)

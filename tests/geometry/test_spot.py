@@ -164,3 +164,34 @@ def test_measurable_spots_are_whole_in_the_simulated_plants_view(tmp_path):
             count += 1
     assert count > 100
     assert within >= 0.95 * count
+
+
+def test_a_lamps_spot_size_follows_the_ray_traced_mirror_at_the_lamps_distance():
+    """Eq. (1) with the lamp focused at its own distance d against the simulated plant's ray
+    tracer (second moments add under convolution, so σ² is the quantity to compare): a lamp
+    55 m from a mirror focused at 50 m gives a spot nearly as wide as the mirror, which the
+    far-source form (d = ∞) underestimates several-fold; at 300 m both come close."""
+    from simplant.optics import MirrorSurface, TargetGrid, render_spot
+
+    pos, aim = np.array([0.0, 50.0, 2.0]), np.array([0.0, 0.0, 30.0])
+    normal, up = np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0])
+    u = np.cross(up, normal)
+    grid = TargetGrid(aim, normal, u, np.cross(u, normal), 12.0, 12.0, (240, 240))
+    mirror = MirrorSurface(3.2, 2.56, 50.0, 1.5)
+    for lamp, far in (([0.0, 5.0, 55.0], False), ([0.0, -280.0, 120.0], True)):
+        lamp = np.asarray(lamp, float)
+        n = (lamp - pos) / np.linalg.norm(lamp - pos) + (aim - pos) / np.linalg.norm(aim - pos)
+        img = render_spot(pos, n, lamp, 0.3 / np.linalg.norm(lamp - pos), mirror, grid, n_rays=60_000)
+        rows, cols = np.indices(img.shape)
+        w = img / img.sum()
+        var = [float((w * (c - (w * c).sum()) ** 2).sum()) * (12.0 / 240) ** 2 for c in (cols, rows)]
+        beam = (aim - pos) / np.linalg.norm(aim - pos)
+        d = float(np.linalg.norm(lamp - pos))
+        args = (float(np.linalg.norm(aim - pos)), 0.3 / d, 1.5e-3, 3.2, 2.56, 50.0, beam, N, U, V)
+        at_d = np.diag(spot_covariance(*args, source_distance_m=d))
+        at_inf = np.diag(spot_covariance(*args))
+        print(f"lamp at {d:.0f} m: σ ray-traced {np.sqrt(var)} m, Eq. 1 {np.sqrt(at_d)} m, "
+              f"d = ∞ {np.sqrt(at_inf)} m")
+        assert np.allclose(at_d, var, rtol=0.15), (lamp, at_d, var)
+        if not far:
+            assert np.all(at_inf < 0.25 * np.asarray(var))  # the far-source form: several-fold too small
