@@ -5,10 +5,13 @@ Starting from the presence decision's candidate spot (:mod:`controller.imaging.p
 1. **Background**: a quadratic surface b(x, y) (:class:`controller.imaging.background.Background`)
    fitted by sigma-clipped least squares (3 σ, 3 rounds) to the ring of the analysis level
    between ``RING`` = (0.5, 1.5) footprint radii r = √(area/π) outside the half-peak footprint:
-   close enough to follow shading and vignetting across the spot, outside the spot's core.
+   close enough to follow shading and vignetting across the spot, outside the spot's core;
+   plus up to two straight shadow steps (E1 of :mod:`controller.imaging.step_edges`) when
+   the ring shows sharp straight edges that explain its variation (a low sun casts the
+   tower's shadows across the target; no smooth surface predicts them under the spot).
 2. **Window**: the ellipse q(x − c) = (x − c)ᵀ C⁻¹ (x − c) ≤ ``WINDOW``², C the covariance of
    the footprint weighted by the smoothed excess, centred on the current estimate c.
-3. **Centroid**: c ← Σ_W s·x / Σ_W s with s = I − b over the window W, every pixel counted
+3. **Centroid**: c ← Σ_W s·x / Σ_W s with s = I − b (steps included) over the window W, every pixel counted
    (negative residuals too: no threshold truncates the tails), repeated until c moves less
    than 0.01 px (at most ``ITERATIONS`` times). Because the window is point-symmetric about c,
    a constant error of b does not move c; only its slope across the window does.
@@ -43,7 +46,8 @@ class SpotCentroid:
     """``x``, ``y``: energy centroid (px); ``total``: Σ s over the window (image units);
     ``background``: the fitted surface; ``window``: (row0, row1, col0, col1) of the window's
     bounding box inside the view (half-open); ``clipped``: view edges the window crosses;
-    ``second_spot``: (x, y) px of another beam-like spot in view, or None."""
+    ``second_spot``: (x, y) px of another beam-like spot in view, or None; ``steps``: the
+    straight shadow steps of the background (:mod:`controller.imaging.step_edges`)."""
 
     x: float
     y: float
@@ -52,6 +56,7 @@ class SpotCentroid:
     window: tuple[int, int, int, int]
     clipped: tuple[str, ...]
     second_spot: tuple[float, float] | None
+    steps: tuple[Step, ...] = ()
 
 
 def _surface(level_img: np.ndarray, ring: np.ndarray, origin: tuple[int, int], scale: int,
@@ -153,7 +158,7 @@ def spot_centroid(image: np.ndarray, presence: Presence, mask: np.ndarray | None
     clipped = tuple(edge for edge, out in (("top", cy - hy < 0), ("bottom", cy + hy > rows - 1),
                                            ("left", cx - hx < 0), ("right", cx + hx > cols - 1)) if out)
     return SpotCentroid(x=cx, y=cy, total=total, background=bg, window=(r0, r1, c0, c1), clipped=clipped,
-                        second_spot=_second_spot(presence, cinv, (cx, cy)))
+                        second_spot=_second_spot(presence, cinv, (cx, cy)), steps=steps)
 
 
 def _second_spot(p: Presence, cinv: np.ndarray, centre: tuple[float, float]) -> tuple[float, float] | None:

@@ -48,7 +48,7 @@ VOTER_FRACTION = 0.05  # of the ring's pixels, those with the strongest gradient
 ANGLE_BIN = np.pi / 60  # 3°
 OFFSET_BIN = 2.0  # level px
 BAND_PX = 4.0  # the local jump's band on either side of the line, level px
-KEEP_SIGMA = 0.85  # a step is kept when it brings the ring's robust σ to at most this fraction
+KEEP_SIGMA = 0.9  # a step is kept when it brings the ring's robust σ to at most this fraction
 _CLIP_SIGMA = 3.0
 
 
