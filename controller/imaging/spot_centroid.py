@@ -5,10 +5,13 @@ Starting from the presence decision's candidate spot (:mod:`controller.imaging.p
 1. **Background**: a quadratic surface b(x, y) (:class:`controller.imaging.background.Background`)
    fitted by sigma-clipped least squares (3 σ, 3 rounds) to the ring of the analysis level
    between ``RING`` = (0.5, 1.5) footprint radii r = √(area/π) outside the half-peak footprint:
-   close enough to follow shading and vignetting across the spot, outside the spot's core.
+   close enough to follow shading and vignetting across the spot, outside the spot's core;
+   plus up to two straight shadow steps (E1 of :mod:`controller.imaging.step_edges`) when
+   the ring shows sharp straight edges that explain its variation (a low sun casts the
+   tower's shadows across the target; no smooth surface predicts them under the spot).
 2. **Window**: the ellipse q(x − c) = (x − c)ᵀ C⁻¹ (x − c) ≤ ``WINDOW``², C the covariance of
    the footprint weighted by the smoothed excess, centred on the current estimate c.
-3. **Centroid**: c ← Σ_W s·x / Σ_W s with s = I − b over the window W, every pixel counted
+3. **Centroid**: c ← Σ_W s·x / Σ_W s with s = I − b (steps included) over the window W, every pixel counted
    (negative residuals too: no threshold truncates the tails), repeated until c moves less
    than 0.01 px (at most ``ITERATIONS`` times). Because the window is point-symmetric about c,
    a constant error of b does not move c; only its slope across the window does.
@@ -30,12 +33,12 @@ import numpy as np
 
 from controller.imaging.background import Background
 from controller.imaging.presence import Presence
+from controller.imaging.step_edges import Step, fit_steps, robust_fit
 
 RING = (0.5, 1.5)  # inner, outer distance of the background ring from the footprint, in r
 WINDOW = 4.0  # the window's half-size in units of the footprint's standard deviation
 ITERATIONS = 12
 SECOND_FRACTION = 0.25  # of the main spot's smoothed peak, for a second spot to be reported
-_CLIP_SIGMA = 3.0
 
 
 @dataclass(frozen=True)
@@ -43,7 +46,8 @@ class SpotCentroid:
     """``x``, ``y``: energy centroid (px); ``total``: Σ s over the window (image units);
     ``background``: the fitted surface; ``window``: (row0, row1, col0, col1) of the window's
     bounding box inside the view (half-open); ``clipped``: view edges the window crosses;
-    ``second_spot``: (x, y) px of another beam-like spot in view, or None."""
+    ``second_spot``: (x, y) px of another beam-like spot in view, or None; ``steps``: the
+    straight shadow steps of the background (:mod:`controller.imaging.step_edges`)."""
 
     x: float
     y: float
@@ -52,42 +56,38 @@ class SpotCentroid:
     window: tuple[int, int, int, int]
     clipped: tuple[str, ...]
     second_spot: tuple[float, float] | None
+    steps: tuple[Step, ...] = ()
 
 
 def _surface(level_img: np.ndarray, ring: np.ndarray, origin: tuple[int, int], scale: int,
-             centre: tuple[float, float], length: float, fallback: Background) -> Background:
+             centre: tuple[float, float], length: float, fallback: Background
+             ) -> tuple[Background, tuple[Step, ...]]:
     """Sigma-clipped least-squares quadratic through the ``ring`` pixels (a bool window of the
-    level image whose top-left pixel is ``origin``, row and column), as a full-resolution
-    :class:`Background` about ``centre`` (coordinates scaled by ``length``)."""
-    ys, xs = np.nonzero(ring)
+    level image whose top-left pixel is ``origin``, row and column), with the straight steps
+    of :func:`controller.imaging.step_edges.fit_steps`, as a full-resolution
+    :class:`Background` about ``centre`` (coordinates scaled by ``length``) and its steps."""
+    ry, rx = np.nonzero(ring)
+    ys, xs = ry, rx
     if ys.size > 2048:  # a quadratic has 6 unknowns: a couple of thousand samples are plenty
         pick = np.linspace(0, ys.size - 1, 2048).astype(np.int64)
         ys, xs = ys[pick], xs[pick]
     ys, xs = ys + origin[0], xs + origin[1]
     if ys.size < 24:
-        return fallback
+        return fallback, ()
     v = level_img[ys, xs].astype(np.float64)
-    u = (xs * scale - centre[0]) / length
-    w = (ys * scale - centre[1]) / length
-    a = np.stack([np.ones_like(u), u, w, u * u, w * w, u * w], axis=1)
-    use = np.ones(v.size, bool)
-    coef = np.zeros(6)
-    sigma = 0.0
-    for _ in range(3):
-        au = a[use]
-        coef = np.linalg.solve(au.T @ au + 1e-9 * np.eye(6), au.T @ v[use])
-        res = v - a @ coef
-        r_use = res[use]
-        sigma = 1.4826 * float(np.median(np.abs(r_use - np.median(r_use))))
-        keep = np.abs(res) <= max(_CLIP_SIGMA * sigma, 1e-9)
-        if keep.sum() < 24:
-            break
-        use = keep
-    sx, sy = coef[1] / length, coef[2] / length
-    return Background(level=float(coef[0] - sx * centre[0] - sy * centre[1]), slope_x=float(sx),
-                      slope_y=float(sy), noise=sigma,
+
+    def quadratic(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        u, w = (x - centre[0]) / length, (y - centre[1]) / length
+        return np.stack([np.ones_like(u), u, w, u * u, w * w, u * w], axis=1)
+
+    sx, sy = (xs * scale).astype(np.float64), (ys * scale).astype(np.float64)
+    steps, coef, sigma = fit_steps(level_img, (ry, rx, ring.shape), origin, scale, quadratic, sx, sy, v,
+                                   robust_fit(quadratic(sx, sy), v))
+    gx, gy = coef[1] / length, coef[2] / length
+    return Background(level=float(coef[0] - gx * centre[0] - gy * centre[1]), slope_x=float(gx),
+                      slope_y=float(gy), noise=sigma,
                       quad=tuple(float(c / length**2) for c in coef[3:]),
-                      centre=(float(centre[0]), float(centre[1])))
+                      centre=(float(centre[0]), float(centre[1]))), steps
 
 
 def _ellipse_q(cinv: np.ndarray, xs: np.ndarray, ys: np.ndarray, cx: float, cy: float) -> np.ndarray:
@@ -121,7 +121,8 @@ def spot_centroid(image: np.ndarray, presence: Presence, mask: np.ndarray | None
     b0, b1 = max(0, int(fx.min()) - grow), min(g.shape[1], int(fx.max()) + grow + 1)
     dist = cv2.distanceTransform((~fp[a0:a1, b0:b1]).view(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_3)
     ring = (dist > RING[0] * r_eq) & (dist <= RING[1] * r_eq) & presence.target[a0:a1, b0:b1]
-    bg = _surface(presence.level_image, ring, (a0, b0), k, (cx, cy), max(r_eq * k, 1.0), presence.background)
+    bg, steps = _surface(presence.level_image, ring, (a0, b0), k, (cx, cy), max(r_eq * k, 1.0),
+                         presence.background)
     # The pixels the window can reach: the window at the start grown by a fifth (room for the
     # centre to move), listed once; the iterations work on that list.
     hx = WINDOW * float(np.sqrt(cov[0, 0])) + 2 + k
@@ -137,6 +138,8 @@ def spot_centroid(image: np.ndarray, presence: Presence, mask: np.ndarray | None
     py, px = np.nonzero(reach)
     xs, ys = (px + c0).astype(np.float32), (py + r0).astype(np.float32)
     s = np.asarray(img[r0:r1, c0:c1], dtype=np.float32)[reach] - bg.at(xs, ys)  # float32; sums in float64
+    for step in steps:
+        s -= step.at(xs, ys)
     total = 0.0
     for _ in range(ITERATIONS):
         u, v = xs - np.float32(cx), ys - np.float32(cy)
@@ -155,7 +158,7 @@ def spot_centroid(image: np.ndarray, presence: Presence, mask: np.ndarray | None
     clipped = tuple(edge for edge, out in (("top", cy - hy < 0), ("bottom", cy + hy > rows - 1),
                                            ("left", cx - hx < 0), ("right", cx + hx > cols - 1)) if out)
     return SpotCentroid(x=cx, y=cy, total=total, background=bg, window=(r0, r1, c0, c1), clipped=clipped,
-                        second_spot=_second_spot(presence, cinv, (cx, cy)))
+                        second_spot=_second_spot(presence, cinv, (cx, cy)), steps=steps)
 
 
 def _second_spot(p: Presence, cinv: np.ndarray, centre: tuple[float, float]) -> tuple[float, float] | None:
