@@ -20,25 +20,28 @@ Per run (JSON ``k1``, ``k4``): ``planned``, ``measured``; ``geometries_per_hour_
 measurements over the plant hours the targets were busy (per pass, first beam on the
 target to last beam off it, summed over the passes of both targets); ``misassigned``:
 measurements whose centroid is another heliostat's spot in the plant's truth
-(``simplant.spot_truth``); ``daytime_rms_mrad``: the field's open-loop error over the sun's
+(``simplant.spot_truth``); ``centroid_error_mm``: mean, p95 and max distance of the measured
+centroids from the centre of their own spot (the reflected central ray's hit) in the plant's
+truth; ``daytime_rms_mrad``: the field's open-loop error over the sun's
 yearly path after the night, against the plant's truth (``simplant.daytime``);
 ``measured_alone``: heliostats whose spot could not be confirmed in a shared capture and
 were measured again alone; ``beam_safety_violations``: samples with more beams on a target
 than allowed. ``ratio``: K = 4 over K = 1 geometries per hour per target.
 
-    python benchmarks/bench_beams.py [--json] [--seed 0] [--k 4]
+    python benchmarks/bench_beams.py [--json] [--seed 0] [--k 4] [--out DIR]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import shutil
 import sqlite3
 import sys
 import tempfile
 import time
 from pathlib import Path
+
+import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -70,6 +73,25 @@ def busy_hours(db: Path, night: str) -> tuple[float, int, int]:
     return sum(b - a for a, b in rows if a is not None and b is not None) / 3600.0, len(rows), alone
 
 
+def centroid_errors(errors_m: list[float]) -> dict:
+    """Mean, p95 and max (mm) of the measured centroids' distances from their own spots."""
+    e = 1e3 * np.asarray(errors_m, float)
+    if not e.size:
+        return {}
+    return {"mean": float(e.mean()), "p95": float(np.percentile(e, 95)), "max": float(e.max()),
+            "n": int(e.size)}
+
+
+def copy_db(source: Path, dest: Path) -> None:
+    """A consistent copy of ``source`` (SQLite's online backup: the write-ahead log included)."""
+    src, dst = sqlite3.connect(source), sqlite3.connect(dest)
+    try:
+        src.backup(dst)
+    finally:
+        src.close()
+        dst.close()
+
+
 def run_night(config: Path, db: Path, ids: list[str], seed: int) -> dict:
     cfg = load_config(config)
     safety: dict = {}
@@ -85,6 +107,7 @@ def run_night(config: Path, db: Path, ids: list[str], seed: int) -> dict:
             "target_busy_hours": hours,
             "geometries_per_hour_per_target": rep.measured / hours if hours > 0 else 0.0,
             "misassigned": safety.get("misassigned", 0),
+            "centroid_error_mm": centroid_errors(safety.get("centroid_errors_m", [])),
             "measured_alone": alone,
             "beam_safety_violations": safety.get("violations", 0),
             "max_beams_on_target": safety.get("max_beams_on_target", 0),
@@ -97,11 +120,15 @@ def main() -> None:
     ap.add_argument("--json", action="store_true", help="print JSON only")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--k", type=int, default=4, help="beams per target of the second run (2 … 8)")
+    ap.add_argument("--out", type=Path, default=None,
+                    help="keep the configurations and databases here (default: a temporary folder)")
     args = ap.parse_args()
     if not 2 <= args.k <= 8:
         ap.exit(2, "bench_beams.py: --k must be 2 … 8\n")
+    if args.out is not None and args.out.exists() and any(args.out.iterdir()):
+        ap.exit(2, f"bench_beams.py: --out {args.out} is not empty\n")
     with tempfile.TemporaryDirectory(prefix="bench-beams-") as tmp:
-        root = Path(tmp)
+        root = args.out or Path(tmp)
         one = bench_config(root / "k1", 1)
         many = bench_config(root / f"k{args.k}", args.k)
         ids = [h.id for h in load_config(one).heliostats]
@@ -120,7 +147,7 @@ def main() -> None:
         out = {}
         for key, config in (("k1", one), (f"k{args.k}", many)):
             db = config.parent / "campaign.db"
-            shutil.copy(base, db)
+            copy_db(base, db)
             out[key] = run_night(config, db, ids, args.seed)
     k1, kk = out["k1"], out[f"k{args.k}"]
     result = {"benchmark": "several beams per target, the same planned night (night 2) with K = 1 and K = "

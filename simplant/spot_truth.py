@@ -28,6 +28,7 @@ class SpotTruth:
         self._lock = threading.Lock()
         self.misassigned_count = 0
         self.checked = 0
+        self.errors_m: list[float] = []  # per measurement: centroid to its own spot's centre, m
 
     def swap(self, a: str, b: str) -> None:
         """Exchange the spots of ``a`` and ``b`` whenever both beams are in view (module docstring)."""
@@ -68,12 +69,17 @@ class SpotTruth:
         """Is a centroid (m ENU) recorded under ``hid`` another's spot? Judged on the latest
         render with ``hid``'s beam in view (the capture its measurement came from, or the step's
         capture just after it): the centroid is nearer another heliostat's spot there than its
-        own. Counted in ``misassigned_count`` (of ``checked``)."""
+        own. Counted in ``misassigned_count`` (of ``checked``); the distance from the centroid to
+        its own spot's centre (the reflected central ray's hit) in the recent render nearest it
+        is kept in ``errors_m``."""
         c = np.asarray(centroid_rel, float)
         with self._lock:
             last = next((s for s in reversed(self.log) if hid in s), None)
             wrong = last is None or any(np.linalg.norm(r - c) < np.linalg.norm(last[hid] - c)
                                         for h, r in last.items() if h != hid)
+            own = [np.linalg.norm(s[hid] - c) for s in self.log if hid in s]
+            if own:  # the capture it came from: the render whose own spot is nearest
+                self.errors_m.append(float(min(own)))
             self.checked += 1
             self.misassigned_count += int(wrong)
         return wrong

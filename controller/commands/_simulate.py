@@ -83,6 +83,7 @@ def _merge_safety(plant, into: dict | None, on_target: dict | None) -> None:
         into["violations"] = into.get("violations", 0) + r["violations"]
         into["max_beams_on_target"] = max(into.get("max_beams_on_target", 0), r["max_beams_on_target"])
         into["misassigned"] = into.get("misassigned", 0) + plant.spot_truth.misassigned_count
+        into["centroid_errors_m"] = into.get("centroid_errors_m", []) + plant.spot_truth.errors_m
     if on_target is not None:
         for tid, spans in plant.safety.intervals.items():
             on_target.setdefault(tid, []).extend(spans)

@@ -84,13 +84,15 @@ def window_spots(hdr: np.ndarray, windows) -> np.ndarray:
 
 
 def isolate(hdr: np.ndarray, windows, keep: int) -> np.ndarray:
-    """``hdr`` with every window but ``keep`` replaced by the background level b."""
-    img = np.asarray(hdr, float).copy()
+    """``hdr`` with everything outside window ``keep`` replaced by the background level b: the
+    other spots and the faint tails they spread beyond their windows, which an energy centroid
+    without a threshold would average in."""
+    img = np.asarray(hdr, float)
     b, _ = background(img, windows)
-    for k, (r0, r1, c0, c1) in enumerate(windows):
-        if k != keep:
-            img[r0:r1, c0:c1] = b
-    return img
+    out = np.full_like(img, b)
+    r0, r1, c0, c1 = windows[keep]
+    out[r0:r1, c0:c1] = img[r0:r1, c0:c1]
+    return out
 
 
 def confirm_by_step(first_m: np.ndarray, second_m: np.ndarray, steps_m: np.ndarray) -> list[bool]:
