@@ -10,12 +10,16 @@ from collections.abc import Callable
 class TargetGate:
     """Hands the target to heliostats in queue order (tickets 0, 1, 2, …), ``beams`` at a time.
 
-    ``acquire(ticket)`` blocks until every smaller ticket acquired the target (or was skipped)
-    and, with ``beams`` K, ticket ``t − K`` released it: ticket t uses slot ``t mod K``
-    (:meth:`slot`), which only one beam holds at a time. With K = 1 this is one beam at a
-    time, in queue order. ``acquire_alone(ticket)``: for a heliostat measured again alone (its
-    spot could not be told from the others): waits until no other beam holds the target and
-    keeps every other ticket off it until released; it goes before tickets not yet admitted.
+    ``acquire(ticket)`` with K = 1 blocks until every smaller ticket acquired the target and
+    released it (or was skipped): one beam at a time, in queue order. With ``beams`` K > 1
+    ticket t uses slot ``t mod K`` (:meth:`slot`), which only one beam holds at a time: it
+    waits only for ticket ``t − K`` of its slot to release it, so a heliostat still slewing to
+    standby holds up its own slot, not the others. ``acquire_alone(ticket)``: for a heliostat
+    measured again alone (its spot could not be told from the others): waits until no other
+    beam holds the target and keeps every other ticket off it until released; it goes before
+    tickets not yet admitted.
+    A ticket in ``solo`` (no slot's pose suits its heliostat) is admitted only onto an empty
+    target and keeps every other ticket off it while it holds it.
     ``blocked`` becomes True when a beam may have been left on the target, after which nobody
     gets the target again.
     """
@@ -32,6 +36,7 @@ class TargetGate:
         self.alone: int | None = None  # the ticket measured alone now
         self._alone_waiting: set[int] = set()
         self.waiting: set[int] = set()  # tickets blocked in acquire
+        self.solo: set[int] = set()  # tickets that take the target alone (no slot fits them)
         self.blocked = False
 
     @property
@@ -45,8 +50,11 @@ class TargetGate:
 
     def admissible(self, ticket: int) -> bool:
         """Could ``ticket`` take the target now (the caller holds ``cv``)?"""
-        return (self._next == ticket and not self.blocked and self.alone is None and not self._alone_waiting
-                and len(self.holders) < self.beams
+        if self.blocked or self.alone is not None or self._alone_waiting or self.holders & self.solo:
+            return False
+        if ticket in self.solo:
+            return not self.holders
+        return ((self.beams > 1 or self._next == ticket) and len(self.holders) < self.beams
                 and (ticket - self.beams < self._first or ticket - self.beams in self._done))
 
     def acquire(self, ticket: int, cancelled: Callable[[], bool], poll_s: float = 0.05) -> bool:

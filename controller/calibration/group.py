@@ -34,6 +34,7 @@ import numpy as np
 
 from controller.calibration.approach import approach_path
 from controller.calibration.slots import IDENTITY_STEP_M
+from controller.errors import HeliocalError
 from controller.geometry.spot import hit_uv
 from controller.imaging.spots import confirm_by_step, isolate, window_spots
 
@@ -49,6 +50,45 @@ class _Round:
     failed: bool = False  # a capture of the round failed: every member leaves it
     assigned: dict[int, int | None] | None = None
     windows: list[tuple[int, int, int, int]] | None = None
+
+
+def identity_step(pointing, pose: tuple[int, int], slot: int, k: int, frame
+                  ) -> tuple[tuple[int, int], np.ndarray]:
+    """The known step of a heliostat at ``pose`` (motor steps, both ≥ 0: the approach ended
+    moving up on both axes, so the step takes up no backlash) holding ``slot`` of ``k``, and
+    its spot's predicted displacement (u, v) m on ``frame``: direction θ = 90° · slot / (K − 1)
+    in step space, scaled to move the spot about IDENTITY_STEP_M. The displacement is the
+    reflected central ray's hit point on the target plane (:func:`controller.geometry.spot.hit_uv`)
+    traced with the heliostat's model (``pointing.rays``) after the step minus before it."""
+    base = np.array(pose, float)
+
+    def moved(steps) -> np.ndarray:  # (n, 2) steps -> (n, 2) m of (u, v)
+        c, b = pointing.rays(base + np.asarray(steps, float))
+        uv = hit_uv(c, b, frame.center, frame.normal, frame.u, frame.v)
+        return uv[1:] - uv[:1]
+
+    probe = 1000.0
+    per_step = moved([(0, 0), (probe, 0), (0, probe)]).T / probe  # m of (u, v) per step
+    theta = 0.5 * math.pi * slot / max(k - 1, 1)
+    want = np.array([math.cos(theta), math.sin(theta)])
+    scale = IDENTITY_STEP_M / max(float(np.linalg.norm(per_step @ want)), 1e-12)
+    step = np.rint(want * scale).astype(int)
+    return (int(step[0]), int(step[1])), moved([(0, 0), tuple(step)])[0]
+
+
+def slot_parks(pointing, slot: int, k: int, frame) -> bool:
+    """Can a heliostat aimed at its slot by ``pointing`` be parked safely from there, before
+    and after its identity step (:meth:`BeamSafety.path_to` to its standby pose)? A heliostat
+    for which it cannot keeps its planned aim and takes the target alone (``TargetGate.solo``)."""
+    try:
+        aim = pointing.aim_steps(pointing.model)
+        standby = pointing.standby_steps(pointing.model)
+        step, _ = identity_step(pointing, aim, slot, k, frame)
+        for pose in (aim, (aim[0] + step[0], aim[1] + step[1])):
+            pointing.path_to(pose, standby)
+    except (HeliocalError, ValueError):  # out of reach, or no safe slew
+        return False
+    return True
 
 
 class SharedCapture:
@@ -87,27 +127,9 @@ class SharedCapture:
                 max(0, math.floor(c0)), min(cols, math.ceil(c1) + 1))
 
     def identity_step(self, cyc) -> tuple[tuple[int, int], np.ndarray]:
-        """The known step of ``cyc``'s heliostat (motor steps, both ≥ 0: the approach ended
-        moving up on both axes, so the step takes up no backlash) and the spot's predicted
-        displacement (u, v) m: direction θ = 90° · slot / (K − 1) in step space, scaled to move
-        the spot about IDENTITY_STEP_M. The displacement is the reflected central ray's hit
-        point on the target plane (:func:`controller.geometry.spot.hit_uv`) traced with the
-        heliostat's model (:meth:`BeamSafety.rays`) after the step minus before it."""
-        p, k, f = cyc.ctx.pointing, self.gate.beams, self.frame
-        pose = np.array([cyc.az, cyc.el], float)
-
-        def moved(steps) -> np.ndarray:  # (n, 2) steps -> (n, 2) m of (u, v)
-            c, b = p.rays(pose + np.asarray(steps, float))
-            uv = hit_uv(c, b, f.center, f.normal, f.u, f.v)
-            return uv[1:] - uv[:1]
-
-        probe = 1000.0
-        per_step = moved([(0, 0), (probe, 0), (0, probe)]).T / probe  # m of (u, v) per step
-        theta = 0.5 * math.pi * self.gate.slot(cyc._ticket) / max(k - 1, 1)
-        want = np.array([math.cos(theta), math.sin(theta)])
-        scale = IDENTITY_STEP_M / max(float(np.linalg.norm(per_step @ want)), 1e-12)
-        step = np.rint(want * scale).astype(int)
-        return (int(step[0]), int(step[1])), moved([(0, 0), tuple(step)])[0]
+        """:func:`identity_step` of ``cyc``'s heliostat at its present pose and slot."""
+        return identity_step(cyc.ctx.pointing, (cyc.az, cyc.el), self.gate.slot(cyc._ticket), self.gate.beams,
+                             self.frame)
 
     # -- the round -----------------------------------------------------------------------------
     def _fires(self) -> bool:
@@ -120,7 +142,7 @@ class SharedCapture:
         """Frame 1 of this heliostat's round and a function isolating its spot in the HDR image
         (None when it was measured alone); module docstring."""
         g, ticket = self.gate, cyc._ticket
-        if g.alone == ticket:  # measured alone (a correction, a look at a clipped spot): its beam only
+        if g.alone == ticket or ticket in g.solo:  # measured alone (a correction, a clipped spot, solo)
             return self._capture(), None
         cancelled = lambda: cyc.state != "capturing"  # noqa: E731
         pose = (cyc.az, cyc.el)

@@ -12,7 +12,8 @@ bar, a web console, or a simulation harness that keeps its own truth.
 * **Queue** (:func:`controller.calibration.planning.order_queue`): heliostats sorted by their
   estimated slew time to their standby point, shortest first. The queue is stored with the
   campaign, so a resumed run keeps it.
-* **Pipeline**: up to ``pipeline_depth`` heliostats run their cycle at once. Each slews to its
+* **Pipeline**: up to ``pipeline_depth`` heliostats (K times as many with K beams per target)
+  run their cycle at once. Each slews to its
   standby point in parallel; the :class:`TargetGate` then lets them onto the target one at a
   time, in queue order. So while heliostat k is measured, k+1… are already parked at standby.
 * **Resumable**: each heliostat's record is committed in one transaction when its cycle ends
@@ -39,7 +40,7 @@ from controller.calibration.context import CycleContext
 from controller.calibration.exposure import capture_unsaturated
 from controller.calibration.field import Field, LampLit
 from controller.calibration.gate import TargetGate
-from controller.calibration.group import SharedCapture
+from controller.calibration.group import SharedCapture, slot_parks
 from controller.calibration.lamp_change import clear_targets
 from controller.calibration.machine import STATES, CalibrationCycle
 from controller.calibration.no_beam import NoBeamWatch
@@ -250,7 +251,11 @@ class Campaign:
             # Each heliostat at its ticket's slot; one capture for all beams, identity by a step.
             with self.time.computing():
                 for ticket, (_, hid) in enumerate(todo):
-                    pointing[hid] = self._pointing_at(hid, self.slots.aim(gate.slot(ticket)))
+                    at_slot = self._pointing_at(hid, self.slots.aim(gate.slot(ticket)))
+                    if slot_parks(at_slot, gate.slot(ticket), self.slots.k, self.chain.frame):
+                        pointing[hid] = at_slot
+                    else:  # its planned aim, the target to itself (module docstring of group)
+                        gate.solo.add(ticket)
             self.group = SharedCapture(gate, self._capture, self.chain.merge, self.chain.frame, self.slots)
         t0 = self.time.now()
         session: list[RunRecord] = []
@@ -285,7 +290,9 @@ class Campaign:
             self.observer.run_recorded(cid, rec)
             return rec
 
-        with ThreadPoolExecutor(max_workers=self.opt.pipeline_depth, thread_name_prefix="cycle") as pool:
+        # K beams at once need K times the heliostats waiting at standby.
+        depth = self.opt.pipeline_depth * (1 if self.slots is None else self.slots.k)
+        with ThreadPoolExecutor(max_workers=depth, thread_name_prefix="cycle") as pool:
             futures = [pool.submit(one, t, qi, hid) for t, (qi, hid) in enumerate(todo)]
             try:
                 for f in futures:

@@ -168,3 +168,21 @@ def test_the_plant_truth_counts_a_centroid_of_another_heliostats_spot():
     assert not truth.misassigned("A", a + 0.05) and truth.misassigned("A", b + 0.05)
     assert truth.misassigned("C", a)  # no spot of C's in view: whatever it measured was not its own
     assert (truth.checked, truth.misassigned_count) == (3, 2)
+
+
+def test_a_solo_ticket_takes_only_an_empty_target_and_keeps_it_to_itself():
+    gate = TargetGate(beams=3)
+    gate.solo.add(1)
+    never = lambda: False  # noqa: E731
+    assert gate.acquire(0, never)
+    got = []
+    th = threading.Thread(target=lambda: got.append(gate.acquire(1, never)))
+    th.start()
+    th.join(0.2)
+    assert not got  # ticket 0's beam is on the target
+    gate.release(0)
+    th.join(2.0)
+    assert got == [True] and gate.holders == {1}
+    assert not gate.acquire(2, lambda: True)  # nobody joins a solo heliostat
+    gate.release(1)
+    assert gate.acquire(2, never) and gate.acquire(3, never) and gate.holders == {2, 3}
