@@ -76,16 +76,22 @@ def identity_step(pointing, pose: tuple[int, int], slot: int, k: int, frame
     return (int(step[0]), int(step[1])), moved([(0, 0), tuple(step)])[0]
 
 
-def slot_parks(pointing, slot: int, k: int, frame) -> bool:
-    """Can a heliostat aimed at its slot by ``pointing`` be parked safely from there, before
-    and after its identity step (:meth:`BeamSafety.path_to` to its standby pose)? A heliostat
-    for which it cannot keeps its planned aim and takes the target alone (``TargetGate.solo``)."""
+def slot_parks(pointing, slot: int, k: int, frame, current: tuple[int, int] | None) -> bool:
+    """Can a heliostat aimed at its slot by ``pointing`` take it and be parked safely: its aim
+    and its identity-stepped pose inside the soft limits, and a safe slew to its standby pose
+    (:meth:`BeamSafety.path_to`) from where it stands now (``current``), from its aim and from
+    the stepped pose? A heliostat for which it cannot keeps its planned aim and takes the
+    target alone (``TargetGate.solo``)."""
     try:
         aim = pointing.aim_steps(pointing.model)
         standby = pointing.standby_steps(pointing.model)
         step, _ = identity_step(pointing, aim, slot, k, frame)
-        for pose in (aim, (aim[0] + step[0], aim[1] + step[1])):
-            pointing.path_to(pose, standby)
+        stepped = (aim[0] + step[0], aim[1] + step[1])
+        pointing.kin.azimuth.check(stepped[0], "the identity step")
+        pointing.kin.elevation.check(stepped[1], "the identity step")
+        for pose in (current, aim, stepped):
+            if pose is not None:
+                pointing.path_to(pose, standby)
     except (HeliocalError, ValueError):  # out of reach, or no safe slew
         return False
     return True

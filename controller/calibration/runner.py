@@ -147,6 +147,7 @@ class Campaign:
         self._cycles: dict[str, CalibrationCycle] = {}
         self.slots = None  # controller.calibration.slots.SlotLayout with several beams per target
         self.group: SharedCapture | None = None
+        self._current: dict[str, tuple[int, int]] = {}
 
     def request_stop(self) -> None:
         """Stop the campaign from another thread, as Ctrl-C does: every cycle in flight parks
@@ -180,7 +181,8 @@ class Campaign:
         source = self.cfg.light_source(self.opt.light_source)
         target = self.cfg.target()
         aims = self.opt.aims or {}
-        current = {}
+        current: dict[str, tuple[int, int]] = {}
+        self._current = current  # where each heliostat stands at the start (slots' park check)
         for hid in self.ids:
             try:
                 st = self.drive(hid).status()
@@ -252,7 +254,7 @@ class Campaign:
             with self.time.computing():
                 for ticket, (_, hid) in enumerate(todo):
                     at_slot = self._pointing_at(hid, self.slots.aim(gate.slot(ticket)))
-                    if slot_parks(at_slot, gate.slot(ticket), self.slots.k, self.chain.frame):
+                    if slot_parks(at_slot, gate.slot(ticket), self.slots.k, self.chain.frame, self._current.get(hid)):
                         pointing[hid] = at_slot
                     else:  # its planned aim, the target to itself (module docstring of group)
                         gate.solo.add(ticket)
