@@ -253,8 +253,9 @@ class Campaign:
             # Each heliostat at its ticket's slot; one capture for all beams, identity by a step.
             with self.time.computing():
                 for ticket, (_, hid) in enumerate(todo):
-                    at_slot = self._pointing_at(hid, self.slots.aim(gate.slot(ticket)))
-                    if slot_parks(at_slot, gate.slot(ticket), self.slots.k, self.chain.frame, self._current.get(hid)):
+                    slot = gate.slot(ticket)
+                    at_slot = self._pointing_at(hid, self.slots.aim(slot))
+                    if slot_parks(at_slot, slot, self.slots.k, self.chain.frame, self._current.get(hid)):
                         pointing[hid] = at_slot
                     else:  # its planned aim, the target to itself (module docstring of group)
                         gate.solo.add(ticket)
