@@ -28,7 +28,7 @@ yearly path after the night, against the plant's truth (``simplant.daytime``);
 were measured again alone; ``beam_safety_violations``: samples with more beams on a target
 than allowed. ``ratio``: K = 4 over K = 1 geometries per hour per target.
 
-    python benchmarks/bench_beams.py [--json] [--seed 0] [--k 4] [--out DIR]
+    python benchmarks/bench_beams.py [--json] [--seed 0] [--k 4] [--extra-rows 0] [--out DIR]
 """
 
 from __future__ import annotations
@@ -53,9 +53,10 @@ from simplant.far_lamps import FAR_LAMPS, far_lamp_config  # noqa: E402
 from simplant.settings import SimulationSettings  # noqa: E402
 
 
-def bench_config(folder: Path, k: int) -> Path:
-    """The demo plant under the far lamps, ``calibration.beams_per_target: k``."""
-    return far_lamp_config(ROOT / "configs" / "demo.yaml", folder, k)
+def bench_config(folder: Path, k: int, rows: int) -> Path:
+    """The demo plant under the far lamps, ``calibration.beams_per_target: k``, ``rows`` rows of
+    six heliostats added north of it."""
+    return far_lamp_config(ROOT / "configs" / "demo.yaml", folder, k, rows)
 
 
 def busy_hours(db: Path, night: str) -> tuple[float, int, int]:
@@ -120,17 +121,21 @@ def main() -> None:
     ap.add_argument("--json", action="store_true", help="print JSON only")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--k", type=int, default=4, help="beams per target of the second run (2 … 8)")
+    ap.add_argument("--extra-rows", type=int, default=0,
+                    help="rows of six heliostats added north of the demo field (0 … 6): larger passes")
     ap.add_argument("--out", type=Path, default=None,
                     help="keep the configurations and databases here (default: a temporary folder)")
     args = ap.parse_args()
     if not 2 <= args.k <= 8:
         ap.exit(2, "bench_beams.py: --k must be 2 … 8\n")
+    if not 0 <= args.extra_rows <= 6:
+        ap.exit(2, "bench_beams.py: --extra-rows must be 0 … 6\n")
     if args.out is not None and args.out.exists() and any(args.out.iterdir()):
         ap.exit(2, f"bench_beams.py: --out {args.out} is not empty\n")
     with tempfile.TemporaryDirectory(prefix="bench-beams-") as tmp:
         root = args.out or Path(tmp)
-        one = bench_config(root / "k1", 1)
-        many = bench_config(root / f"k{args.k}", args.k)
+        one = bench_config(root / "k1", 1, args.extra_rows)
+        many = bench_config(root / f"k{args.k}", args.k, args.extra_rows)
         ids = [h.id for h in load_config(one).heliostats]
         base = root / "prep" / "campaign.db"
         base.parent.mkdir()

@@ -18,10 +18,13 @@ FAR_LAMPS = (("lamp-far-w", (-300.0, -15.0, 78.0)), ("lamp-far-e", (300.0, -15.0
              ("lamp-far-s", (0.0, -250.0, 120.0)))
 
 
-def far_lamp_config(source: Path, folder: Path, beams_per_target: int) -> Path:
+def far_lamp_config(source: Path, folder: Path, beams_per_target: int, extra_rows: int = 0) -> Path:
     """``source`` (a plant configuration) under :data:`FAR_LAMPS`, the first the calibration
-    lamp, with ``calibration.beams_per_target``, written to ``folder``/bench.yaml."""
+    lamp, with ``calibration.beams_per_target``, written to ``folder``/bench.yaml.
+    ``extra_rows``: rows of the first row's heliostats added 15 m farther north each (their
+    own serial bus, mirrors focused at their distance from the calibration target)."""
     data = yaml.safe_load(Path(source).read_text())
+    data["heliostats"] += _rows(data, extra_rows)
     data["light_sources"] += [{"kind": "lamp", "id": i, "position_enu_m": list(p), "diameter_m": 0.3}
                               for i, p in FAR_LAMPS]
     cal = data["calibration"]
@@ -32,3 +35,21 @@ def far_lamp_config(source: Path, folder: Path, beams_per_target: int) -> Path:
     path = folder / "bench.yaml"
     path.write_text(yaml.safe_dump(data, sort_keys=False))
     return path
+
+
+def _rows(data: dict, rows: int) -> list[dict]:
+    y0 = data["heliostats"][0]["position_enu_m"][1]
+    first = [h for h in data["heliostats"] if h["position_enu_m"][1] == y0]
+    centre = next(t for t in data["targets"] if t["id"] == data["calibration"]["target"])["center_enu_m"]
+    last_y = max(h["position_enu_m"][1] for h in data["heliostats"])
+    out = []
+    for r in range(rows):
+        for i, h in enumerate(first):
+            x, _, z = h["position_enu_m"]
+            pos = [x, last_y + 15.0 * (r + 1), z]
+            dist = sum((a - b) ** 2 for a, b in zip(pos, centre, strict=True)) ** 0.5
+            out.append({**h, "id": f"R{r + 1}{i + 1:02d}", "position_enu_m": pos,
+                        "mirror": {**h["mirror"], "focal_length_m": round(dist, 1)},
+                        "link": {"kind": "serial", "device": f"/tmp/heliocal-demo/row{r + 1}",
+                                 "address": i + 1}})
+    return out
