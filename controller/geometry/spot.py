@@ -11,15 +11,7 @@ slope error σ_s doubled on reflection, and the mirror of focal length f, which 
 source at d at the distance d' of 1/d' = 1/f − 1/d (the thin-mirror equation), so that its
 reflected bundle has width w |1 − L/d'| at L (a uniform band of width W has σ = W/√12). For
 the sun d = ∞ and the bundle converges at f; a lamp a few tens of metres away is imaged far
-behind the target and its spot is nearly as wide as the mirror. Off axis (angle of incidence
-θ) the focus is astigmatic (Coddington): the focal power is 1/(f cos θ) in the plane of
-incidence and cos θ / f across it. With t the plane of incidence's unit direction in the
-mirror's (width, height) axes, P = t tᵀ/(f cos θ) + (I − t tᵀ) cos θ / f, and the aperture
-(uniform over w × h) spreads at L as
-
-    Σ_aperture = M diag(w², h²)/12 Mᵀ,   M = I − L (P − I/d)                       (1a)
-
-which is the defocus term of Eq. (1) on axis (θ = 0). A beam meeting the plane
+behind the target and its spot is nearly as wide as the mirror. A beam meeting the plane
 obliquely (cos θ = |b·N|) stretches the footprint by 1/cos θ along its in-plane direction d:
 
     Σ_spot = S diag(σ_u², σ_v²) Sᵀ,   S = I + (1/cos θ − 1) d dᵀ                 (2)
@@ -86,40 +78,28 @@ class MirrorOptics:
 
 
 def spot_covariance(distance_m, lamp_angle_rad, slope_error_rad, mirror_w_m, mirror_h_m, focal_m,
-                    beam, normal, u_axis, v_axis, source_distance_m=np.inf, incidence=None) -> np.ndarray:
+                    beam, normal, u_axis, v_axis, source_distance_m=np.inf) -> np.ndarray:
     """Σ_spot of Eq. (1)-(2), m², in the target plane's (u, v) axes, shape (..., 2, 2).
 
     ``distance_m`` L and ``lamp_angle_rad`` α (...,); ``slope_error_rad`` σ_s, mirror width,
     height and focal length (m, scalars or (...,)); ``beam`` (..., 3) the unit beam direction;
     ``normal``, ``u_axis``, ``v_axis`` ((3,) or broadcast against ``beam``) the target plane's
     unit normal and in-plane axes; ``source_distance_m`` d (...,) the lamp's distance from the
-    mirror (∞ for the sun). ``incidence``: None (on-axis focus), or (cos θ, t) with θ the angle
-    of incidence on the mirror and t (..., 2) the unit direction of the plane of incidence in
-    the mirror's (width, height) axes: the mirror's focal power is then astigmatic (Eq. 1a)."""
+    mirror (∞ for the sun)."""
     L = np.asarray(distance_m, float)
     common = (np.asarray(lamp_angle_rad, float) * L / 4.0) ** 2 + (2.0 * np.asarray(slope_error_rad) * L) ** 2
-    f = np.asarray(focal_m, float)
-    eye = np.eye(2)
-    if incidence is None:
-        power = (1.0 / f)[..., None, None] * eye if np.ndim(f) else eye / f
-        power = np.broadcast_to(power, (*np.shape(L), 2, 2))
-    else:
-        cos_i, t = incidence
-        cos_i = np.maximum(np.asarray(cos_i, float), 0.05)
-        tt = np.asarray(t, float)[..., :, None] * np.asarray(t, float)[..., None, :]
-        power = ((1.0 / (f * cos_i))[..., None, None] * tt + (cos_i / f)[..., None, None] * (eye - tt))
-    image = power - (1.0 / np.asarray(source_distance_m, float))[..., None, None] * eye  # 1/d' per direction
-    m = eye - L[..., None, None] * image
-    aperture = np.zeros((*np.shape(L), 2, 2))
-    aperture[..., 0, 0] = np.asarray(mirror_w_m, float) ** 2 / 12.0
-    aperture[..., 1, 1] = np.asarray(mirror_h_m, float) ** 2 / 12.0
-    base = m @ aperture @ np.swapaxes(m, -1, -2) + common[..., None, None] * eye
+    image = 1.0 / np.asarray(focal_m, float) - 1.0 / np.asarray(source_distance_m, float)  # 1/d'
+    defocus = np.abs(1.0 - L * image)
+    var_u = common + (np.asarray(mirror_w_m) * defocus) ** 2 / 12.0
+    var_v = common + (np.asarray(mirror_h_m) * defocus) ** 2 / 12.0
     b = np.asarray(beam, float)
     cos_t = np.maximum(np.abs(_dot(b, normal)), 0.05)  # grazing: bounded stretch
     d = np.stack([_dot(b, u_axis), _dot(b, v_axis)], axis=-1)
     dn = np.linalg.norm(d, axis=-1, keepdims=True)
     d = np.where(dn > 1e-9, d / np.where(dn > 1e-9, dn, 1.0), 0.0)
-    s = eye + (1.0 / cos_t - 1.0)[..., None, None] * d[..., :, None] * d[..., None, :]
+    s = np.eye(2) + (1.0 / cos_t - 1.0)[..., None, None] * d[..., :, None] * d[..., None, :]
+    base = np.zeros((*np.shape(var_u), 2, 2))
+    base[..., 0, 0], base[..., 1, 1] = var_u, var_v
     return s @ base @ np.swapaxes(s, -1, -2)
 
 
@@ -232,30 +212,12 @@ def predict_spots(kin: HeliostatKinematics | KinStack, optics: MirrorOptics, val
     dist = np.linalg.norm(to_aim, axis=-1)
     o = optics
     cov = spot_covariance(dist, angle, o.slope_error_rad, o.width_m, o.height_m, o.focal_m,
-                          to_aim / dist[..., None], frame.normal, frame.u, frame.v, source_m,
-                          incidence(n[..., 0, :, :], s[..., 0, :, :]) if lamp_image else None)
+                          to_aim / dist[..., None], frame.normal, frame.u, frame.v, source_m)
     rel = aims - np.asarray(frame.center, float)
     offset = np.stack([_dot(rel, frame.u), _dot(rel, frame.v)], axis=-1)
     pos_cov = position_covariance(j, np.asarray(covariance, float)[..., None, :, :])
     pos_cov = pos_cov + ((floor_rad * dist) ** 2)[..., None, None] * np.eye(2)
     return predicted_spot(offset, cov, pos_cov)
-
-
-def incidence(normal: np.ndarray, to_source: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(cos θ, t) of Eq. (1a) for unit mirror normals and unit directions towards the source
-    (..., 3): θ the angle of incidence, t the plane of incidence's direction in the mirror's
-    (width, height) axes — width horizontal (up × n), height n × width; (1, 0) at normal
-    incidence."""
-    n, s = np.asarray(normal, float), np.asarray(to_source, float)
-    cos_i = np.sum(n * s, axis=-1)
-    w = np.cross(np.array([0.0, 0.0, 1.0]), n)
-    w = w / np.maximum(np.linalg.norm(w, axis=-1, keepdims=True), 1e-12)
-    h = np.cross(n, w)
-    tan = s - cos_i[..., None] * n
-    t = np.stack([np.sum(tan * w, axis=-1), np.sum(tan * h, axis=-1)], axis=-1)
-    tn = np.linalg.norm(t, axis=-1, keepdims=True)
-    t = np.where(tn > 1e-9, t / np.maximum(tn, 1e-12), np.array([1.0, 0.0]))
-    return cos_i, t
 
 
 def _lift(x: np.ndarray) -> np.ndarray:
