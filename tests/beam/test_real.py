@@ -49,7 +49,7 @@ import json
 import cv2
 import numpy as np
 import pytest
-from beamkit import PAINT, REAL, paint_samples, project_to_image
+from beamkit import PAINT, REAL, main_lobe, paint_samples, project_to_image
 
 from controller.imaging.beam import analyze
 from controller.io.images import read_image
@@ -98,24 +98,13 @@ def test_local_background_centroid_close_to_utis_on_real_photos(towers):
     assert offsets["240796"] < 4.5, offsets
 
 
-def _main_lobe_centroid(sample: str) -> np.ndarray:
-    """Intensity centroid of the largest (most energetic) 8-connected part of UTIS's flux image."""
-    flux = cv2.imread(str(PAINT / f"{sample}-flux.png"), cv2.IMREAD_GRAYSCALE).astype(float)
-    _, labels = cv2.connectedComponents((flux > 0).astype(np.uint8), connectivity=8)
-    energy = np.bincount(labels.ravel(), weights=flux.ravel())
-    energy[0] = -1.0
-    w = np.where(labels == int(np.argmax(energy)), flux, 0.0)
-    yy, xx = np.indices(w.shape)
-    return np.array([(w * xx).sum(), (w * yy).sum()]) / w.sum()
-
-
 def test_spot_fit_centroid_close_to_utis_on_real_photos(towers):
     to_utis, to_main = {}, {}
     for sample in SAMPLES:
         r = analyze(read_image(PAINT / f"{sample}-cropped.png"), background="fit")
         c = np.array(r.centroid_px)
         to_utis[sample] = float(np.hypot(*(c - _utis_px(sample, towers))))
-        to_main[sample] = float(np.hypot(*(c - _main_lobe_centroid(sample))))
+        to_main[sample] = float(np.hypot(*(c - main_lobe(sample)[1])))
     assert len(to_utis) == 6
     # The four photos without a shadow edge under the spot or a detached lobe: measured
     # 0.45-1.14 px (local: 0.55-2.02).
@@ -137,7 +126,7 @@ def test_utis_flux_of_216331_has_a_detached_lobe():
         flux = cv2.imread(str(PAINT / f"{sample}-flux.png"), cv2.IMREAD_GRAYSCALE).astype(float)
         yy, xx = np.indices(flux.shape)
         whole = np.array([(flux * xx).sum(), (flux * yy).sum()]) / flux.sum()
-        gap[sample] = float(np.hypot(*(whole - _main_lobe_centroid(sample))))
+        gap[sample] = float(np.hypot(*(whole - main_lobe(sample)[1])))
     assert gap["216331"] > 5.0, gap
     assert max(v for k, v in gap.items() if k != "216331") < 0.5, gap
 
@@ -148,7 +137,7 @@ def test_default_energy_centroid_on_real_photos(towers):
         r = analyze(read_image(PAINT / f"{sample}-cropped.png"))
         c = np.array(r.centroid_px)
         to_utis[sample] = float(np.hypot(*(c - _utis_px(sample, towers))))
-        to_main[sample] = float(np.hypot(*(c - _main_lobe_centroid(sample))))
+        to_main[sample] = float(np.hypot(*(c - main_lobe(sample)[1])))
         second[sample] = r.second_spot_px
         assert r.clipped == ()
     print(f"\nPAINT, default centroid to UTIS px: {to_utis}; mean {np.mean(list(to_utis.values())):.2f}")
@@ -186,17 +175,6 @@ def test_the_shadow_steps_of_240796_and_137608_are_found_and_only_there():
     assert 52.0 < angle < 66.0 and 3.0 < st.height < 10.0, st
 
 
-def _main_lobe(sample: str) -> tuple[np.ndarray, np.ndarray]:
-    """UTIS's main lobe of ``sample`` scaled to peak 1, and its centroid (x, y) px."""
-    flux = cv2.imread(str(PAINT / f"{sample}-flux.png"), cv2.IMREAD_GRAYSCALE).astype(float)
-    _, labels = cv2.connectedComponents((flux > 0).astype(np.uint8), connectivity=8)
-    energy = np.bincount(labels.ravel(), weights=flux.ravel())
-    energy[0] = -1.0
-    w = np.where(labels == int(np.argmax(energy)), flux, 0.0)
-    yy, xx = np.indices(w.shape)
-    return w / w.max(), np.array([(w * xx).sum(), (w * yy).sum()]) / w.sum()
-
-
 def test_real_spots_on_held_out_empty_targets_centroid_with_known_truth():
     """Each PAINT spot (UTIS's main lobe, at the brightness it has in its own photo) laid onto
     the 20 held-out empty-target photos: the true centroid is known exactly, the background is
@@ -208,7 +186,7 @@ def test_real_spots_on_held_out_empty_targets_centroid_with_known_truth():
     held_out = [p for i, p in enumerate(empty) if i % 3 == 2]
     errs = {"energy": [], "segment": []}
     for sample in SAMPLES:
-        spot, truth = _main_lobe(sample)
+        spot, truth = main_lobe(sample)
         own = detect_beam(read_image(PAINT / f"{sample}-cropped.png"))
         amp = float(own.smoothed.max() - own.floor)
         for p in held_out:

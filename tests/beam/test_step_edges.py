@@ -22,7 +22,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
-from beamkit import PAINT, REAL
+from beamkit import PAINT, REAL, main_lobe
 from scipy.special import erf
 
 from controller.imaging import step_edges
@@ -78,16 +78,6 @@ def test_the_step_found_is_the_one_laid_down():
     assert abs(st.height * np.sign(along) - 20.0) < 4.0, st
 
 
-def _main_lobe(sample: str) -> tuple[np.ndarray, np.ndarray]:
-    flux = cv2.imread(str(PAINT / f"{sample}-flux.png"), cv2.IMREAD_GRAYSCALE).astype(float)
-    _, labels = cv2.connectedComponents((flux > 0).astype(np.uint8), connectivity=8)
-    energy = np.bincount(labels.ravel(), weights=flux.ravel())
-    energy[0] = -1.0
-    w = np.where(labels == int(np.argmax(energy)), flux, 0.0)
-    yy, xx = np.indices(w.shape)
-    return w / w.max(), np.array([(w * xx).sum(), (w * yy).sum()]) / w.sum()
-
-
 def _held_out_composites(step: bool):
     """(image, truth) for each PAINT main lobe on each held-out empty target (module doc)."""
     empty = sorted((REAL / "utis-empty").glob("*.png"))
@@ -95,7 +85,7 @@ def _held_out_composites(step: bool):
     rng = np.random.default_rng(1)
     yy, xx = np.indices(SHAPE).astype(float)
     for sample in sorted(p.name.split("-")[0] for p in PAINT.glob("*-cropped.png")):
-        spot, truth = _main_lobe(sample)
+        spot, truth = main_lobe(sample)
         own = detect_beam(read_image(PAINT / f"{sample}-cropped.png"))
         amp = float(own.smoothed.max() - own.floor)
         for p in held_out:
