@@ -36,6 +36,7 @@ sys.path.insert(0, str(ROOT))
 from controller.calibration.daytime import sun_path  # noqa: E402
 from controller.cli import main as cli  # noqa: E402
 from controller.config import load_config  # noqa: E402
+from simplant.daytime import true_errors_mrad  # noqa: E402
 from simplant.plant import SimulatedPlant, load_config_data  # noqa: E402
 from simplant.settings import SimulationSettings  # noqa: E402
 
@@ -68,12 +69,8 @@ def score(config: Path, db: Path, ids: list[str], night: int, seed: int, every: 
             out = json.loads(buf.getvalue())
             if "az_steps" not in out:
                 continue  # outside the soft limits at this sun position: not tracked then
-            n = plant.true_normal_at(hid, out["az_steps"], out["el_steps"])
-            c = plant.true_mirror_center(hid, out["az_steps"], out["el_steps"])
-            s = path.directions[k]
-            r = 2 * (s @ n) * n - s
-            d = (target - c) / np.linalg.norm(target - c)
-            errs.append(1e3 * float(np.arctan2(np.linalg.norm(np.cross(r, d)), r @ d)))
+            steps = [(out["az_steps"], out["el_steps"])]
+            errs.append(float(true_errors_mrad(plant, hid, steps, path.directions[k:k + 1], target)[0]))
     e = np.asarray(errs)
     return {"rms": float(np.sqrt(np.mean(e ** 2))), "p95": float(np.percentile(e, 95)), "max": float(e.max()),
             "samples": len(e)}

@@ -12,6 +12,7 @@ import pytest
 from controller.calibration.daytime import sun_path
 from controller.cli import main
 from controller.config import load_config
+from simplant.daytime import true_errors_mrad
 from simplant.plant import SimulatedPlant, load_config_data
 from simplant.settings import SimulationSettings
 from tests.calibration.conftest import FAST
@@ -54,12 +55,8 @@ def test_aim_contract_scored_independently_matches_the_reported_daytime_error(sm
             if "az_steps" not in out:
                 continue  # out of the soft limits at this sun position
             assert out["model"] is not None and out["target"] == cfg.target().id
-            n = plant.true_normal_at(hid, out["az_steps"], out["el_steps"])
-            c = plant.true_mirror_center(hid, out["az_steps"], out["el_steps"])
-            s = path.directions[k]
-            r = 2 * (s @ n) * n - s
-            d = (target - c) / np.linalg.norm(target - c)
-            errs.append(1e3 * np.arctan2(np.linalg.norm(np.cross(r, d)), r @ d))
+            steps = [(out["az_steps"], out["el_steps"])]
+            errs.append(true_errors_mrad(plant, hid, steps, path.directions[k:k + 1], target)[0])
     independent = float(np.sqrt(np.mean(np.square(errs))))
     assert len(errs) > 20
     assert independent == pytest.approx(reported["rms"], rel=0.10)

@@ -18,6 +18,7 @@ import pytest
 
 from controller.calibration.daytime import sun_path
 from controller.config import load_config
+from simplant.daytime import true_errors_mrad
 from simplant.plant import SimulatedPlant, load_config_data
 from simplant.settings import SimulationSettings
 from tests.calibration.test_campaign_sim import _wait_for_rows
@@ -65,12 +66,8 @@ def _daytime_rms(config: Path, db: Path, night: int) -> float:
             out = json.loads(p.stdout)
             if "az_steps" not in out:
                 continue
-            n = plant.true_normal_at(hid, out["az_steps"], out["el_steps"])
-            c = plant.true_mirror_center(hid, out["az_steps"], out["el_steps"])
-            s = path.directions[k]
-            r = 2 * (s @ n) * n - s
-            d = (target - c) / np.linalg.norm(target - c)
-            errs.append(1e3 * np.arctan2(np.linalg.norm(np.cross(r, d)), r @ d))
+            steps = [(out["az_steps"], out["el_steps"])]
+            errs.append(true_errors_mrad(plant, hid, steps, path.directions[k:k + 1], target)[0])
     assert len(errs) > 10
     return float(np.sqrt(np.mean(np.square(errs))))
 
