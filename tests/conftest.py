@@ -8,6 +8,8 @@ Use the ``scaled`` fixture (or :func:`scaled_s`) for such constants.
 
 from __future__ import annotations
 
+import contextlib
+import io
 import os
 
 import pytest
@@ -24,3 +26,16 @@ def scaled_s(seconds: float) -> float:
 def scaled():
     """The time-scaling function: ``scaled(0.5)`` -> 0.5 s times HELIOCAL_TEST_TIME_FACTOR."""
     return scaled_s
+
+
+def run_cli(argv: list[str]) -> tuple[int, str, str]:
+    """``heliocal argv`` in this process: (exit code, stdout, stderr)."""
+    from controller.cli import main
+
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        try:
+            code = main(argv)
+        except SystemExit as exc:
+            code = exc.code
+    return code, out.getvalue(), err.getvalue()

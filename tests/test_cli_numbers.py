@@ -17,8 +17,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from controller.cli import build_parser, main
+from controller.cli import build_parser
 from controller.commands._numbers import Number
+from tests.conftest import run_cli
 
 REPO = Path(__file__).resolve().parents[1]
 EXAMPLES = REPO / "docs" / "examples"
@@ -77,39 +78,29 @@ def test_the_range_text():
     assert Number(0, 1e6, lo_open=True, infinite=True)("inf") == math.inf
 
 
-def _run(argv):
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        try:
-            code = main(argv)
-        except SystemExit as exc:
-            code = exc.code
-    return code, out.getvalue(), err.getvalue()
-
-
 def test_merge_refuses_absurd_exposures_before_reading(tmp_path):
-    code, _, err = _run(["merge", str(EXAMPLES / "amb.png"), str(EXAMPLES / "rx.png"),
+    code, _, err = run_cli(["merge", str(EXAMPLES / "amb.png"), str(EXAMPLES / "rx.png"),
                          "--exposures", "1e-300", "1e300", "--out", str(tmp_path / "hdr.npy")])
     assert code == 2 and "--exposures" in err and not any(tmp_path.iterdir())
 
 
 def test_glare_points_are_bounded_before_allocating():
-    code, _, err = _run(["glare", "--geometry", "heliostat", "--points", "1000000000"])
+    code, _, err = run_cli(["glare", "--geometry", "heliostat", "--points", "1000000000"])
     assert code == 2 and "--points: 1000000000 is outside [2, 100000]" in err
 
 
 def test_demo_seed_and_an_existing_out_file(tmp_path):
-    code, _, err = _run(["demo", "--seed", "-1", "--out", str(tmp_path / "d")])
+    code, _, err = run_cli(["demo", "--seed", "-1", "--out", str(tmp_path / "d")])
     assert code == 2 and "--seed: -1 is outside" in err
     f = tmp_path / "a-file"
     f.write_text("keep me")
-    code, _, err = _run(["demo", "--heliostats", "1", "--aim-only", "--out", str(f)])
+    code, _, err = run_cli(["demo", "--heliostats", "1", "--aim-only", "--out", str(f)])
     assert code == 2 and f"--out {f}: exists and is not a folder" in err, err
     assert f.read_text() == "keep me"
 
 
 def test_flux_with_an_ambient_brighter_than_the_receiver_is_refused(tmp_path):
-    code, _, err = _run(["flux", str(EXAMPLES / "amb.png"), "--ambient", str(EXAMPLES / "rx.png"),
+    code, _, err = run_cli(["flux", str(EXAMPLES / "amb.png"), "--ambient", str(EXAMPLES / "rx.png"),
                          "--sun", str(EXAMPLES / "sun.png"), "--dni", "900", "--reflectivity", "0.9",
                          "--sun-transmittance", "0.01", "--out", str(tmp_path / "f.npy")])
     assert code == 2, err
@@ -120,7 +111,7 @@ def test_beam_on_an_image_without_positive_signal_says_so(tmp_path):
     img = -np.abs(np.random.default_rng(0).normal(100, 10, (64, 64)))
     p = tmp_path / "negated.npy"
     np.save(p, img)
-    code, out, err = _run(["beam", str(p)])
+    code, out, err = run_cli(["beam", str(p)])
     assert code == 2 and f"{p}: no positive signal" in err, err + out
 
 

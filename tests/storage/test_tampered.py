@@ -24,6 +24,7 @@ import pytest
 from controller.cli import main
 from controller.storage.checks import expected_schema
 from controller.storage.schema import MIGRATIONS
+from tests.conftest import run_cli
 
 pytestmark = pytest.mark.xdist_group("tampered-db")
 
@@ -57,16 +58,6 @@ def _commands(db: Path, out: Path) -> dict[str, list[str]]:
             "export": ["export", "--db", str(db), "--format", "paint", "--out", str(out / "export")]}
 
 
-def _run(argv: list[str]) -> tuple[int, str, str]:
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        try:
-            code = main(argv)
-        except SystemExit as exc:
-            code = exc.code
-    return code, out.getvalue(), err.getvalue()
-
-
 def _tampered(demo_db: Path, tmp_path: Path, *sql: str) -> Path:
     folder = tmp_path / "db"
     shutil.copytree(demo_db.parent, folder, ignore=shutil.ignore_patterns("report", "plant", "errorset"))
@@ -86,7 +77,7 @@ def _expect_refused(db: Path, tmp_path: Path, commands: list[str], *fragments: s
     out.mkdir(exist_ok=True)
     before = hashlib.sha256(db.read_bytes()).hexdigest()
     for name in commands:
-        code, stdout, stderr = _run(_commands(db, out)[name])
+        code, stdout, stderr = run_cli(_commands(db, out)[name])
         lines = [ln for ln in stderr.splitlines() if not ln.startswith("heliocal: using configuration")]
         assert "Traceback" not in stderr, stderr
         assert code == 2 and len(lines) == 1, f"{name}: exit {code}\n{stderr}{stdout[:300]}"
@@ -100,7 +91,7 @@ def test_the_untouched_database_is_read_by_every_command(demo_db, tmp_path):
     db = _tampered(demo_db, tmp_path)
     (tmp_path / "out").mkdir()
     for name, argv in _commands(db, tmp_path / "out").items():
-        code, _, stderr = _run(argv)
+        code, _, stderr = run_cli(argv)
         assert code == 0, f"{name}: {stderr}"
 
 
@@ -213,7 +204,7 @@ def test_reports_find_the_frames_from_any_folder(demo_db, tmp_path, monkeypatch)
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()
     monkeypatch.chdir(elsewhere)
-    code, _, err = _run(["report", "campaign", "--db", os.path.relpath(db), "--out", "r",
+    code, _, err = run_cli(["report", "campaign", "--db", os.path.relpath(db), "--out", "r",
                          "--campaign", "demo-n1-seed0"])
     assert code == 0, err
     assert "H01-it1-high.png" in (elsewhere / "r" / "report.md").read_text()
