@@ -51,7 +51,11 @@ def _outside(shape: tuple[int, int], windows) -> np.ndarray:
 
 def background(hdr: np.ndarray, windows) -> tuple[float, float]:
     """(b, σ_b) of ``hdr`` outside every window (module docstring)."""
-    sm = _smooth(np.asarray(hdr, np.float32))
+    return _level(_smooth(np.asarray(hdr, np.float32)), windows)
+
+
+def _level(sm: np.ndarray, windows) -> tuple[float, float]:
+    """(b, σ_b) of the smoothed image ``sm`` outside every window."""
     out = sm[_outside(sm.shape, windows)]
     if out.size == 0:
         out = sm.ravel()
@@ -63,8 +67,9 @@ def window_spots(hdr: np.ndarray, windows) -> np.ndarray:
     """The spot of each of the n ``windows`` (r0, r1, c0, c1): its (x, y) px, NaN when the
     window holds none (module docstring): (n, 2)."""
     img = np.asarray(hdr, np.float32)
-    b, noise = background(img, windows)
-    sm = _smooth(img) - b
+    sm = _smooth(img)
+    b, noise = _level(sm, windows)
+    sm -= b
     out = np.full((len(windows), 2), np.nan)
     for k, (r0, r1, c0, c1) in enumerate(windows):
         w, s = sm[r0:r1, c0:c1], img[r0:r1, c0:c1] - b
