@@ -1,10 +1,12 @@
 """Several beams on one target on the simulated plant (full camera): two heliostats share each
 capture under a far lamp, each spot is confirmed by its own step; when the plant exchanges
 their spots (``SpotTruth.swap``) neither is confirmed, both are measured again alone, and
-nothing is recorded under the wrong heliostat (the plant's truth of whose spot is where)."""
+nothing is recorded under the wrong heliostat (the plant's truth of whose spot is where); a
+stop while both beams wait for their shared capture parks both and records nothing."""
 
 from __future__ import annotations
 
+from controller.calibration.observers import CampaignObserver
 from controller.calibration.runner import Campaign, CampaignOptions
 from controller.commands._field import plant_field
 from controller.devices.factory import LinkPool
@@ -16,6 +18,20 @@ from tests.calibration.conftest import FAST
 from tests.conftest import scaled_s
 
 IDS = ["H08", "H09"]  # neighbours in the second row
+
+
+class _StopWhenBothCapture(CampaignObserver):
+    def __init__(self) -> None:
+        self.campaign: Campaign | None = None
+        self.capturing: set[str] = set()
+        self.fired = False
+
+    def state_changed(self, heliostat_id: str, state: str) -> None:
+        if state == "capturing":
+            self.capturing.add(heliostat_id)
+        if self.capturing == set(IDS) and not self.fired:
+            self.fired = True
+            self.campaign.request_stop()
 
 
 def test_two_beams_share_captures_and_a_swapped_identity_is_measured_alone(small_config, tmp_path):
@@ -50,6 +66,16 @@ def test_two_beams_share_captures_and_a_swapped_identity_is_measured_alone(small
                 assert plant.spot_truth.checked == checked + 2 and plant.spot_truth.misassigned_count == 0
                 meta = store.campaign_by_name("swapped").meta["beams"]
                 assert meta["slots"] == 2 and sorted(meta["measured_alone"]) == sorted(IDS)
+
+                # Ctrl-C while both beams are at their slots, the shared capture forming: both park.
+                stop = _StopWhenBothCapture()
+                stop.campaign = Campaign(field, CampaignOptions(name="stopped", observe=True),
+                                         heliostat_ids=IDS, observers=[stop])
+                r = stop.campaign.run()
+                assert stop.fired and r.status == "interrupted"
+                assert not any(plant.safety.on_target(t.id) for t in field.cfg.targets)
+                assert not any(field.drive(h).status().moving for h in IDS)
+                assert not store.runs(r.campaign_id)  # nothing recorded from the interrupted round
             finally:
                 field.lamps.close()
         assert plant.safety.violations == 0 and plant.safety.max_on_target <= 2
