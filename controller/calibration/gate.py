@@ -20,11 +20,16 @@ class TargetGate:
     tickets not yet admitted.
     A ticket in ``solo`` (no slot's pose suits its heliostat) is admitted only onto an empty
     target and keeps every other ticket off it while it holds it.
+    ``together``: the first round's tickets (the first ``together``) are admitted only once each
+    of them waits at standby (or ended): their beams then go onto the target at the same time
+    instead of the first ones waiting there, their beams on it, for the last to come.
+    ``held``: while True (a round's captures are being taken) no ticket is admitted, so no
+    beam slews across the target during an exposure.
     ``blocked`` becomes True when a beam may have been left on the target, after which nobody
     gets the target again.
     """
 
-    def __init__(self, first_ticket: int = 0, beams: int = 1) -> None:
+    def __init__(self, first_ticket: int = 0, beams: int = 1, together: int = 0) -> None:
         if beams < 1:
             raise ValueError(f"beams per target must be at least 1, got {beams}")
         self.beams = beams
@@ -37,7 +42,9 @@ class TargetGate:
         self._alone_waiting: set[int] = set()
         self.waiting: set[int] = set()  # tickets blocked in acquire
         self.solo: set[int] = set()  # tickets that take the target alone (no slot fits them)
+        self.held = False
         self.blocked = False
+        self._together = range(first_ticket, first_ticket + together)
 
     @property
     def holder(self) -> int | None:
@@ -50,7 +57,11 @@ class TargetGate:
 
     def admissible(self, ticket: int) -> bool:
         """Could ``ticket`` take the target now (the caller holds ``cv``)?"""
-        if self.blocked or self.alone is not None or self._alone_waiting or self.holders & self.solo:
+        if self.blocked or self.held or self.alone is not None or self._alone_waiting \
+                or self.holders & self.solo:
+            return False
+        if ticket in self._together and not all(t in self.waiting or t in self._done or t in self.holders
+                                                for t in self._together):
             return False
         if ticket in self.solo:
             return not self.holders
@@ -60,6 +71,7 @@ class TargetGate:
     def acquire(self, ticket: int, cancelled: Callable[[], bool], poll_s: float = 0.05) -> bool:
         with self.cv:
             self.waiting.add(ticket)
+            self.cv.notify_all()  # a first-round ticket may wait for this one
             try:
                 while not self.admissible(ticket):
                     if cancelled() or self.blocked:

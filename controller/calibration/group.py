@@ -165,13 +165,21 @@ class SharedCapture:
                         break
                     if self._fires():  # every beam on the target waits here: one capture for all
                         rnd = self._round = _Round(dict.fromkeys(g.holders))
-                        leader = True
+                        g.held = leader = True  # no newcomer slews across the target meanwhile
                         break
                     cyc._check_current("capturing")
                     g.cv.wait(0.02)
             finally:
                 self._ready.discard(ticket)
             rnd.members[ticket] = (slot_uv, disp)
+        if leader and len(rnd.members) == 1:  # its beam alone on the target: measured as with K = 1
+            try:
+                frame1 = self._capture()
+                with g.cv:
+                    self.rounds += 1
+            finally:
+                self._leave(rnd, ticket)
+            return frame1, None
         try:
             if leader:
                 frame1 = self._capture()
@@ -200,7 +208,8 @@ class SharedCapture:
             raise
         cyc.az, cyc.el = pose  # the measurement is frame 1's, at frame 1's pose
         try:
-            label = self._identify(rnd, ticket)
+            with cyc.ctx.time.computing():  # the controller's own computing, as in merging
+                label = self._identify(rnd, ticket)
         finally:
             self._leave(rnd, ticket)
         if label is not None:
@@ -228,6 +237,7 @@ class SharedCapture:
             raise
         with g.cv:
             rnd.frame2 = frame2
+            g.held = False
             g.cv.notify_all()
 
     def _identify(self, rnd: _Round, ticket: int) -> int | None:
@@ -253,6 +263,7 @@ class SharedCapture:
             rnd.left.add(ticket)
             if set(rnd.members) <= rnd.left and self._round is rnd:
                 self._round = None
+                g.held = False
             g.cv.notify_all()
 
     def _alone(self, cyc, pose: tuple[int, int]):

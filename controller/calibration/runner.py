@@ -247,7 +247,8 @@ class Campaign:
                  pointing: dict[str, GeometryPointing]) -> CampaignResult:
         done = self.store.done_heliostats(cid)
         todo = [(i, hid) for i, hid in enumerate(queue) if hid not in done]
-        gate = TargetGate(beams=1 if self.slots is None else self.slots.k)
+        beams = 1 if self.slots is None else self.slots.k
+        gate = TargetGate(beams=beams, together=min(beams, len(todo)) if beams > 1 else 0)
         self.group = None
         if self.slots is not None:
             # Each heliostat at its ticket's slot; one capture for all beams, identity by a step.
