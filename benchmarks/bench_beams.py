@@ -24,6 +24,7 @@ measurements whose centroid is another heliostat's spot in the plant's truth
 centroids from the centre of their own spot (the reflected central ray's hit) in the plant's
 truth; ``daytime_rms_mrad``: the field's open-loop error over the sun's
 yearly path after the night, against the plant's truth (``simplant.daytime``);
+``daytime_rms_per_heliostat_mrad``: the same per heliostat;
 ``measured_alone``: heliostats whose spot could not be confirmed in a shared capture and
 were measured again alone; ``beam_safety_violations``: samples with more beams on a target
 than allowed. ``ratio``: K = 4 over K = 1 geometries per hour per target.
@@ -112,7 +113,10 @@ def run_night(config: Path, db: Path, ids: list[str], seed: int) -> dict:
             "measured_alone": alone,
             "beam_safety_violations": safety.get("violations", 0),
             "max_beams_on_target": safety.get("max_beams_on_target", 0),
-            "daytime_rms_mrad": rep.daytime.rms, "status": rep.summary.status,
+            "daytime_rms_mrad": rep.daytime.rms,
+            "daytime_rms_per_heliostat_mrad": {h: round(v, 4)
+                                               for h, v in sorted(rep.daytime.per_heliostat.items())},
+            "status": rep.summary.status,
             "wall_s": time.perf_counter() - t0}
 
 

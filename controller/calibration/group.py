@@ -5,16 +5,19 @@ meet at a *round* (:meth:`SharedCapture.capture`, called by each one's cycle in 
 
 1. the round forms when every heliostat on the target is settled at its slot and waits in
    *capturing*, and no further heliostat is about to take a free slot; one capture (frame 1)
-   serves them all;
+   serves them all, and no newcomer is admitted until frame 2 (``TargetGate.held``). A round
+   of one — its beam the only one on the target — is measured on frame 1 as with K = 1;
 2. each steps by its own known amount (motor steps in its own direction, both axes moving up
    as the approach ended, so backlash stays taken up), settles, and a second capture (frame 2)
    is taken once all have;
-3. the spots of both frames are separated and each heliostat's spot is the one that moved by
-   its predicted displacement and sits at its slot (:func:`controller.imaging.spots.assign_by_step`).
+3. each slot's window must hold a spot in both frames that moved by its own heliostat's
+   predicted displacement (:func:`controller.imaging.spots.window_shifts`,
+   :func:`controller.imaging.spots.confirm_by_step`).
    Its measurement is frame 1 with every other spot replaced by the background, at the pose
    of frame 1;
-4. a heliostat whose spot is missing or ambiguous is **measured again alone**: it parks at
-   standby, gives its slot back, waits until no other beam is on the target
+4. a heliostat whose spot is missing or ambiguous, or reaches its window's border (where
+   isolating it would cut it, :func:`controller.imaging.spots.spills`), is **measured again
+   alone**: it parks at standby, gives its slot back, waits until no other beam is on the target
    (:meth:`TargetGate.acquire_alone`, no newcomer admitted meanwhile), approaches its pose
    again and is captured with its beam the only one. A measurement is never taken from a
    spot whose identity was not confirmed.
@@ -36,7 +39,15 @@ from controller.calibration.approach import approach_path
 from controller.calibration.slots import IDENTITY_STEP_M
 from controller.errors import HeliocalError
 from controller.geometry.spot import hit_uv
-from controller.imaging.spots import confirm_by_step, isolate, window_spots
+from controller.imaging.spots import confirm_by_step, isolate, spills, window_shifts, window_spots
+
+# A spot whose window's energy centroid moves more than this when the window loses its border
+# band on the sides facing another slot (:func:`controller.imaging.spots.spills`) reaches so
+# far towards another spot that isolating it could bias its centroid by as much — ≈ 1 mrad at
+# 100 m, the size of the errors a night measures: it is measured alone. Smaller spills (a
+# streaked spot's tail) are kept: measuring them alone cost a quarter of the shared captures'
+# gain without a better daytime error (docs/campaigns.md).
+SPILL_M = 0.1
 
 
 @dataclass
@@ -49,7 +60,8 @@ class _Round:
     second_started: bool = False
     failed: bool = False  # a capture of the round failed: every member leaves it
     assigned: dict[int, int | None] | None = None
-    windows: list[tuple[int, int, int, int]] | None = None
+    windows: list[tuple[int, int, int, int]] | None = None  # where each spot is looked for
+    cells: list[tuple[int, int, int, int]] | None = None  # where each is measured (slots.py, Eq. 2)
 
 
 def identity_step(pointing, pose: tuple[int, int], slot: int, k: int, frame
@@ -120,17 +132,34 @@ class SharedCapture:
         rel = np.asarray(enu, float) - self.frame.center
         return np.array([rel @ self.frame.u, rel @ self.frame.v])
 
-    def window(self, slot_uv) -> tuple[int, int, int, int]:
-        """The pixels (r0, r1, c0, c1, half-open) of the window around a slot at ``slot_uv`` m:
-        the spot's reach plus the identity step each side (slots.py, Eq. 1)."""
+    def window(self, rect_m) -> tuple[int, int, int, int]:
+        """The pixels (r0, r1, c0, c1, half-open) of the rectangle ``rect_m`` (u0, u1, v0, v1) m
+        from the target centre: a slot's search window or its cell (slots.py, Eq. 1, 2)."""
         f = self.frame
         rows, cols = f.shape
         du, dv = f.width_m / cols, f.height_m / rows
-        half = np.asarray(self.layout.reach_m, float) + IDENTITY_STEP_M
-        c0, c1 = ((slot_uv[0] + f.width_m / 2 + s * half[0]) / du - 0.5 for s in (-1, 1))
-        r0, r1 = ((slot_uv[1] + f.height_m / 2 + s * half[1]) / dv - 0.5 for s in (-1, 1))
+        u0, u1, v0, v1 = (float(x) for x in rect_m)
+        c0, c1 = ((u + f.width_m / 2) / du - 0.5 for u in (u0, u1))
+        r0, r1 = ((v + f.height_m / 2) / dv - 0.5 for v in (v0, v1))
         return (max(0, math.floor(r0)), min(rows, math.ceil(r1) + 1),
                 max(0, math.floor(c0)), min(cols, math.ceil(c1) + 1))
+
+    def _facing(self, ticket: int) -> tuple[bool, bool, bool, bool]:
+        """Which sides of ``ticket``'s window (first rows, last rows, first columns, last columns:
+        v0, v1, u0, u1) face another slot rather than the view's edge (its cell's, slots.py Eq. 2)."""
+        u0, u1, v0, v1 = self.layout.cells_m[self.gate.slot(ticket)]
+        hu, hv = self.frame.width_m / 2.0, self.frame.height_m / 2.0
+        return v0 > -hv, v1 < hv, u0 > -hu, u1 < hu
+
+    def _pixel_m(self) -> float:
+        """The size of the view's pixels on the target, m (the smaller side)."""
+        f = self.frame
+        rows, cols = f.shape
+        return min(f.width_m / cols, f.height_m / rows)
+
+    def _max_shift_px(self) -> int:
+        """The largest shift searched between a round's captures: twice the identity step."""
+        return math.ceil(2.0 * IDENTITY_STEP_M / self._pixel_m())
 
     def identity_step(self, cyc) -> tuple[tuple[int, int], np.ndarray]:
         """:func:`identity_step` of ``cyc``'s heliostat at its present pose and slot."""
@@ -213,7 +242,7 @@ class SharedCapture:
         finally:
             self._leave(rnd, ticket)
         if label is not None:
-            return rnd.frame1, partial(isolate, windows=rnd.windows, keep=label)
+            return rnd.frame1, partial(isolate, windows=rnd.windows, cell=rnd.cells[label])
         return self._alone(cyc, pose), None
 
     def _second(self, rnd: _Round, ticket: int, cancelled) -> None:
@@ -244,14 +273,23 @@ class SharedCapture:
         with self._lock:
             if rnd.assigned is None:
                 tickets = sorted(t for t, v in rnd.members.items() if v is not None)
-                rnd.windows = [self.window(rnd.members[t][0]) for t in tickets]
-                spots = []
-                for fr in (rnd.frame1, rnd.frame2):
-                    px = window_spots(self.merge(fr), rnd.windows)
-                    spots.append(np.array([self.uv(self.frame.pixel_to_enu(x, y)) if np.isfinite(x)
-                                           else (np.nan, np.nan) for x, y in px]).reshape(-1, 2))
+                r = np.asarray(self.layout.reach_m, float) + IDENTITY_STEP_M
+                reach = np.array([-r[0], r[0], -r[1], r[1]])
+                rnd.windows = [self.window(np.repeat(rnd.members[t][0], 2) + reach) for t in tickets]
+                rnd.cells = [self.window(self.layout.cells_m[self.gate.slot(t)]) for t in tickets]
+                hdr = [self.merge(fr) for fr in (rnd.frame1, rnd.frame2)]
+                here = window_spots(hdr[0], rnd.windows)
+                there = window_spots(hdr[1], rnd.windows)
+                moved = here + window_shifts(hdr[0], hdr[1], rnd.cells, self._max_shift_px(), rnd.windows)
+                moved[~np.isfinite(there).all(axis=1)] = np.nan  # a spot in both captures
+                first, second = (np.array([self.uv(self.frame.pixel_to_enu(x, y)) if np.isfinite(x + y)
+                                           else (np.nan, np.nan) for x, y in px]).reshape(-1, 2)
+                                 for px in (here, moved))
                 steps = np.array([rnd.members[t][1] for t in tickets])
-                ok = confirm_by_step(spots[0], spots[1], steps)
+                ok = confirm_by_step(first, second, steps)
+                facing = [self._facing(t) for t in tickets]
+                spill = spills(hdr[0], rnd.windows, facing) * self._pixel_m()
+                ok = [a and bool(b <= SPILL_M) for a, b in zip(ok, spill, strict=True)]
                 rnd.assigned = {t: (k if ok[k] else None) for k, t in enumerate(tickets)}
             return rnd.assigned.get(ticket)
 

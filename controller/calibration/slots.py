@@ -12,7 +12,21 @@ the step:
     spacing ≥ 2 r + GAP_M,     |o_slot| + r + margin ≤ H                           (1)
 
 When K slots do not fit the view, fewer do: the layout is the largest K' ≤ K that satisfies
-(1), down to one slot at the target's centre.
+(1), down to one slot at the target's centre. The slots keep the closest spacing
+s = 2 r + GAP_M: spread farther apart, the slots on one side of the target left no slew to
+their standby point that keeps the beam off the targets, and their heliostats had to take the
+target alone.
+
+A spot is looked for in its *window*, r each side of its slot, and registered and measured in
+its *cell* (everything else flattened to the background,
+:func:`controller.imaging.spots.isolate`): up to ``GAP_M``/2 from the midline to the next slot
+along each axis, or the view's edge on a side that faces no other slot,
+
+    cell = [o − s/2 + GAP/2  or  −H,   o + s/2 − GAP/2  or  +H]  along each axis     (2)
+
+Real spots are often larger than predicted — a canting error splits one in two, a wind load
+streaks it over metres — and the cell keeps what reaches beyond the window towards the
+view's edge.
 """
 
 from __future__ import annotations
@@ -37,11 +51,13 @@ GAP_M = 0.2  # clear space between two slots' 3σ footprints, m
 @dataclass(frozen=True, eq=False)  # numpy fields
 class SlotLayout:
     """K slot aim points: offsets (K, 2) m from the target centre along the view's (u, v), the
-    aim points (K, 3) m ENU, and the reach r (2,) m of Eq. (1) they were spaced for."""
+    aim points (K, 3) m ENU, the spot reach (2,) m they were spaced for (Eq. 1, without the
+    step) and each slot's cell (K, 4) m, (u0, u1, v0, v1) from the target centre (Eq. 2)."""
 
     offsets_m: np.ndarray
     aims_enu: np.ndarray
     reach_m: np.ndarray
+    cells_m: np.ndarray
 
     @property
     def k(self) -> int:
@@ -91,6 +107,9 @@ def slot_layout(frame: TargetFrame, k: int, reach_m, margin_m: float, step_m: fl
         cv = (np.arange(rows) - (rows - 1) / 2.0) * spacing[1]
         offsets = np.array([(u, v) for v in cv for u in cu][:n])
         if n == 1 or np.all(np.abs(offsets) + r + margin_m <= half):
+            lo = np.where(offsets <= offsets.min(axis=0), -half, offsets - spacing / 2 + GAP_M / 2)  # Eq. (2)
+            hi = np.where(offsets >= offsets.max(axis=0), half, offsets + spacing / 2 - GAP_M / 2)
+            cells = np.stack([lo[:, 0], hi[:, 0], lo[:, 1], hi[:, 1]], axis=1)
             aims = frame.center + offsets[:, :1] * frame.u + offsets[:, 1:] * frame.v
-            return SlotLayout(offsets, aims, np.asarray(reach_m, float))
+            return SlotLayout(offsets, aims, np.asarray(reach_m, float), cells)
     raise AssertionError("unreachable: one slot always fits")

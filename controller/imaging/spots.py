@@ -13,19 +13,30 @@ the smoothed pixels *outside every window* (the lit target away from the spots).
 Its position is the energy centroid of the excess s = I − b over the window's pixels whose
 smoothed excess is above ``FLOOR`` of that peak and above 3 σ_b (x = column, y = row).
 
+**How far a window's spot moved** between two captures (:func:`window_shifts`): the shift
+Δ that best registers window i of the first capture onto the second, the peak of their
+zero-mean normalised cross-correlation over shifts up to ``max_shift_px`` (smoothed images
+less their background, windows larger than ``MATCH_PX`` averaged down by an integer factor
+first; a parabola through the peak and its neighbours gives the fraction of a pixel). A
+whole-spot registration, not a difference of centroids: a spot larger than its window is
+clipped at the window's edges in both captures, which pulls both thresholded centroids
+towards the window's centre and shrank measured steps by up to a third in the simulated
+plant; the clipped spot still registers by its full shift.
+
 **Identity by a known step.** Between two captures every heliostat of the capture moved by
 its own known step, whose displacement on the target d_i (m, target axes u, v) is predicted
 from its model, all distinct. Heliostat i's spot is *confirmed* when its window holds a spot
 in both captures and that spot moved with i's step:
 
-    |Δ_i − d_i| < tol,   Δ_i = c_i'' − c_i',   tol = ½ min_{j≠i} |d_i − d_j|       (1)
+    |Δ_i − d_i| < tol,   tol = ½ min_{j≠i} |d_i − d_j|                               (1)
 
 (with one heliostat, tol = ½ |d_i|: its spot must move at all). Since the d_j are at least
 2 tol apart, a Δ_i within tol of d_i is farther than tol from every other d_j: a spot that
 moved with another heliostat's step — two heliostats whose spots were exchanged — is never
 confirmed. Anything else (a window empty in either capture, a spot that did not move as
 predicted) leaves i *unconfirmed*: it is measured again alone
-(:mod:`controller.calibration.group`).
+(:mod:`controller.calibration.group`). So is a confirmed spot that reaches its window's
+border (:func:`spills`): isolating it would cut it.
 """
 
 from __future__ import annotations
@@ -36,6 +47,9 @@ import numpy as np
 SMOOTH_PX = 2.0
 SNR = 8.0
 FLOOR = 0.05
+MATCH_PX = 96  # a window is registered at most this many pixels across (Δ's resolution: 1/10 of its factor)
+BAND = 0.1  # the border band :func:`spills` takes off, a fraction of the window's size
+MIN_MATCH = 0.5  # a registration this poorly correlated is no shift: the spot changed, not moved
 
 
 def _smooth(img: np.ndarray) -> np.ndarray:
@@ -63,13 +77,19 @@ def _level(sm: np.ndarray, windows) -> tuple[float, float]:
     return b, max(1.4826 * float(np.median(np.abs(out - b))), 1e-9)
 
 
-def window_spots(hdr: np.ndarray, windows) -> np.ndarray:
-    """The spot of each of the n ``windows`` (r0, r1, c0, c1): its (x, y) px, NaN when the
-    window holds none (module docstring): (n, 2)."""
+def _excess(hdr: np.ndarray, windows) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """``hdr`` as float32, its smoothed excess over the background, b and σ_b."""
     img = np.asarray(hdr, np.float32)
     sm = _smooth(img)
     b, noise = _level(sm, windows)
     sm -= b
+    return img, sm, b, noise
+
+
+def window_spots(hdr: np.ndarray, windows) -> np.ndarray:
+    """The spot of each of the n ``windows`` (r0, r1, c0, c1): its (x, y) px, NaN when the
+    window holds none (module docstring): (n, 2)."""
+    img, sm, b, noise = _excess(hdr, windows)
     out = np.full((len(windows), 2), np.nan)
     for k, (r0, r1, c0, c1) in enumerate(windows):
         w, s = sm[r0:r1, c0:c1], img[r0:r1, c0:c1] - b
@@ -88,14 +108,91 @@ def window_spots(hdr: np.ndarray, windows) -> np.ndarray:
     return out
 
 
-def isolate(hdr: np.ndarray, windows, keep: int) -> np.ndarray:
-    """``hdr`` with everything outside window ``keep`` replaced by the background level b: the
-    other spots and the faint tails they spread beyond their windows, which an energy centroid
-    without a threshold would average in."""
+def spills(hdr: np.ndarray, windows, facing) -> np.ndarray:
+    """How far (px) the energy centroid in each window moves when the window loses a border band
+    of ``BAND`` of its size on the sides ``facing`` another slot (n × 4 bools: first rows, last
+    rows, first columns, last columns): ~0 for a spot inside its window, large for one that
+    reaches past a side towards another spot, where its part beyond is flattened away when it
+    is isolated (:func:`isolate`) and another spot's tail may lie. The excess over the
+    background above 3 σ_b is weighed (module docstring); NaN for a window without any."""
+    _, sm, _, noise = _excess(hdr, windows)
+    out = np.full(len(windows), np.nan)
+    for k, ((r0, r1, c0, c1), sides) in enumerate(zip(windows, facing, strict=True)):
+        e = np.where(sm[r0:r1, c0:c1] > 3.0 * noise, sm[r0:r1, c0:c1], 0.0)
+        h, w = e.shape
+        br, bc = max(1, round(BAND * h)), max(1, round(BAND * w))
+        top, bottom, left, right = (bool(x) for x in sides)
+        rows = slice(br if top else 0, h - br if bottom else h)
+        cols = slice(bc if left else 0, w - bc if right else w)
+        inner = np.zeros_like(e)
+        inner[rows, cols] = e[rows, cols]
+        cs = [_centroid(x) for x in (e, inner)]
+        if all(c is not None for c in cs):
+            out[k] = float(np.hypot(*(cs[0] - cs[1])))
+    return out
+
+
+def _centroid(e: np.ndarray) -> np.ndarray | None:
+    total = float(e.sum())
+    if total <= 0:
+        return None
+    rows, cols = np.indices(e.shape)
+    return np.array([(e * cols).sum(), (e * rows).sum()]) / total
+
+
+def window_shifts(first: np.ndarray, second: np.ndarray, regions, max_shift_px: int, windows) -> np.ndarray:
+    """How far the content of each of the n ``regions`` (r0, r1, c0, c1) moved from image
+    ``first`` to image ``second`` (module docstring; the background b is taken outside every
+    one of ``windows``): (n, 2) px (x, y), NaN where no shift up to ``max_shift_px`` registers
+    it (correlation below ``MIN_MATCH`` or its peak at the limit)."""
+    ims = []
+    for hdr in (first, second):
+        sm = _smooth(np.asarray(hdr, np.float32))
+        ims.append(sm - _level(sm, windows)[0])
+    out = np.full((len(regions), 2), np.nan)
+    for k, (r0, r1, c0, c1) in enumerate(regions):
+        f = max(1, -(-max(r1 - r0, c1 - c0) // MATCH_PX))
+        reach = -(-max(1, int(max_shift_px)) // f)  # shifts searched, in averaged pixels
+        pad = reach * f
+        tpl = _shrink(ims[0][r0:r1, c0:c1], f)
+        big = cv2.copyMakeBorder(ims[1], pad, pad, pad, pad, cv2.BORDER_CONSTANT, value=0.0)
+        search = _shrink(big[r0:r0 + (r1 - r0) + 2 * pad, c0:c0 + (c1 - c0) + 2 * pad], f)
+        if tpl.size == 0 or float(tpl.std()) == 0.0:
+            continue
+        res = cv2.matchTemplate(search, tpl, cv2.TM_CCOEFF_NORMED)
+        _, peak, _, (px, py) = cv2.minMaxLoc(res)
+        if peak < MIN_MATCH or not (0 < px < res.shape[1] - 1 and 0 < py < res.shape[0] - 1):
+            continue
+        dx, dy = _vertex(res[py, px - 1:px + 2]), _vertex(res[py - 1:py + 2, px])
+        out[k] = ((px + dx - reach) * f, (py + dy - reach) * f)
+    return out
+
+
+def _shrink(img: np.ndarray, f: int) -> np.ndarray:
+    """``img`` averaged over f × f blocks (the last partial blocks dropped)."""
+    if f == 1:
+        return np.ascontiguousarray(img, np.float32)
+    h, w = (img.shape[0] // f) * f, (img.shape[1] // f) * f
+    return np.ascontiguousarray(img[:h, :w].reshape(h // f, f, w // f, f).mean(axis=(1, 3)), np.float32)
+
+
+def _vertex(three: np.ndarray) -> float:
+    """The vertex of the parabola through three equally spaced values, from the middle one."""
+    a, b, c = (float(v) for v in three)
+    den = a - 2.0 * b + c
+    return 0.0 if den >= 0 else 0.5 * (a - c) / den
+
+
+def isolate(hdr: np.ndarray, windows, cell) -> np.ndarray:
+    """``hdr`` with everything outside the rectangle ``cell`` (r0, r1, c0, c1) — a spot's own
+    window, or the larger cell its slot was given (slots.py, Eq. 2) — replaced by the
+    background level b outside every one of ``windows``: the other spots and the faint tails
+    they spread beyond their windows, which an energy centroid without a threshold would
+    average in."""
     img = np.asarray(hdr, float)
     b, _ = background(img, windows)
     out = np.full_like(img, b)
-    r0, r1, c0, c1 = windows[keep]
+    r0, r1, c0, c1 = cell
     out[r0:r1, c0:c1] = img[r0:r1, c0:c1]
     return out
 

@@ -15,7 +15,7 @@ from controller.calibration.gate import TargetGate
 from controller.calibration.slots import GAP_M, IDENTITY_STEP_M, slot_layout, spot_reach_m, target_frame
 from controller.config import load_config
 from controller.errors import ConfigError, InputError
-from controller.imaging.spots import confirm_by_step, isolate, window_spots
+from controller.imaging.spots import confirm_by_step, isolate, spills, window_shifts, window_spots
 from simplant.far_lamps import far_lamp_config
 from tests.calibration.conftest import calibrated_record
 
@@ -70,6 +70,27 @@ def test_the_gate_admits_k_beams_in_queue_order_each_at_its_slot():
     gate.release(0)
     th.join(2.0)
     assert got == [True] and gate.holders == {2, 3}
+
+
+def test_the_first_round_goes_onto_the_target_together_and_nobody_joins_a_round_in_progress():
+    gate = TargetGate(beams=3, together=3)
+    never = lambda: False  # noqa: E731
+    got: dict[int, bool] = {}
+    threads = []
+    for t in range(3):
+        threads.append(threading.Thread(target=lambda t=t: got.update({t: gate.acquire(t, never)})))
+        threads[-1].start()
+        threads[-1].join(0.2)
+        if t < 2:
+            assert not got  # the first two wait at standby for the third
+    for th in threads:
+        th.join(2.0)
+    assert got == {0: True, 1: True, 2: True} and gate.holders == {0, 1, 2}
+    gate.held = True  # a round's captures
+    gate.release(0)
+    assert not gate.acquire(3, lambda: True)  # slot 0 is free, but no beam slews in during exposures
+    gate.held = False
+    assert gate.acquire(3, never) and gate.holders == {1, 2, 3}
 
 
 def test_measured_alone_waits_for_every_other_beam_and_keeps_newcomers_off():
@@ -136,9 +157,32 @@ def test_each_window_finds_its_own_spot_and_isolation_keeps_only_one():
     found = window_spots(img, WINDOWS)
     assert np.allclose(found[0], (30.5, 30.2), atol=0.2) and np.allclose(found[1], (120.0, 40.0), atol=0.2)
     assert np.all(np.isnan(found[2]))
-    one = isolate(img, WINDOWS, 1)
+    one = isolate(img, WINDOWS, WINDOWS[1])
     left = window_spots(one, WINDOWS)
     assert np.all(np.isnan(left[0])) and np.allclose(left[1], (120.0, 40.0), atol=0.2)
+
+
+def test_a_window_registers_its_spots_shift_even_when_the_spot_is_larger_than_the_window():
+    rows, cols = np.indices((300, 400))
+
+    def shot(x, y, sigma):
+        return 10.0 + 1000.0 * np.exp(-((cols - x) ** 2 + (rows - y) ** 2) / (2 * sigma**2))
+
+    win = [(50, 250, 50, 250)]
+    for sigma in (4.0, 60.0):  # well inside; wider than the 200-px window (clipped at its edges)
+        a, b = shot(150.0, 140.0, sigma), shot(167.3, 131.6, sigma)
+        assert np.allclose(window_shifts(a, b, win, 30, win)[0], (17.3, -8.4), atol=0.15)
+    big = window_spots(b, win)[0] - window_spots(a, win)[0]
+    assert np.linalg.norm(big) < 0.8 * np.hypot(17.3, 8.4)  # why not centroids: clipping shrinks them
+    far = shot(150.0, 140.0, 4.0), shot(150.0 + 45.0, 140.0, 4.0)  # farther than the 30 px searched
+    assert np.all(np.isnan(window_shifts(*far, win, 30, win)[0]))
+    # Cut by the window on a side facing another slot, a spot's centroid moves when the window
+    # loses its border there; a spot inside its window, or cut only towards the view's edge, not.
+    up = [(True, False, False, False)]  # only the first rows face another slot
+    assert spills(shot(150.0, 120.0, 60.0), win, up)[0] > 3.0
+    assert spills(shot(150.0, 120.0, 8.0), win, up)[0] < 0.01
+    assert spills(shot(150.0, 180.0, 60.0), win, [(False, True, False, False)])[0] > 3.0
+    assert spills(shot(150.0, 120.0, 60.0), win, [(False, False, False, False)])[0] == 0.0
 
 
 def test_identity_by_step_confirms_each_and_catches_a_swap():
