@@ -56,7 +56,7 @@ from simplant.settings import SimulationSettings  # noqa: E402
 
 def bench_config(folder: Path, k: int, rows: int) -> Path:
     """The demo plant under the far lamps, ``calibration.beams_per_target: k``, ``rows`` rows of
-    six heliostats added north of it."""
+    six heliostats staggered into its field (``simplant.far_lamps``)."""
     return far_lamp_config(ROOT / "configs" / "demo.yaml", folder, k, rows)
 
 
@@ -126,7 +126,7 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--k", type=int, default=4, help="beams per target of the second run (2 … 8)")
     ap.add_argument("--extra-rows", type=int, default=0,
-                    help="rows of six heliostats added north of the demo field (0 … 6): larger passes")
+                    help="rows of six heliostats staggered into the demo field (0 … 6): larger passes")
     ap.add_argument("--out", type=Path, default=None,
                     help="keep the configurations and databases here (default: a temporary folder)")
     args = ap.parse_args()
