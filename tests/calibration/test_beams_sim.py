@@ -2,7 +2,8 @@
 capture under a far lamp, each spot is confirmed by its own step; when the plant exchanges
 their spots (``SpotTruth.swap``) neither is confirmed, both are measured again alone, and
 nothing is recorded under the wrong heliostat (the plant's truth of whose spot is where); a
-stop while both beams wait for their shared capture parks both and records nothing."""
+stop while both beams wait for their shared capture parks both and records nothing; a beam
+alone on the target (the last of three with two slots) is measured without the step."""
 
 from __future__ import annotations
 
@@ -18,6 +19,20 @@ from tests.calibration.conftest import FAST
 from tests.conftest import scaled_s
 
 IDS = ["H08", "H09"]  # neighbours in the second row
+
+
+class _Capturing(CampaignObserver):
+    """Plant seconds each heliostat spent in *capturing*."""
+
+    def __init__(self, clock) -> None:
+        self.clock, self.since, self.spent = clock, {}, {}
+
+    def state_changed(self, heliostat_id: str, state: str) -> None:
+        now = self.clock()
+        if heliostat_id in self.since:
+            self.spent[heliostat_id] = now - self.since.pop(heliostat_id)
+        if state == "capturing":
+            self.since[heliostat_id] = now
 
 
 class _StopWhenBothCapture(CampaignObserver):
@@ -79,3 +94,29 @@ def test_two_beams_share_captures_and_a_swapped_identity_is_measured_alone(small
             finally:
                 field.lamps.close()
         assert plant.safety.violations == 0 and plant.safety.max_on_target <= 2
+
+
+def test_a_beam_alone_on_the_target_is_measured_without_the_identity_step(small_config, tmp_path):
+    ids = ["H07", *IDS]
+    config = far_lamp_config(small_config, tmp_path / "cfg", 2)
+    plant = SimulatedPlant(load_config_data(config), tmp_path / "p", heliostat_ids=ids, settings=FAST, seed=3)
+    with plant, CampaignStore(tmp_path / "c.db") as store:
+        plant.start()
+        with LinkPool(timeout_s=scaled_s(0.5), retries=2) as pool:
+            field = plant_field(plant, config, store, pool)
+            try:
+                cal = Campaign(field, CampaignOptions(name="cal"), heliostat_ids=ids)
+                assert cal.run().status == "finished"
+                seen = _Capturing(plant.clock)
+                c = Campaign(field, CampaignOptions(name="three", observe=True), heliostat_ids=ids,
+                             observers=[seen, TruthRecorder(plant, store.path)])
+                r = c.run()
+                assert r.status == "finished" and c.slots is not None and c.slots.k == 2
+                assert c.group.rounds == 2 and c.group.alone == []  # two beams, then one
+                assert plant.spot_truth.misassigned_count == 0
+                settle = field.cfg.calibration.settle_s
+                stepped = sorted(h for h, t in seen.spent.items() if t >= settle)
+                # The step's settle is spent only in the shared round.
+                assert len(seen.spent) == 3 and len(stepped) == 2
+            finally:
+                field.lamps.close()
