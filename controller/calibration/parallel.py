@@ -24,30 +24,36 @@ def run_per_target(jobs: dict[str, Callable[[], R]],
         return {tid: job()}
     results: dict[str, R] = {}
     errors: dict[str, BaseException] = {}
+    ended: dict[str, threading.Event] = {tid: threading.Event() for tid in jobs}
 
     def runner(tid: str, job: Callable[[], R]) -> None:
         try:
             results[tid] = job()
         except BaseException as exc:  # raised by the main thread once every job has ended
             errors[tid] = exc
+        finally:
+            ended[tid].set()
 
-    threads: list[threading.Thread] = []
+    # Waited for by their own events, not Thread.join: a Ctrl-C that lands inside join() can
+    # leave the thread marked stopped while it still runs (CPython gh-90882), and the next
+    # join() would return at once, before that target's beams were parked.
+    threads: list[tuple[str, threading.Thread]] = []
     try:
         for tid, job in jobs.items():
             t = threading.Thread(target=runner, args=(tid, job), name=f"target-{tid}", daemon=True)
             # Listed before it starts: a Ctrl-C between the start and the listing would leave a
             # running job nobody waits for.
-            threads.append(t)
+            threads.append((tid, t))
             t.start()
-        for t in threads:
-            while t.is_alive():
-                t.join(0.2)  # short joins: the main thread must stay interruptible by Ctrl-C
+        for tid, _ in threads:
+            while not ended[tid].wait(0.2):  # short waits: the main thread must stay interruptible
+                pass
     except KeyboardInterrupt:
         if stop_all is not None:
             stop_all()
-        for t in threads:
+        for tid, t in threads:
             if t.ident is not None:  # started (a job interrupted before its start never ran)
-                t.join()
+                ended[tid].wait()
         raise
     for tid in jobs:
         if tid in errors:
