@@ -10,14 +10,16 @@ meet at a *round* (:meth:`SharedCapture.capture`, called by each one's cycle in 
 2. each steps by its own known amount (motor steps in its own direction, both axes moving up
    as the approach ended, so backlash stays taken up), settles, and a second capture (frame 2)
    is taken once all have;
-3. each slot's window must hold a spot in both frames that moved by its own heliostat's
-   predicted displacement (:func:`controller.imaging.spots.window_shifts`,
-   :func:`controller.imaging.spots.confirm_by_step`).
-   Its measurement is frame 1 with every other spot replaced by the background, at the pose
-   of frame 1;
-4. a heliostat whose spot is missing or ambiguous, or reaches its window's border (where
-   isolating it would cut it, :func:`controller.imaging.spots.spills`), is **measured again
-   alone**: it parks at standby, gives its slot back, waits until no other beam is on the target
+3. each slot's window must hold a spot in both frames, and the slot's cell (slots.py, Eq. 2)
+   must have moved by its own heliostat's predicted displacement
+   (:func:`controller.imaging.spots.window_shifts`,
+   :func:`controller.imaging.spots.confirm_by_step`). Its measurement is frame 1 with
+   everything outside its cell replaced by the background, at the pose of frame 1;
+4. a heliostat whose spot is missing or ambiguous, or reaches so far towards another slot
+   that isolating it would cut it (its window's energy centroid moves more than ``SPILL_M``
+   without the border band on those sides, :func:`controller.imaging.spots.spills`), is
+   **measured again alone**: it parks at
+   standby, gives its slot back, waits until no other beam is on the target
    (:meth:`TargetGate.acquire_alone`, no newcomer admitted meanwhile), approaches its pose
    again and is captured with its beam the only one. A measurement is never taken from a
    spot whose identity was not confirmed.
