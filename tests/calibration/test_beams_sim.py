@@ -7,6 +7,8 @@ alone on the target (the last of three with two slots) is measured without the s
 
 from __future__ import annotations
 
+from contextlib import contextmanager
+
 from controller.calibration.observers import CampaignObserver
 from controller.calibration.runner import Campaign, CampaignOptions
 from controller.commands._field import plant_field
@@ -52,55 +54,9 @@ class _StopWhenBothCapture(CampaignObserver):
             self.campaign.request_stop()
 
 
-def test_two_beams_share_captures_and_a_swapped_identity_is_measured_alone(small_config, tmp_path):
-    config = far_lamp_config(small_config, tmp_path / "cfg", 2)
-    plant = SimulatedPlant(load_config_data(config), tmp_path / "p", heliostat_ids=IDS, settings=FAST, seed=3)
-    with plant, CampaignStore(tmp_path / "c.db") as store:
-        plant.start()
-        with LinkPool(timeout_s=scaled_s(0.5), retries=2) as pool:
-            field = plant_field(plant, config, store, pool)
-            try:
-                # No model yet: the spots' positions are too uncertain for two slots, one beam at a time.
-                cal = Campaign(field, CampaignOptions(name="cal"), heliostat_ids=IDS)
-                assert cal.run().status == "finished" and cal.slots is None
-
-                def look(name: str) -> tuple[Campaign, dict]:
-                    c = Campaign(field, CampaignOptions(name=name, observe=True), heliostat_ids=IDS,
-                                 observers=[TruthRecorder(plant, store.path)])
-                    r = c.run()
-                    return c, {run.heliostat_id: run for run in store.runs(r.campaign_id)}
-
-                shared, runs = look("shared")
-                assert shared.slots is not None and shared.slots.k == 2
-                assert shared.group.rounds >= 1 and shared.group.alone == []  # both confirmed in one capture
-                assert {r.status for r in runs.values()} == {"measured"}
-                checked = plant.spot_truth.checked
-                assert checked == 2 and plant.spot_truth.misassigned_count == 0
-
-                plant.spot_truth.swap(*IDS)
-                swapped, runs = look("swapped")
-                assert sorted(swapped.group.alone) == sorted(IDS)  # neither spot moved with its own step
-                assert {r.status for r in runs.values()} == {"measured"}
-                assert plant.spot_truth.checked == checked + 2 and plant.spot_truth.misassigned_count == 0
-                meta = store.campaign_by_name("swapped").meta["beams"]
-                assert meta["slots"] == 2 and sorted(meta["measured_alone"]) == sorted(IDS)
-
-                # Ctrl-C while both beams are at their slots, the shared capture forming: both park.
-                stop = _StopWhenBothCapture()
-                stop.campaign = Campaign(field, CampaignOptions(name="stopped", observe=True),
-                                         heliostat_ids=IDS, observers=[stop])
-                r = stop.campaign.run()
-                assert stop.fired and r.status == "interrupted"
-                assert not any(plant.safety.on_target(t.id) for t in field.cfg.targets)
-                assert not any(field.drive(h).status().moving for h in IDS)
-                assert not store.runs(r.campaign_id)  # nothing recorded from the interrupted round
-            finally:
-                field.lamps.close()
-        assert plant.safety.violations == 0 and plant.safety.max_on_target <= 2
-
-
-def test_a_beam_alone_on_the_target_is_measured_without_the_identity_step(small_config, tmp_path):
-    ids = ["H07", *IDS]
+@contextmanager
+def _far_lamp_plant(small_config, tmp_path, ids: list[str]):
+    """(plant, store, field): the small plant under far lamps with two slots a target, started."""
     config = far_lamp_config(small_config, tmp_path / "cfg", 2)
     plant = SimulatedPlant(load_config_data(config), tmp_path / "p", heliostat_ids=ids, settings=FAST, seed=3)
     with plant, CampaignStore(tmp_path / "c.db") as store:
@@ -108,16 +64,61 @@ def test_a_beam_alone_on_the_target_is_measured_without_the_identity_step(small_
         with LinkPool(timeout_s=scaled_s(0.5), retries=2) as pool:
             field = plant_field(plant, config, store, pool)
             try:
-                cal = Campaign(field, CampaignOptions(name="cal"), heliostat_ids=ids)
-                assert cal.run().status == "finished"
-                seen = _Capturing(field.drive)
-                c = Campaign(field, CampaignOptions(name="three", observe=True), heliostat_ids=ids,
-                             observers=[seen, TruthRecorder(plant, store.path)])
-                r = c.run()
-                assert r.status == "finished" and c.slots is not None and c.slots.k == 2
-                assert c.group.rounds == 2 and c.group.alone == []  # two beams, then one
-                assert plant.spot_truth.misassigned_count == 0
-                # The two of the shared round stepped while capturing; the one alone did not.
-                assert len(seen.moved) == 3 and sum(seen.moved.values()) == 2
+                yield plant, store, field
             finally:
                 field.lamps.close()
+
+
+def test_two_beams_share_captures_and_a_swapped_identity_is_measured_alone(small_config, tmp_path):
+    with _far_lamp_plant(small_config, tmp_path, IDS) as (plant, store, field):
+        # No model yet: the spots' positions are too uncertain for two slots, one beam at a time.
+        cal = Campaign(field, CampaignOptions(name="cal"), heliostat_ids=IDS)
+        assert cal.run().status == "finished" and cal.slots is None
+
+        def look(name: str) -> tuple[Campaign, dict]:
+            c = Campaign(field, CampaignOptions(name=name, observe=True), heliostat_ids=IDS,
+                         observers=[TruthRecorder(plant, store.path)])
+            r = c.run()
+            return c, {run.heliostat_id: run for run in store.runs(r.campaign_id)}
+
+        shared, runs = look("shared")
+        assert shared.slots is not None and shared.slots.k == 2
+        assert shared.group.rounds >= 1 and shared.group.alone == []  # both confirmed in one capture
+        assert {r.status for r in runs.values()} == {"measured"}
+        checked = plant.spot_truth.checked
+        assert checked == 2 and plant.spot_truth.misassigned_count == 0
+
+        plant.spot_truth.swap(*IDS)
+        swapped, runs = look("swapped")
+        assert sorted(swapped.group.alone) == sorted(IDS)  # neither spot moved with its own step
+        assert {r.status for r in runs.values()} == {"measured"}
+        assert plant.spot_truth.checked == checked + 2 and plant.spot_truth.misassigned_count == 0
+        meta = store.campaign_by_name("swapped").meta["beams"]
+        assert meta["slots"] == 2 and sorted(meta["measured_alone"]) == sorted(IDS)
+
+        # Ctrl-C while both beams are at their slots, the shared capture forming: both park.
+        stop = _StopWhenBothCapture()
+        stop.campaign = Campaign(field, CampaignOptions(name="stopped", observe=True),
+                                 heliostat_ids=IDS, observers=[stop])
+        r = stop.campaign.run()
+        assert stop.fired and r.status == "interrupted"
+        assert not any(plant.safety.on_target(t.id) for t in field.cfg.targets)
+        assert not any(field.drive(h).status().moving for h in IDS)
+        assert not store.runs(r.campaign_id)  # nothing recorded from the interrupted round
+    assert plant.safety.violations == 0 and plant.safety.max_on_target <= 2
+
+
+def test_a_beam_alone_on_the_target_is_measured_without_the_identity_step(small_config, tmp_path):
+    ids = ["H07", *IDS]
+    with _far_lamp_plant(small_config, tmp_path, ids) as (plant, store, field):
+        cal = Campaign(field, CampaignOptions(name="cal"), heliostat_ids=ids)
+        assert cal.run().status == "finished"
+        seen = _Capturing(field.drive)
+        c = Campaign(field, CampaignOptions(name="three", observe=True), heliostat_ids=ids,
+                     observers=[seen, TruthRecorder(plant, store.path)])
+        r = c.run()
+        assert r.status == "finished" and c.slots is not None and c.slots.k == 2
+        assert c.group.rounds == 2 and c.group.alone == []  # two beams, then one
+        assert plant.spot_truth.misassigned_count == 0
+        # The two of the shared round stepped while capturing; the one alone did not.
+        assert len(seen.moved) == 3 and sum(seen.moved.values()) == 2
