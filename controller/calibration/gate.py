@@ -112,10 +112,8 @@ class TargetGate:
 
     def release(self, ticket: int, beam_off_target: bool = True) -> None:
         """Give the target back (or skip this ticket if it never held it)."""
-        with self.cv:
-            if not beam_off_target:
-                self.blocked = True
-            self.holders.discard(ticket)
+        with self.cv:  # re-entrant: give_back takes it again
+            self.give_back(ticket, beam_off_target)
             if self.alone == ticket:
                 self.alone = None
             self._done.add(ticket)
