@@ -25,6 +25,10 @@ class TargetGate:
     instead of the first ones waiting there, their beams on it, for the last to come.
     ``held``: while True (a round's captures are being taken) no ticket is admitted, so no
     beam slews across the target during an exposure.
+    ``vacate(ticket)`` (K > 1 only): the ticket's beam, on its way to standby, has left the
+    target (:meth:`controller.calibration.machine.CalibrationCycle.do_standby`): its slot goes to
+    ticket t + K at once while it goes on parking; until it is parked it is ``leaving``, and no
+    round is captured nor anyone taken alone meanwhile.
     ``blocked`` becomes True when a beam may have been left on the target, after which nobody
     gets the target again.
     """
@@ -44,6 +48,7 @@ class TargetGate:
         self.solo: set[int] = set()  # tickets that take the target alone (no slot fits them)
         self.held = False
         self.blocked = False
+        self._vacated: set[int] = set()
         self._together = range(first_ticket, first_ticket + together)
 
     @property
@@ -65,8 +70,14 @@ class TargetGate:
             return False
         if ticket in self.solo:
             return not self.holders
+        before = ticket - self.beams
         return ((self.beams > 1 or self._next == ticket) and len(self.holders) < self.beams
-                and (ticket - self.beams < self._first or ticket - self.beams in self._done))
+                and (before < self._first or before in self._done or before in self._vacated))
+
+    @property
+    def leaving(self) -> set[int]:
+        """Tickets whose beam left the target (:meth:`vacate`) and that are not parked yet."""
+        return self._vacated - self._done
 
     def acquire(self, ticket: int, cancelled: Callable[[], bool], poll_s: float = 0.05) -> bool:
         with self.cv:
@@ -92,7 +103,8 @@ class TargetGate:
         with self.cv:
             self._alone_waiting.add(ticket)
             try:
-                while self.holders or self.alone is not None or min(self._alone_waiting) != ticket:
+                while (self.holders - {ticket} or self.leaving or self.alone is not None
+                       or min(self._alone_waiting) != ticket):
                     if cancelled() or self.blocked:
                         return False
                     self.cv.wait(poll_s)
@@ -100,6 +112,22 @@ class TargetGate:
                 return True
             finally:
                 self._alone_waiting.discard(ticket)
+                self.cv.notify_all()
+
+    def reserve_alone(self, ticket: int) -> None:
+        """``ticket`` is to be measured alone where it stands (it holds its slot): nobody is
+        admitted from now on until it has been (:meth:`acquire_alone`)."""
+        with self.cv:
+            self._alone_waiting.add(ticket)
+
+    def vacate(self, ticket: int) -> None:
+        """``ticket``'s beam has left the target while it parks (class docstring): its slot is free."""
+        with self.cv:
+            if (ticket in self.holders or self.alone == ticket) and self.beams > 1:
+                self.holders.discard(ticket)
+                if self.alone == ticket:
+                    self.alone = None
+                self._vacated.add(ticket)
                 self.cv.notify_all()
 
     def give_back(self, ticket: int, beam_off_target: bool = True) -> None:
@@ -116,6 +144,7 @@ class TargetGate:
             self.give_back(ticket, beam_off_target)
             if self.alone == ticket:
                 self.alone = None
+            self._alone_waiting.discard(ticket)  # reserved, then stopped before its turn
             self._done.add(ticket)
             if self._next == ticket:  # skipped before its turn came
                 while self._next in self._done:

@@ -62,6 +62,7 @@ class _Round:
     second_started: bool = False
     failed: bool = False  # a capture of the round failed: every member leaves it
     assigned: dict[int, int | None] | None = None
+    stays: int | None = None  # the member measured alone where it stands, the others gone
     windows: list[tuple[int, int, int, int]] | None = None  # where each spot is looked for
     cells: list[tuple[int, int, int, int]] | None = None  # where each is measured (slots.py, Eq. 2)
 
@@ -70,8 +71,11 @@ def identity_step(pointing, pose: tuple[int, int], slot: int, k: int, frame
                   ) -> tuple[tuple[int, int], np.ndarray]:
     """The known step of a heliostat at ``pose`` (motor steps, both ≥ 0: the approach ended
     moving up on both axes, so the step takes up no backlash) holding ``slot`` of ``k``, and
-    its spot's predicted displacement (u, v) m on ``frame``: direction θ = 90° · slot / (K − 1)
-    in step space, scaled to move the spot about IDENTITY_STEP_M. The displacement is the
+    its spot's predicted displacement (u, v) m on ``frame``: steps ∝ (cos θ / |∂uv/∂az|,
+    sin θ / |∂uv/∂el|), θ = 90° · slot / (K − 1) — each axis counted in metres of spot motion, so
+    the K displacements spread evenly from the azimuth's direction on the target to the
+    elevation's whatever the axes' gearing (the tolerance of Eq. 1 is half the closest pair's
+    distance) — scaled to move the spot about IDENTITY_STEP_M. The displacement is the
     reflected central ray's hit point on the target plane (:func:`controller.geometry.spot.hit_uv`)
     traced with the heliostat's model (``pointing.rays``) after the step minus before it."""
     base = np.array(pose, float)
@@ -84,7 +88,7 @@ def identity_step(pointing, pose: tuple[int, int], slot: int, k: int, frame
     probe = 1000.0
     per_step = moved([(0, 0), (probe, 0), (0, probe)]).T / probe  # m of (u, v) per step
     theta = 0.5 * math.pi * slot / max(k - 1, 1)
-    want = np.array([math.cos(theta), math.sin(theta)])
+    want = np.array([math.cos(theta), math.sin(theta)]) / np.maximum(np.linalg.norm(per_step, axis=0), 1e-12)
     scale = IDENTITY_STEP_M / max(float(np.linalg.norm(per_step @ want)), 1e-12)
     step = np.rint(want * scale).astype(int)
     return (int(step[0]), int(step[1])), moved([(0, 0), tuple(step)])[0]
@@ -168,11 +172,20 @@ class SharedCapture:
         return identity_step(cyc.ctx.pointing, (cyc.az, cyc.el), self.gate.slot(cyc._ticket), self.gate.beams,
                              self.frame)
 
+    def hand_over(self, cyc):
+        """A drive watch for ``cyc``'s park after its measurement: its slot goes to the next
+        heliostat (:meth:`TargetGate.vacate`) once its beam is off the target, margin included
+        (``BeamSafety.beam_on_target``); the park path never brings it back (``BeamSafety.path_to``)."""
+        def watch(st) -> None:
+            if not cyc.ctx.pointing.beam_on_target(st.az_steps, st.el_steps):
+                self.gate.vacate(cyc._ticket)
+        return watch
+
     # -- the round -----------------------------------------------------------------------------
     def _fires(self) -> bool:
         g = self.gate
-        if self._round is not None or not g.holders or not g.holders <= self._ready:
-            return False
+        if self._round is not None or not g.holders or not g.holders <= self._ready or g.leaving:
+            return False  # a leaving beam may still be in the view: it parks first
         return not any(g.admissible(t) for t in g.waiting)
 
     def capture(self, cyc):
@@ -237,14 +250,17 @@ class SharedCapture:
         except BaseException:
             self._leave(rnd, ticket)
             raise
-        cyc.az, cyc.el = pose  # the measurement is frame 1's, at frame 1's pose
         try:
             with cyc.ctx.time.computing():  # the controller's own computing, as in merging
                 label = self._identify(rnd, ticket)
         finally:
             self._leave(rnd, ticket)
         if label is not None:
+            cyc.az, cyc.el = pose  # the measurement is frame 1's, at frame 1's pose
             return rnd.frame1, partial(isolate, windows=rnd.windows, cell=rnd.cells[label])
+        if rnd.stays == ticket:
+            return self._alone_here(cyc, pose), None
+        cyc.az, cyc.el = pose
         return self._alone(cyc, pose), None
 
     def _second(self, rnd: _Round, ticket: int, cancelled) -> None:
@@ -266,9 +282,8 @@ class SharedCapture:
         except BaseException:
             rnd.failed = True
             raise
-        with g.cv:
+        with g.cv:  # nobody is admitted until the round is identified (_identify)
             rnd.frame2 = frame2
-            g.held = False
             g.cv.notify_all()
 
     def _identify(self, rnd: _Round, ticket: int) -> int | None:
@@ -293,6 +308,12 @@ class SharedCapture:
                 spill = spills(hdr[0], rnd.windows, facing) * self._pixel_m()
                 ok = [a and bool(b <= SPILL_M) for a, b in zip(ok, spill, strict=True)]
                 rnd.assigned = {t: (k if ok[k] else None) for k, t in enumerate(tickets)}
+                with self.gate.cv:  # the first to be measured alone stays; no newcomer before it
+                    rnd.stays = min((t for t in tickets if not ok[tickets.index(t)]), default=None)
+                    if rnd.stays is not None:
+                        self.gate.reserve_alone(rnd.stays)
+                    self.gate.held = False
+                    self.gate.cv.notify_all()
             return rnd.assigned.get(ticket)
 
     def _leave(self, rnd: _Round, ticket: int, stepped: bool = False) -> None:
@@ -306,22 +327,37 @@ class SharedCapture:
                 g.held = False
             g.cv.notify_all()
 
+    def _alone_here(self, cyc, pose: tuple[int, int]):
+        """Step back to ``pose`` while the others park (backlash taken up again), take the target
+        alone once every other beam is parked, capture: no park and approach of its own."""
+        self._approach(cyc, pose)
+        return self._capture_alone(cyc)
+
     def _alone(self, cyc, pose: tuple[int, int]):
         """Park, give the slot back, take the target alone, come back to ``pose``, capture."""
-        g, ticket = self.gate, cyc._ticket
         cyc._park("capturing")
         cyc.beam_on_target = False
-        g.give_back(ticket)
-        if not g.acquire_alone(ticket, lambda: cyc.state != "capturing"):
+        self.gate.give_back(cyc._ticket)
+        return self._capture_alone(cyc, partial(self._approach, cyc, pose))
+
+    def _capture_alone(self, cyc, then=None):
+        """Take the target alone (:meth:`TargetGate.acquire_alone`), ``then()``, capture."""
+        if not self.gate.acquire_alone(cyc._ticket, lambda: cyc.state != "capturing"):
             cyc._check_current("capturing")
             raise RuntimeError("target blocked: another heliostat's beam may still be on it")
         self.alone.append(cyc.ctx.heliostat_id)
+        if then is not None:
+            then()
+        return self._capture()
+
+    @staticmethod
+    def _approach(cyc, pose: tuple[int, int]) -> None:
+        """Onto ``pose`` ending up on both axes (backlash), settled."""
         cyc.beam_on_target = True
         for waypoint in approach_path(cyc.at, pose, cyc.ctx.backlash_steps, cyc.ctx.drive.limits):
             cyc._move("capturing", *waypoint)
         cyc.az, cyc.el = pose
         cyc._wait("capturing", cyc.ctx.settle_s)
-        return self._capture()
 
 
 class _Left(Exception):

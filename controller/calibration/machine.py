@@ -16,8 +16,8 @@ as the machine has left that state. An exception in a ``do_`` method fires ``fai
 Beam safety:
 * a heliostat approaches the target only from its standby point (``preparing`` parks it
   there first, ``slewing`` starts from ``standby``);
-* :class:`TargetGate` hands the target out in queue order, one beam at a time (K under lamps
-  at night, :mod:`controller.calibration.group`), back only once the beam is parked off it;
+* :class:`TargetGate` hands the target out in queue order, one beam at a time, back once the beam
+  is parked off it (K beams under lamps, each slot once its beam is off: calibration.group);
 * after its measurement (or a fault) the beam is always moved back to standby before the
   cycle ends; if that fails the heliostat is stowed, and if even that fails the cycle ends
   *aborted* with ``beam_maybe_on_target`` set, so the campaign stops using the target.
@@ -229,13 +229,13 @@ class CalibrationCycle:
             self._check_current(state)
             t.sleep(t.poll_s)
 
-    def _move(self, state: str, az: int, el: int) -> None:
+    def _move(self, state: str, az: int, el: int, watch=None) -> None:
         """Absolute move and wait in position on the plant clock, giving up if the machine
         leaves ``state``; faults raise ActuatorFault/DriveError (controller.devices.drive)."""
         c = self.ctx
         try:
             st = c.drive.move_and_wait(int(az), int(el), timeout_s=c.move_timeout_s, time=c.time,
-                                       cancelled=lambda: self.state != state)
+                                       cancelled=lambda: self.state != state, watch=watch)
         except MoveCancelled:
             raise Cancelled(state) from None
         self.az, self.el = st.az_steps, st.el_steps
@@ -249,16 +249,16 @@ class CalibrationCycle:
         self.run_rec.at_standby_s = self.ctx.time.now()
         return "parked"
 
-    def _park(self, state: str) -> None:
+    def _park(self, state: str, watch=None) -> None:
         # The slew to standby must not sweep the beam across a target (someone else may be
         # measured there) nor into a person zone: the pointing plans waypoints that keep it off,
         # from wherever the drive stands (after a fault, anywhere along a move).
-        park(self.ctx.drive, self.ctx.pointing, self.standby, lambda az, el: self._move(state, az, el))
+        park(self.ctx.drive, self.ctx.pointing, self.standby, lambda az, el: self._move(state, az, el, watch))
 
     def do_standby(self) -> str:
         if self.measured or self.cause:
             if self.beam_on_target:
-                self._park("standby")
+                self._park("standby", self.ctx.group and self.ctx.group.hand_over(self))
                 self.beam_on_target = False
                 self.run_rec.off_target_s = self.ctx.time.now()
             self._release_target()

@@ -203,13 +203,15 @@ class Drive(ABC):
 
     def wait_in_position(self, timeout_s: float, time: PlantTime = DRIVE_TIME,
                          cancelled: Callable[[], bool] | None = None,
-                         expect: tuple[int, int] | None = None) -> DriveStatus:
+                         expect: tuple[int, int] | None = None,
+                         watch: Callable[[DriveStatus], object] | None = None) -> DriveStatus:
         """Poll :meth:`status` every ``time.poll_s`` until both axes are in position.
 
         One clock for the whole wait: the deadline ``timeout_s`` and the polling period are
         both plant seconds of ``time`` (a simulated plant hands in its plant clock).
         ``expect``: the target this wait is for — a drive that stopped elsewhere, or sits idle
-        with another target, is an error.
+        with another target, is an error. ``watch``: called with every status read without a
+        fault (to act on where the drive is along the move).
 
         Raises :class:`MoveCancelled` as soon as ``cancelled()`` returns True,
         :class:`ActuatorFault` on latched faults, :class:`DriveError` on timeout or an
@@ -235,6 +237,8 @@ class Drive(ABC):
                 if st.faults:
                     raise ActuatorFault(f"unit {self.unit}: actuator fault {', '.join(st.faults)} at "
                                         f"az={st.az_steps} el={st.el_steps}", list(st.faults))
+                if watch is not None:
+                    watch(st)
                 if st.in_position:
                     if expect is not None and (st.az_steps, st.el_steps) != expect:
                         raise DriveError(f"unit {self.unit}: stopped at ({st.az_steps}, {st.el_steps}), "
@@ -250,9 +254,10 @@ class Drive(ABC):
             time.sleep(time.poll_s)
 
     def move_and_wait(self, az_steps: int, el_steps: int, *, timeout_s: float, time: PlantTime = DRIVE_TIME,
-                      cancelled: Callable[[], bool] | None = None) -> DriveStatus:
+                      cancelled: Callable[[], bool] | None = None,
+                      watch: Callable[[DriveStatus], object] | None = None) -> DriveStatus:
         """Absolute move (soft limits checked before sending), then :meth:`wait_in_position`
         for exactly that target on one clock. The one move-and-wait of the controller: the
         state machine, the CLI, commissioning, the console and the lamp change all use it."""
         self.move_abs(az_steps, el_steps)
-        return self.wait_in_position(timeout_s, time, cancelled, (int(az_steps), int(el_steps)))
+        return self.wait_in_position(timeout_s, time, cancelled, (int(az_steps), int(el_steps)), watch)

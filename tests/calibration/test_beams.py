@@ -4,7 +4,9 @@ predicted spots apart and inside the view, and whose spot is whose by a known st
 
 from __future__ import annotations
 
+import math
 import threading
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -12,6 +14,7 @@ import yaml
 
 from controller.calibration.beams import beams_allowed
 from controller.calibration.gate import TargetGate
+from controller.calibration.group import identity_step
 from controller.calibration.slots import GAP_M, IDENTITY_STEP_M, slot_layout, spot_reach_m, target_frame
 from controller.config import load_config
 from controller.errors import ConfigError, InputError
@@ -91,6 +94,25 @@ def test_the_first_round_goes_onto_the_target_together_and_nobody_joins_a_round_
     assert not gate.acquire(3, lambda: True)  # slot 0 is free, but no beam slews in during exposures
     gate.held = False
     assert gate.acquire(3, never) and gate.holders == {1, 2, 3}
+
+
+def test_a_beam_off_the_target_hands_its_slot_on_while_it_parks_and_holds_up_rounds_until_parked():
+    gate = TargetGate(beams=2)
+    never, at_once = (lambda: False), (lambda: True)  # noqa: E731
+    gate.acquire(0, never), gate.acquire(1, never)
+    assert not gate.acquire(2, at_once)  # slot 0 is ticket 0's
+    gate.vacate(0)  # its beam left the target on the way to standby
+    assert gate.acquire(2, at_once) and gate.holders == {1, 2} and gate.leaving == {0}
+    assert not gate.acquire(3, at_once)  # slot 1 is still ticket 1's
+    gate.release(2)
+    gate.give_back(1)  # to be measured alone
+    assert not gate.holders and not gate.acquire_alone(1, at_once)  # ticket 0's beam may be in view
+    gate.release(0)  # parked
+    assert gate.leaving == set() and gate.acquire_alone(1, never)
+    one = TargetGate(beams=1)
+    one.acquire(0, never)
+    one.vacate(0)  # one beam at a time: the target goes on only once the beam is parked
+    assert one.holders == {0} and not one.acquire(1, at_once)
 
 
 def test_measured_alone_waits_for_every_other_beam_and_keeps_newcomers_off():
@@ -183,6 +205,33 @@ def test_a_window_registers_its_spots_shift_even_when_the_spot_is_larger_than_th
     assert spills(shot(150.0, 120.0, 8.0), win, up)[0] < 0.01
     assert spills(shot(150.0, 180.0, 60.0), win, [(False, True, False, False)])[0] > 3.0
     assert spills(shot(150.0, 120.0, 60.0), win, [(False, False, False, False)])[0] == 0.0
+
+
+class _LinearPointing:
+    """Rays from the origin through (u, v) = J · steps on the plane y = 100 m."""
+
+    def __init__(self, jac) -> None:
+        self.jac = np.asarray(jac, float)
+
+    def rays(self, poses):
+        uv = np.asarray(poses, float) @ self.jac.T
+        hit = np.column_stack([uv[:, 0], np.full(len(uv), 100.0), uv[:, 1]])
+        return np.zeros_like(hit), hit / np.linalg.norm(hit, axis=1, keepdims=True)
+
+
+def test_identity_steps_spread_evenly_over_the_target_whatever_each_axis_gearing():
+    frame = SimpleNamespace(center=np.array([0.0, 100.0, 0.0]), normal=np.array([0.0, -1.0, 0.0]),
+                            u=np.array([1.0, 0.0, 0.0]), v=np.array([0.0, 0.0, 1.0]))
+    # Azimuth moves the spot three times as far per step as elevation, a little skewed.
+    pointing = _LinearPointing([[3e-4, 0.2e-4], [0.1e-4, 1e-4]])
+    moves = [identity_step(pointing, (1000, 2000), slot, 4, frame) for slot in range(4)]
+    for step, disp in moves:
+        assert min(step) >= 0  # no axis reverses: the approach's backlash stays taken up
+        assert abs(np.linalg.norm(disp) - IDENTITY_STEP_M) < 0.01 * IDENTITY_STEP_M
+    # From the azimuth's direction on the target (1.9°) to the elevation's (78.7°), evenly.
+    angles = np.degrees([math.atan2(d[1], d[0]) for _, d in moves])
+    assert abs(angles[0] - 1.9) < 0.5 and abs(angles[-1] - 78.7) < 0.5
+    assert np.ptp(np.diff(angles)) < 5.0, angles
 
 
 def test_identity_by_step_confirms_each_and_catches_a_swap():

@@ -1,9 +1,11 @@
 """Several beams on one target on the simulated plant (full camera): two heliostats share each
 capture under a far lamp, each spot is confirmed by its own step; when the plant exchanges
-their spots (``SpotTruth.swap``) neither is confirmed, both are measured again alone, and
-nothing is recorded under the wrong heliostat (the plant's truth of whose spot is where); a
-stop while both beams wait for their shared capture parks both and records nothing; a beam
-alone on the target (the last of three with two slots) is measured without the step."""
+their spots (``SpotTruth.swap``) neither is confirmed, both are measured again alone (the
+first where it stands once the other is parked, the other after parking), and nothing is
+recorded under the wrong heliostat (the plant's truth of whose spot is where); a stop while
+both beams wait for their shared capture parks both and records nothing; a beam alone on the
+target (the last of three with two slots) is measured without the step, its slot handed on
+while the beam before it was still on its way to standby."""
 
 from __future__ import annotations
 
@@ -24,10 +26,24 @@ IDS = ["H08", "H09"]  # neighbours in the second row
 
 
 class _Capturing(CampaignObserver):
-    """Whether each heliostat's drive moved while it was in *capturing* (the identity step)."""
+    """Whether each heliostat's drive moved while it was in *capturing* (the identity step), and
+    the farthest (steps, both axes) it was commanded from where it entered it."""
 
     def __init__(self, drive) -> None:
-        self.drive, self.at, self.moved = drive, {}, {}
+        self.drive, self.at, self.moved, self.farthest = drive, {}, {}, {}
+
+    def watch(self, heliostat_id: str) -> None:
+        d = self.drive(heliostat_id)
+        move = d.move_abs
+
+        def move_abs(az: int, el: int) -> None:
+            at = self.at.get(heliostat_id)
+            if at is not None:
+                far = max(abs(az - at[0]), abs(el - at[1]))
+                self.farthest[heliostat_id] = max(self.farthest.get(heliostat_id, 0), far)
+            move(az, el)
+
+        d.move_abs = move_abs
 
     def _pose(self, heliostat_id: str) -> tuple[int, int]:
         st = self.drive(heliostat_id).status()
@@ -75,9 +91,14 @@ def test_two_beams_share_captures_and_a_swapped_identity_is_measured_alone(small
         cal = Campaign(field, CampaignOptions(name="cal"), heliostat_ids=IDS)
         assert cal.run().status == "finished" and cal.slots is None
 
+        seen = _Capturing(field.drive)
+        for h in IDS:
+            seen.watch(h)
+
         def look(name: str) -> tuple[Campaign, dict]:
+            seen.farthest.clear()
             c = Campaign(field, CampaignOptions(name=name, observe=True), heliostat_ids=IDS,
-                         observers=[TruthRecorder(plant, store.path)])
+                         observers=[TruthRecorder(plant, store.path), seen])
             r = c.run()
             return c, {run.heliostat_id: run for run in store.runs(r.campaign_id)}
 
@@ -91,6 +112,9 @@ def test_two_beams_share_captures_and_a_swapped_identity_is_measured_alone(small
         plant.spot_truth.swap(*IDS)
         swapped, runs = look("swapped")
         assert sorted(swapped.group.alone) == sorted(IDS)  # neither spot moved with its own step
+        # The first stays on the target for its capture alone (the step and back); the other parks.
+        near, far = sorted(seen.farthest.values())  # the step and its backlash; the way to standby
+        assert far > 5 * near, seen.farthest
         assert {r.status for r in runs.values()} == {"measured"}
         assert plant.spot_truth.checked == checked + 2 and plant.spot_truth.misassigned_count == 0
         meta = store.campaign_by_name("swapped").meta["beams"]
@@ -122,3 +146,7 @@ def test_a_beam_alone_on_the_target_is_measured_without_the_identity_step(small_
         assert plant.spot_truth.misassigned_count == 0
         # The two of the shared round stepped while capturing; the one alone did not.
         assert len(seen.moved) == 3 and sum(seen.moved.values()) == 2
+        # The third took slot 0 as soon as the first's beam was off the target, before it was parked.
+        first, _, third = sorted(store.runs(r.campaign_id), key=lambda run: run.queue_index)
+        assert first.on_target_s < third.on_target_s < first.off_target_s
+    assert plant.safety.violations == 0 and plant.safety.max_on_target <= 2
