@@ -13,7 +13,8 @@ class TargetGate:
     ``acquire(ticket)`` with K = 1 blocks until every smaller ticket acquired the target and
     released it (or was skipped): one beam at a time, in queue order. With ``beams`` K > 1
     ticket t uses slot ``t mod K`` (:meth:`slot`), which only one beam holds at a time: it
-    waits only for ticket ``t − K`` of its slot to release it, so a heliostat still slewing to
+    waits only for ticket ``t − K`` of its slot to release it (and for no holder to be at that
+    slot, should t − K have been skipped), so a heliostat still slewing to
     standby holds up its own slot, not the others. ``acquire_alone(ticket)``: for a heliostat
     measured again alone (its spot could not be told from the others): waits until no other
     beam holds the target and keeps every other ticket off it until released; it goes before
@@ -68,11 +69,13 @@ class TargetGate:
         if ticket in self._together and not all(t in self.waiting or t in self._done or t in self.holders
                                                 for t in self._together):
             return False
-        if ticket in self.solo:
-            return not self.holders
+        if ticket in self.solo:  # its capture is taken as it arrives: every other beam parked
+            return not self.holders and not self.leaving
         before = ticket - self.beams
         return ((self.beams > 1 or self._next == ticket) and len(self.holders) < self.beams
-                and (before < self._first or before in self._done or before in self._vacated))
+                and (before < self._first or before in self._done or before in self._vacated)
+                # t − K may have been skipped or taken the target solo while t − 2K still holds it
+                and all(self.slot(h) != self.slot(ticket) for h in self.holders))
 
     @property
     def leaving(self) -> set[int]:

@@ -73,6 +73,12 @@ def test_the_gate_admits_k_beams_in_queue_order_each_at_its_slot():
     gate.release(0)
     th.join(2.0)
     assert got == [True] and gate.holders == {2, 3}
+    assert gate.acquire(4, never) and gate.slot(4) == 1
+    gate.release(2)
+    gate.release(7)  # ticket 7 ends before its turn (skipped): ticket 10 is next at slot 1 …
+    assert not gate.acquire(10, lambda: True)  # … but ticket 4 still holds slot 1
+    gate.release(4)
+    assert gate.acquire(10, never) and gate.holders == {3, 10}
 
 
 def test_the_first_round_goes_onto_the_target_together_and_nobody_joins_a_round_in_progress():
@@ -273,6 +279,9 @@ def test_a_solo_ticket_takes_only_an_empty_target_and_keeps_it_to_itself():
     th.start()
     th.join(0.2)
     assert not got  # ticket 0's beam is on the target
+    gate.vacate(0)
+    th.join(0.2)
+    assert not got  # off it, but not parked yet: a solo heliostat is captured as it arrives
     gate.release(0)
     th.join(2.0)
     assert got == [True] and gate.holders == {1}
