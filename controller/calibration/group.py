@@ -309,7 +309,7 @@ class SharedCapture:
                 ok = [a and bool(b <= SPILL_M) for a, b in zip(ok, spill, strict=True)]
                 rnd.assigned = {t: (k if ok[k] else None) for k, t in enumerate(tickets)}
                 with self.gate.cv:  # the first to be measured alone stays; no newcomer before it
-                    rnd.stays = min((t for t in tickets if not ok[tickets.index(t)]), default=None)
+                    rnd.stays = min((t for t, k in rnd.assigned.items() if k is None), default=None)
                     if rnd.stays is not None:
                         self.gate.reserve_alone(rnd.stays)
                     self.gate.held = False
