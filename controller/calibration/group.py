@@ -41,7 +41,7 @@ from controller.calibration.approach import approach_path
 from controller.calibration.slots import IDENTITY_STEP_M
 from controller.errors import HeliocalError
 from controller.geometry.spot import hit_uv
-from controller.imaging.spots import confirm_by_step, isolate, spills, window_shifts, window_spots
+from controller.imaging.spots import confirm_by_step, excess, isolate, spills, window_shifts, window_spots
 
 # A spot whose window's energy centroid moves more than this when the window loses its border
 # band on the sides facing another slot (:func:`controller.imaging.spots.spills`) reaches so
@@ -63,6 +63,7 @@ class _Round:
     failed: bool = False  # a capture of the round failed: every member leaves it
     assigned: dict[int, int | None] | None = None
     stays: int | None = None  # the member measured alone where it stands, the others gone
+    level: float | None = None  # frame 1's background b (imaging.spots.Excess)
     windows: list[tuple[int, int, int, int]] | None = None  # where each spot is looked for
     cells: list[tuple[int, int, int, int]] | None = None  # where each is measured (slots.py, Eq. 2)
 
@@ -257,7 +258,7 @@ class SharedCapture:
             self._leave(rnd, ticket)
         if label is not None:
             cyc.az, cyc.el = pose  # the measurement is frame 1's, at frame 1's pose
-            return rnd.frame1, partial(isolate, windows=rnd.windows, cell=rnd.cells[label])
+            return rnd.frame1, partial(isolate, windows=rnd.windows, cell=rnd.cells[label], level=rnd.level)
         if rnd.stays == ticket:
             return self._alone_here(cyc, pose), None
         cyc.az, cyc.el = pose
@@ -294,7 +295,9 @@ class SharedCapture:
                 reach = np.array([-r[0], r[0], -r[1], r[1]])
                 rnd.windows = [self.window(np.repeat(rnd.members[t][0], 2) + reach) for t in tickets]
                 rnd.cells = [self.window(self.layout.cells_m[self.gate.slot(t)]) for t in tickets]
-                hdr = [self.merge(fr) for fr in (rnd.frame1, rnd.frame2)]
+                # Each capture merged, smoothed and levelled once for the four uses below.
+                hdr = [excess(self.merge(fr), rnd.windows) for fr in (rnd.frame1, rnd.frame2)]
+                rnd.level = hdr[0].b
                 here = window_spots(hdr[0], rnd.windows)
                 there = window_spots(hdr[1], rnd.windows)
                 moved = here + window_shifts(hdr[0], hdr[1], rnd.cells, self._max_shift_px(), rnd.windows)

@@ -41,6 +41,8 @@ border (:func:`spills`): isolating it would cut it.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import cv2
 import numpy as np
 
@@ -63,11 +65,6 @@ def _outside(shape: tuple[int, int], windows) -> np.ndarray:
     return out
 
 
-def background(hdr: np.ndarray, windows) -> tuple[float, float]:
-    """(b, σ_b) of ``hdr`` outside every window (module docstring)."""
-    return _level(_smooth(np.asarray(hdr, np.float32)), windows)
-
-
 def _level(sm: np.ndarray, windows) -> tuple[float, float]:
     """(b, σ_b) of the smoothed image ``sm`` outside every window."""
     out = sm[_outside(sm.shape, windows)]
@@ -77,19 +74,32 @@ def _level(sm: np.ndarray, windows) -> tuple[float, float]:
     return b, max(1.4826 * float(np.median(np.abs(out - b))), 1e-9)
 
 
-def _excess(hdr: np.ndarray, windows) -> tuple[np.ndarray, np.ndarray, float, float]:
-    """``hdr`` as float32, its smoothed excess over the background, b and σ_b."""
+class Excess(NamedTuple):
+    """An image over its background (module docstring): ``img`` float32, ``sm`` its smoothed
+    excess over b, the background ``b`` and the noise σ_b. The functions below take it in place
+    of the image, so a round's captures are smoothed and levelled once."""
+
+    img: np.ndarray
+    sm: np.ndarray
+    b: float
+    noise: float
+
+
+def excess(hdr, windows) -> Excess:
+    """``hdr`` over its background outside every one of ``windows``; an Excess as it is."""
+    if isinstance(hdr, Excess):
+        return hdr
     img = np.asarray(hdr, np.float32)
     sm = _smooth(img)
     b, noise = _level(sm, windows)
     sm -= b
-    return img, sm, b, noise
+    return Excess(img, sm, b, noise)
 
 
-def window_spots(hdr: np.ndarray, windows) -> np.ndarray:
-    """The spot of each of the n ``windows`` (r0, r1, c0, c1): its (x, y) px, NaN when the
-    window holds none (module docstring): (n, 2)."""
-    img, sm, b, noise = _excess(hdr, windows)
+def window_spots(hdr, windows) -> np.ndarray:
+    """The spot of each of the n ``windows`` (r0, r1, c0, c1) of ``hdr`` (an image or its
+    :class:`Excess`): its (x, y) px, NaN when the window holds none (module docstring): (n, 2)."""
+    img, sm, b, noise = excess(hdr, windows)
     out = np.full((len(windows), 2), np.nan)
     for k, (r0, r1, c0, c1) in enumerate(windows):
         w, s = sm[r0:r1, c0:c1], img[r0:r1, c0:c1] - b
@@ -99,23 +109,21 @@ def window_spots(hdr: np.ndarray, windows) -> np.ndarray:
         if peak <= SNR * noise:
             continue
         keep = w > max(FLOOR * peak, 3.0 * noise)
-        e = np.where(keep, np.clip(s, 0.0, None), 0.0)
-        total = float(e.sum())
-        if total <= 0:
-            continue
-        rows, cols = np.indices(w.shape)
-        out[k] = (c0 + float((e * cols).sum()) / total, r0 + float((e * rows).sum()) / total)
+        c = _centroid(np.where(keep, np.clip(s, 0.0, None), 0.0))
+        if c is not None:
+            out[k] = (c0 + c[0], r0 + c[1])
     return out
 
 
-def spills(hdr: np.ndarray, windows, facing) -> np.ndarray:
+def spills(hdr, windows, facing) -> np.ndarray:
     """How far (px) the energy centroid in each window moves when the window loses a border band
     of ``BAND`` of its size on the sides ``facing`` another slot (n × 4 bools: first rows, last
     rows, first columns, last columns): ~0 for a spot inside its window, large for one that
     reaches past a side towards another spot, where its part beyond is flattened away when it
     is isolated (:func:`isolate`) and another spot's tail may lie. The excess over the
-    background above 3 σ_b is weighed (module docstring); NaN for a window without any."""
-    _, sm, _, noise = _excess(hdr, windows)
+    background above 3 σ_b is weighed (module docstring); NaN for a window without any.
+    ``hdr``: an image or its :class:`Excess`."""
+    _, sm, _, noise = excess(hdr, windows)
     out = np.full(len(windows), np.nan)
     for k, ((r0, r1, c0, c1), sides) in enumerate(zip(windows, facing, strict=True)):
         e = np.where(sm[r0:r1, c0:c1] > 3.0 * noise, sm[r0:r1, c0:c1], 0.0)
@@ -140,15 +148,12 @@ def _centroid(e: np.ndarray) -> np.ndarray | None:
     return np.array([(e * cols).sum(), (e * rows).sum()]) / total
 
 
-def window_shifts(first: np.ndarray, second: np.ndarray, regions, max_shift_px: int, windows) -> np.ndarray:
+def window_shifts(first, second, regions, max_shift_px: int, windows) -> np.ndarray:
     """How far the content of each of the n ``regions`` (r0, r1, c0, c1) moved from image
-    ``first`` to image ``second`` (module docstring; the background b is taken outside every
-    one of ``windows``): (n, 2) px (x, y), NaN where no shift up to ``max_shift_px`` registers
-    it (correlation below ``MIN_MATCH`` or its peak at the limit)."""
-    ims = []
-    for hdr in (first, second):
-        sm = _smooth(np.asarray(hdr, np.float32))
-        ims.append(sm - _level(sm, windows)[0])
+    ``first`` to image ``second`` (images or their :class:`Excess`; module docstring, the
+    background b taken outside every one of ``windows``): (n, 2) px (x, y), NaN where no shift
+    up to ``max_shift_px`` registers it (correlation below ``MIN_MATCH`` or its peak at the limit)."""
+    ims = [excess(hdr, windows).sm for hdr in (first, second)]
     out = np.full((len(regions), 2), np.nan)
     for k, (r0, r1, c0, c1) in enumerate(regions):
         f = max(1, -(-max(r1 - r0, c1 - c0) // MATCH_PX))
@@ -183,14 +188,14 @@ def _vertex(three: np.ndarray) -> float:
     return 0.0 if den >= 0 else 0.5 * (a - c) / den
 
 
-def isolate(hdr: np.ndarray, windows, cell) -> np.ndarray:
+def isolate(hdr: np.ndarray, windows, cell, level: float | None = None) -> np.ndarray:
     """``hdr`` with everything outside the rectangle ``cell`` (r0, r1, c0, c1) — a spot's own
     window, or the larger cell its slot was given (slots.py, Eq. 2) — replaced by the
-    background level b outside every one of ``windows``: the other spots and the faint tails
-    they spread beyond their windows, which an energy centroid without a threshold would
-    average in."""
+    background level b outside every one of ``windows`` (``level``: b when already known): the
+    other spots and the faint tails they spread beyond their windows, which an energy centroid
+    without a threshold would average in."""
     img = np.asarray(hdr, float)
-    b, _ = background(img, windows)
+    b = excess(hdr, windows).b if level is None else level
     out = np.full_like(img, b)
     r0, r1, c0, c1 = cell
     out[r0:r1, c0:c1] = img[r0:r1, c0:c1]
