@@ -223,6 +223,9 @@ class Calibration(_Model):
     beams_per_target: int = Field(default=1, ge=1, le=8,
                                   description="heliostats measured in one capture on a target, each at "
                                               "its own slot (lamps at night only, docs/campaigns.md)")
+    identity_settle_s: float = Field(default=0.1, ge=0, le=60,
+                                     description="settling time after the identity step of a shared capture "
+                                                 "(beams_per_target > 1), s; at most settle_s")
     tolerance_mrad: float = Field(default=0.5, gt=0, le=50)
     max_iterations: int = Field(default=4, ge=1, le=50)
     standby_offset_m: float = Field(default=15.0, gt=0, le=200,

@@ -4,7 +4,7 @@ with ``calibration.beams_per_target`` K > 1, up to K at once, each at its own sl
 from __future__ import annotations
 
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 
 class TargetGate:
@@ -12,18 +12,18 @@ class TargetGate:
 
     ``acquire(ticket)`` with K = 1 blocks until every smaller ticket acquired the target and
     released it (or was skipped): one beam at a time, in queue order. With ``beams`` K > 1
-    ticket t uses slot ``t mod K`` (:meth:`slot`), which only one beam holds at a time: it
-    waits only for ticket ``t − K`` of its slot to release it (and for no holder to be at that
-    slot, should t − K have been skipped), so a heliostat still slewing to
-    standby holds up its own slot, not the others. ``acquire_alone(ticket)``: for a heliostat
+    ticket t uses its slot (:meth:`slot`: ``slots[t]``, by default ``t mod K``), which only one
+    beam holds at a time: it waits only for the ticket before it at that slot to release it
+    (and for no holder to be at that slot, should that one have been skipped), so a heliostat
+    still slewing to standby holds up its own slot, not the others. ``acquire_alone(ticket)``: for a heliostat
     measured again alone (its spot could not be told from the others): waits until no other
     beam holds the target and keeps every other ticket off it until released; it goes before
     tickets not yet admitted.
-    A ticket in ``solo`` (no slot's pose suits its heliostat) is admitted only onto an empty
-    target and keeps every other ticket off it while it holds it.
-    ``together``: the first round's tickets (the first ``together``) are admitted only once each
-    of them waits at standby (or ended): their beams then go onto the target at the same time
-    instead of the first ones waiting there, their beams on it, for the last to come.
+    A ticket in ``solo`` (its slot None: no slot's pose suits its heliostat) is admitted only
+    onto an empty target and keeps every other ticket off it while it holds it.
+    ``together``: the first round's tickets (the first at each slot) are admitted only once
+    each of them waits at standby (or ended): their beams then go onto the target at the same
+    time instead of the first ones waiting there, their beams on it, for the last to come.
     ``held``: while True (a round's captures are being taken) no ticket is admitted, so no
     beam slews across the target during an exposure.
     ``vacate(ticket)`` (K > 1 only): the ticket's beam, on its way to standby, has left the
@@ -34,23 +34,29 @@ class TargetGate:
     gets the target again.
     """
 
-    def __init__(self, first_ticket: int = 0, beams: int = 1, together: int = 0) -> None:
+    def __init__(self, beams: int = 1, together: bool = False, slots: Sequence[int | None] = ()) -> None:
         if beams < 1:
             raise ValueError(f"beams per target must be at least 1, got {beams}")
         self.beams = beams
         self.cv = threading.Condition()
-        self._next = first_ticket  # the next ticket to admit, in queue order
-        self._first = first_ticket
+        self._next = 0  # the next ticket to admit, in queue order
         self._done: set[int] = set()
         self.holders: set[int] = set()
         self.alone: int | None = None  # the ticket measured alone now
         self._alone_waiting: set[int] = set()
         self.waiting: set[int] = set()  # tickets blocked in acquire
-        self.solo: set[int] = set()  # tickets that take the target alone (no slot fits them)
+        self.solo = {t for t, s in enumerate(slots) if s is None}  # no slot fits them: the target alone
+        self._slots = list(slots)
+        self._before: dict[int, int] = {}  # ticket -> the ticket before it at its slot (−1: none)
+        last: dict[int, int] = {}
+        for t, s in enumerate(self._slots):
+            if s is not None:
+                self._before[t], last[s] = last.get(s, -1), t
         self.held = False
         self.blocked = False
         self._vacated: set[int] = set()
-        self._together = range(first_ticket, first_ticket + together)
+        first = [t for t, b in self._before.items() if b < 0] if self._slots else range(beams)
+        self._together = set(first) if together else set()
 
     @property
     def holder(self) -> int | None:
@@ -59,7 +65,8 @@ class TargetGate:
 
     def slot(self, ticket: int) -> int:
         """The slot (0 … K − 1) of ``ticket``: its aim point on the target."""
-        return (ticket - self._first) % self.beams
+        s = self._slots[ticket] if ticket < len(self._slots) else None
+        return ticket % self.beams if s is None else s
 
     def admissible(self, ticket: int) -> bool:
         """Could ``ticket`` take the target now (the caller holds ``cv``)?"""
@@ -71,10 +78,10 @@ class TargetGate:
             return False
         if ticket in self.solo:  # its capture is taken as it arrives: every other beam parked
             return not self.holders and not self.leaving
-        before = ticket - self.beams
+        before = self._before.get(ticket, ticket - self.beams)
         return ((self.beams > 1 or self._next == ticket) and len(self.holders) < self.beams
-                and (before < self._first or before in self._done or before in self._vacated)
-                # t − K may have been skipped or taken the target solo while t − 2K still holds it
+                and (before < 0 or before in self._done or before in self._vacated)
+                # the one before may have been skipped while the one before it still holds the slot
                 and all(self.slot(h) != self.slot(ticket) for h in self.holders))
 
     @property

@@ -18,11 +18,9 @@ meet at a *round* (:meth:`SharedCapture.capture`, called by each one's cycle in 
 4. a heliostat whose spot is missing or ambiguous, or reaches so far towards another slot
    that isolating it would cut it (its window's energy centroid moves more than ``SPILL_M``
    without the border band on those sides, :func:`controller.imaging.spots.spills`), is
-   **measured again alone**: it parks at
-   standby, gives its slot back, waits until no other beam is on the target
-   (:meth:`TargetGate.acquire_alone`, no newcomer admitted meanwhile), approaches its pose
-   again and is captured with its beam the only one. A measurement is never taken from a
-   spot whose identity was not confirmed.
+   **measured again alone** (:meth:`TargetGate.acquire_alone`, no newcomer admitted meanwhile):
+   the first stays while the others park, any further one parks and comes back. A
+   measurement is never taken from a spot whose identity was not confirmed.
 
 Corrections (a calibration campaign) repeat this per measurement with the other beams in place.
 """
@@ -46,9 +44,10 @@ from controller.imaging.spots import confirm_by_step, excess, isolate, spills, w
 # A spot whose window's energy centroid moves more than this when the window loses its border
 # band on the sides facing another slot (:func:`controller.imaging.spots.spills`) reaches so
 # far towards another spot that isolating it could bias its centroid by as much — ≈ 1 mrad at
-# 100 m, the size of the errors a night measures: it is measured alone. Smaller spills (a
-# streaked spot's tail) are kept: measuring them alone cost a quarter of the shared captures'
-# gain without a better daytime error (docs/campaigns.md).
+# 100 m, the size of the errors a night measures: it is measured alone. Only what the
+# measurement's centroid weighs counts (above its threshold); smaller spills (a streaked spot's
+# tail) are kept: measuring them alone cost a quarter of the shared captures' gain without a
+# better daytime error (docs/campaigns.md).
 SPILL_M = 0.1
 
 
@@ -120,19 +119,34 @@ class SharedCapture:
     """The rounds of one target's campaign (module docstring). ``capture()`` takes one frame
     pair from the target's camera (serialised by the campaign), ``merge`` makes its HDR image,
     ``frame`` maps pixels to the target (:class:`controller.geometry.target_frame.TargetFrame`),
-    ``layout`` the slots (:class:`controller.calibration.slots.SlotLayout`)."""
+    ``layout`` the slots (:class:`controller.calibration.slots.SlotLayout`); ``step_settle_s``:
+    the settling time after the identity step (``calibration.identity_settle_s``); ``floor``:
+    the measurement's centroid threshold (``calibration.centroid_threshold``, :data:`SPILL_M`)."""
 
-    def __init__(self, gate, capture, merge, frame, layout) -> None:
+    def __init__(self, gate, capture, merge, frame, layout, step_settle_s: float, floor: float) -> None:
         self.gate = gate
         self.layout = layout
         self._capture = capture
-        self.merge = merge
+        self._merge = merge
+        self._merged: tuple[Any, np.ndarray] | None = None  # the last frame merged and its HDR image
         self.frame = frame
+        self.step_settle_s = step_settle_s
+        self.floor = floor
         self._round: _Round | None = None
         self._ready: set[int] = set()
         self._lock = threading.Lock()  # the round's identification, computed once
         self.rounds = 0
         self.alone: list[str] = []  # heliostats measured again alone (ambiguous or missing spot)
+
+    def merge(self, frame) -> np.ndarray:
+        """``frame``'s HDR image: a round's frame 1, merged to tell its spots apart, is not merged
+        again for each of its members (the cycles' ``merge``)."""
+        last = self._merged
+        if last is not None and last[0] is frame:
+            return last[1]
+        hdr = self._merge(frame)
+        self._merged = (frame, hdr)
+        return hdr
 
     # -- geometry -------------------------------------------------------------------------------
     def uv(self, enu) -> np.ndarray:
@@ -172,6 +186,23 @@ class SharedCapture:
         """:func:`identity_step` of ``cyc``'s heliostat at its present pose and slot."""
         return identity_step(cyc.ctx.pointing, (cyc.az, cyc.el), self.gate.slot(cyc._ticket), self.gate.beams,
                              self.frame)
+
+    def leave_pose(self, cyc) -> tuple[int, int]:
+        """Where ``cyc``'s heliostat parks after its measurement: the standby point on its slot's
+        side of the target (:meth:`GeometryPointing.leave_steps`), so that its beam leaves the
+        target the short way and the slot goes on sooner (:meth:`hand_over`) — if the slew there
+        from where it stands keeps the beam off the other targets and out of the person zones
+        (``BeamSafety.path_to``); else its standby point, whose slews were checked before it
+        took the slot (:func:`slot_parks`)."""
+        p = cyc.ctx.pointing
+        if cyc.at is None:
+            return cyc.standby
+        try:
+            pose = p.leave_steps(cyc.ctx.model)
+            p.path_to(cyc.at, pose)
+        except (HeliocalError, ValueError):
+            return cyc.standby
+        return pose
 
     def hand_over(self, cyc):
         """A drive watch for ``cyc``'s park after its measurement: its slot goes to the next
@@ -240,7 +271,8 @@ class SharedCapture:
             if cancelled():
                 raise _Left
             cyc._move("capturing", pose[0] + step[0], pose[1] + step[1])
-            cyc._wait("capturing", cyc.ctx.settle_s)
+            # Frame 2 only tells which spot moved, to a few cm (Eq. 1), and is never measured.
+            cyc._wait("capturing", min(self.step_settle_s, cyc.ctx.settle_s))
         except BaseException:
             if leader and rnd.frame1 is None:
                 rnd.failed = True
@@ -293,14 +325,14 @@ class SharedCapture:
                 tickets = sorted(t for t, v in rnd.members.items() if v is not None)
                 r = np.asarray(self.layout.reach_m, float) + IDENTITY_STEP_M
                 reach = np.array([-r[0], r[0], -r[1], r[1]])
-                rnd.windows = [self.window(np.repeat(rnd.members[t][0], 2) + reach) for t in tickets]
+                rnd.windows = win = [self.window(np.repeat(rnd.members[t][0], 2) + reach) for t in tickets]
                 rnd.cells = [self.window(self.layout.cells_m[self.gate.slot(t)]) for t in tickets]
-                # Each capture merged, smoothed and levelled once for the four uses below.
-                hdr = [excess(self.merge(fr), rnd.windows) for fr in (rnd.frame1, rnd.frame2)]
+                # Each capture merged, smoothed and levelled once for the four uses below (frame
+                # 1's HDR image kept for the members' own analysis, merge).
+                hdr = [excess(self.merge(rnd.frame1), win), excess(self._merge(rnd.frame2), win)]
                 rnd.level = hdr[0].b
-                here = window_spots(hdr[0], rnd.windows)
-                there = window_spots(hdr[1], rnd.windows)
-                moved = here + window_shifts(hdr[0], hdr[1], rnd.cells, self._max_shift_px(), rnd.windows)
+                here, there = window_spots(hdr[0], win), window_spots(hdr[1], win)
+                moved = here + window_shifts(hdr[0], hdr[1], rnd.cells, self._max_shift_px(), win)
                 moved[~np.isfinite(there).all(axis=1)] = np.nan  # a spot in both captures
                 first, second = (np.array([self.uv(self.frame.pixel_to_enu(x, y)) if np.isfinite(x + y)
                                            else (np.nan, np.nan) for x, y in px]).reshape(-1, 2)
@@ -308,7 +340,7 @@ class SharedCapture:
                 steps = np.array([rnd.members[t][1] for t in tickets])
                 ok = confirm_by_step(first, second, steps)
                 facing = [self._facing(t) for t in tickets]
-                spill = spills(hdr[0], rnd.windows, facing) * self._pixel_m()
+                spill = spills(hdr[0], win, facing, self.floor) * self._pixel_m()
                 ok = [a and bool(b <= SPILL_M) for a, b in zip(ok, spill, strict=True)]
                 rnd.assigned = {t: (k if ok[k] else None) for k, t in enumerate(tickets)}
                 with self.gate.cv:  # the first to be measured alone stays; no newcomer before it

@@ -129,8 +129,7 @@ class CalibrationCycle:
         self.iteration = 0
         self.az = self.el = 0
         self.at: tuple[int, int] | None = None  # where the last move ended (None: not known)
-        self.aim = (0, 0)
-        self.standby = (0, 0)
+        self.aim = self.standby = (0, 0)
         self.beam_on_target = False
         self.holds_target = False
         self.measured = False
@@ -238,8 +237,7 @@ class CalibrationCycle:
                                        cancelled=lambda: self.state != state, watch=watch)
         except MoveCancelled:
             raise Cancelled(state) from None
-        self.az, self.el = st.az_steps, st.el_steps
-        self.at = (st.az_steps, st.el_steps)
+        self.az, self.el = self.at = st.az_steps, st.el_steps
 
     def do_preparing(self) -> str:
         p = self.ctx.pointing
@@ -258,6 +256,8 @@ class CalibrationCycle:
     def do_standby(self) -> str:
         if self.measured or self.cause:
             if self.beam_on_target:
+                if self.ctx.group:  # several beams: off the target the short way (group.py)
+                    self.standby = self.ctx.group.leave_pose(self)
                 self._park("standby", self.ctx.group and self.ctx.group.hand_over(self))
                 self.beam_on_target = False
                 self.run_rec.off_target_s = self.ctx.time.now()

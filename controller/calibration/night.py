@@ -151,6 +151,7 @@ class PlannedNight:
         self.lamps: dict[str, dict] = {}
         self.changes: list[LampChange] = []
         self.measured: set[str] = set()  # "<pass>/<heliostat>" measured tonight
+        self.alone: set[str] = set()  # heliostats whose spot had to be measured alone tonight (K > 1)
         self.state: dict = {"pass": None, "lamp": None, "daytime_error_predicted_rms": None}
 
     # -- control from another thread (Ctrl-C's path, the console) -----------------------------------
@@ -240,8 +241,10 @@ class PlannedNight:
         self.state["pass"] = p.name
         self.progress(f"{p.name}: {len(p.aims)} heliostat(s) under {p.lamp}"
                       + (f" on {p.target}" if p.target else ""))
+        with self._lock:  # with several beams, a spot measured alone before goes last (runner.py)
+            last = tuple(sorted(self.alone & p.aims.keys()))
         r = self._campaign(CampaignOptions(name=p.name, light_source=p.lamp, aims=p.aims, observe=True,
-                                           target=p.target), list(p.aims))
+                                           target=p.target, queue_last=last), list(p.aims))
         with self._lock:
             self.measured |= {f"{p.name}/{run.heliostat_id}" for run in r.runs if run.status == "measured"}
         if self._watched:
@@ -274,6 +277,7 @@ class PlannedNight:
                 self._live.discard(c)
         with self._lock:
             self.results.append(r)
+            self.alone |= set(c.group.alone if c.group is not None else ())
         if c.lamp is not None and c.lamp.lamp not in self.lamps:
             self.lamps[c.lamp.lamp] = c.lamp.to_json()
         return r

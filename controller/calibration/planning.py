@@ -17,21 +17,43 @@ def slew_time_s(steps: float, speed: float, accel: float) -> float:
     return 2 * math.sqrt(d / accel) if d < ramp else d / speed + speed / accel
 
 
+def _slew_s(cfg: PlantConfig, hid: str, start: tuple[int, int], end: tuple[int, int]) -> float:
+    """The slower axis's :func:`slew_time_s` from ``start`` to ``end`` (motor steps), s."""
+    a, e = cfg.heliostat(hid).axes.azimuth, cfg.heliostat(hid).axes.elevation
+    return max(slew_time_s(end[0] - start[0], a.speed_steps_per_s, a.acceleration_steps_per_s2),
+               slew_time_s(end[1] - start[1], e.speed_steps_per_s, e.acceleration_steps_per_s2))
+
+
 def order_queue(cfg: PlantConfig, ids: list[str], current: dict[str, tuple[int, int]],
-                pointing: dict[str, GeometryPointing]) -> list[str]:
+                pointing: dict[str, GeometryPointing], beams: int = 1, last: tuple[str, ...] = ()
+                ) -> list[str]:
     """Heliostats by estimated slew time from ``current`` steps to standby, shortest first
-    (ties by id, so the order is reproducible)."""
-    def t(hid: str) -> float:
-        h = cfg.heliostat(hid)
+    (ties by id, so the order is reproducible).
+
+    With ``beams`` K > 1 the first K (the first round, whose beams go onto the target together)
+    stay so; the others follow by their slew between standby and aim point, longest first. A
+    round waits for its slowest beam to arrive and to leave, so heliostats of like slews share a
+    round, and the last round — often one beam, alone on the target — is the quickest. ``last``
+    (K > 1): queued last even so, the heliostats whose spot had to be measured again alone
+    earlier (a large or split spot): a pass's last round is often one beam, measured alone
+    anyway."""
+    def standby(hid: str) -> float:
         p = pointing[hid]
         try:
-            saz, sel = p.standby_steps(p.model)
+            s = p.standby_steps(p.model)
         except (LimitError, ValueError, UnsafePath):  # no standby: put it last, its cycle will report why
             return math.inf
-        az, el = current.get(hid, (saz, sel))
-        ax = h.axes
-        a, e = ax.azimuth, ax.elevation
-        return max(slew_time_s(saz - az, a.speed_steps_per_s, a.acceleration_steps_per_s2),
-                   slew_time_s(sel - el, e.speed_steps_per_s, e.acceleration_steps_per_s2))
+        return _slew_s(cfg, hid, current.get(hid, s), s)
 
-    return sorted(ids, key=lambda h: (t(h), h))
+    def approach(hid: str) -> float:
+        p = pointing[hid]
+        try:
+            return _slew_s(cfg, hid, p.standby_steps(p.model), p.aim_steps(p.model))
+        except (LimitError, ValueError, UnsafePath):
+            return -math.inf
+
+    queue = sorted(ids, key=lambda h: (standby(h), h))
+    if beams > 1:
+        queue[beams:] = sorted(queue[beams:], key=lambda h: (-approach(h), h))
+        queue = [h for h in queue if h not in last] + [h for h in queue if h in last]
+    return queue

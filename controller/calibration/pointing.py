@@ -139,14 +139,26 @@ class GeometryPointing(BeamSafety):
                                      f"the beam into person zone {zone!r}")
         return aim
 
-    def standby_steps(self, model: ModelRecord | None) -> tuple[int, int]:
-        """Steps onto the standby point; UnsafePath when the beam there would enter a person zone."""
-        standby = self._steps(self.standby_point, model)
+    def standby_steps(self, model: ModelRecord | None, point=None) -> tuple[int, int]:
+        """Steps onto the standby point (or ``point``, m ENU); UnsafePath when the beam there
+        would enter a person zone."""
+        standby = self._steps(self.standby_point if point is None else point, model)
         zone = self.beam_in_zone(*standby)
         if zone is not None:
             raise UnsafePath(f"{self.heliostat.id}: the standby pose {standby} would send the beam into "
                              f"person zone {zone!r}")
         return standby
+
+    def leave_steps(self, model: ModelRecord | None) -> tuple[int, int]:
+        """Steps onto the standby point on the side of the target nearest the aim point (the
+        same offset from it, :attr:`standby_offset_m`): the standby point itself when the aim is
+        on the target's centre line. LimitError, ValueError or UnsafePath (a person zone) when
+        it cannot be reached safely."""
+        off = float((self.aim_point - self.frame.center) @ self.frame.u)
+        if off == 0.0:
+            return self.standby_steps(model)
+        offset = math.copysign(self.standby_offset_m, off)
+        return self.standby_steps(model, self.aim_point + offset * self.frame.u)
 
     def fine_correction(self, az_steps: int, el_steps: int, offset_enu: np.ndarray) -> Step:
         c = correction_from_offset(self.kin, az_steps, el_steps, self.source_dir, None, self.target,

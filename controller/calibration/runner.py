@@ -10,7 +10,8 @@ plant is simulated. What happens is told to :class:`CampaignObserver` s: a termi
 bar, a web console, or a simulation harness that keeps its own truth.
 
 * **Queue** (:func:`controller.calibration.planning.order_queue`): heliostats sorted by their
-  estimated slew time to their standby point, shortest first. The queue is stored with the
+  estimated slew time to their standby point, shortest first (with K beams per target, after
+  the first K, by their slew onto the target, longest first). The queue is stored with the
   campaign, so a resumed run keeps it.
 * **Pipeline**: up to ``pipeline_depth`` heliostats (K times as many with K beams per target)
   run their cycle at once. Each slews to its
@@ -56,7 +57,7 @@ from controller.calibration.records import (
     RunRecord,
 )
 from controller.calibration.registration_step import register_chain
-from controller.calibration.slots import slot_layout, spot_reach_m
+from controller.calibration.slots import assign_slots, slot_layout, spot_reach_m
 from controller.config import PlantConfig
 from controller.devices.drive import DriveError
 from controller.errors import InputError
@@ -102,6 +103,7 @@ class CampaignOptions:
     aims: dict[str, tuple[float, float, float]] | None = None  # per-heliostat aim point (planned night)
     observe: bool = False  # planned observations: one measurement each, no correction
     target: str | None = None  # the target of this campaign
+    queue_last: tuple[str, ...] = ()  # with several beams: queued last (planning.order_queue)
 
     def resolved(self, cfg: PlantConfig) -> CampaignOptions:
         """These options with every default taken from ``cfg``."""
@@ -208,8 +210,9 @@ class Campaign:
                 layout = slot_layout(self.chain.frame, beams, reach, cal.planner.view_margin_m)
                 self.slots = layout if layout.k > 1 else None
             existing = self.store.campaign_by_name(self.opt.name)
+            k = 1 if self.slots is None else self.slots.k
             queue = existing.queue if existing is not None else order_queue(self.cfg, self.ids, current,
-                                                                            pointing)
+                                                                            pointing, k, self.opt.queue_last)
         site = self.cfg.site
         self.meta.setdefault("site", [site.latitude_deg, site.longitude_deg, site.elevation_m])
         self.meta.setdefault("target_normal", list(target.normal))
@@ -247,20 +250,27 @@ class Campaign:
                  pointing: dict[str, GeometryPointing]) -> CampaignResult:
         done = self.store.done_heliostats(cid)
         todo = [(i, hid) for i, hid in enumerate(queue) if hid not in done]
-        beams = 1 if self.slots is None else self.slots.k
-        gate = TargetGate(beams=beams, together=min(beams, len(todo)) if beams > 1 else 0)
+        gate = TargetGate()
         self.group = None
         if self.slots is not None:
-            # Each heliostat at its ticket's slot; one capture for all beams, identity by a step.
+            # Each heliostat at a slot that suits it; one capture for all beams, identity by a step.
+            at_slot: dict[tuple[int, int], GeometryPointing] = {}
+
+            def fits(ticket: int, slot: int) -> bool:
+                hid = todo[ticket][1]
+                at_slot[ticket, slot] = self._pointing_at(hid, self.slots.aim(slot))
+                return slot_parks(at_slot[ticket, slot], slot, self.slots.k, self.chain.frame,
+                                  self._current.get(hid))
+
             with self.time.computing():
-                for ticket, (_, hid) in enumerate(todo):
-                    slot = gate.slot(ticket)
-                    at_slot = self._pointing_at(hid, self.slots.aim(slot))
-                    if slot_parks(at_slot, slot, self.slots.k, self.chain.frame, self._current.get(hid)):
-                        pointing[hid] = at_slot
-                    else:  # its planned aim, the target to itself (module docstring of group)
-                        gate.solo.add(ticket)
-            self.group = SharedCapture(gate, self._capture, self.chain.merge, self.chain.frame, self.slots)
+                slots = assign_slots(len(todo), self.slots.k, fits)
+            for ticket, slot in enumerate(slots):
+                if slot is not None:  # else its planned aim, the target to itself (group.py)
+                    pointing[todo[ticket][1]] = at_slot[ticket, slot]
+            gate = TargetGate(self.slots.k, together=True, slots=slots)
+            cal = self.cfg.calibration
+            self.group = SharedCapture(gate, self._capture, self.chain.merge, self.chain.frame, self.slots,
+                                       cal.identity_settle_s, cal.centroid_threshold)
         t0 = self.time.now()
         session: list[RunRecord] = []
         cycles = self._cycles
@@ -337,7 +347,8 @@ class Campaign:
         return CycleContext(
             heliostat_id=hid, queue_index=qi, ticket=ticket, drive=self.drive(hid),
             camera=_CameraView(self._capture), pointing=pointing,
-            merge=chain.merge, analyze=functools.partial(chain.analyze, allow_clipped=True),
+            merge=chain.merge if self.group is None else self.group.merge,  # a round's frame merged once
+            analyze=functools.partial(chain.analyze, allow_clipped=True),
             match=chain.match, gate=gate,
             model=self.store.latest_model(hid), history=self.store.measurements(heliostat_id=hid),
             tolerance_mrad=cal.tolerance_mrad, max_iterations=1 if self.opt.observe else cal.max_iterations,

@@ -32,6 +32,7 @@ view's edge.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -113,3 +114,21 @@ def slot_layout(frame: TargetFrame, k: int, reach_m, margin_m: float, step_m: fl
             aims = frame.center + offsets[:, :1] * frame.u + offsets[:, 1:] * frame.v
             return SlotLayout(offsets, aims, np.asarray(reach_m, float), cells)
     raise AssertionError("unreachable: one slot always fits")
+
+
+def assign_slots(n: int, k: int, fits: Callable[[int, int], bool]) -> list[int | None]:
+    """The slot of each of ``n`` tickets in queue order (None: no slot fits it, it takes the
+    target alone), ``fits(ticket, slot)`` telling whether a slot's pose suits the ticket's
+    heliostat (:func:`controller.calibration.group.slot_parks`). Each ticket takes, of the
+    slots that fit it, the one left longest ago: tickets that every slot fits get 0, 1, …,
+    K − 1, 0, 1, … (ticket t waits for t − K, the rounds stay full), and a heliostat that one
+    slot does not suit takes the next instead of the target to itself, the ticket after it
+    taking the slot it skipped. ``fits`` is asked in that order and no further than needed."""
+    last = dict.fromkeys(range(k), -1)
+    out: list[int | None] = []
+    for t in range(n):
+        slot = next((s for s in sorted(last, key=lambda s: (last[s], s)) if fits(t, s)), None)
+        if slot is not None:
+            last[slot] = t
+        out.append(slot)
+    return out

@@ -115,18 +115,21 @@ def window_spots(hdr, windows) -> np.ndarray:
     return out
 
 
-def spills(hdr, windows, facing) -> np.ndarray:
+def spills(hdr, windows, facing, floor: float = 0.0) -> np.ndarray:
     """How far (px) the energy centroid in each window moves when the window loses a border band
     of ``BAND`` of its size on the sides ``facing`` another slot (n × 4 bools: first rows, last
     rows, first columns, last columns): ~0 for a spot inside its window, large for one that
     reaches past a side towards another spot, where its part beyond is flattened away when it
     is isolated (:func:`isolate`) and another spot's tail may lie. The excess over the
-    background above 3 σ_b is weighed (module docstring); NaN for a window without any.
-    ``hdr``: an image or its :class:`Excess`."""
+    background above 3 σ_b and above ``floor`` times the window's peak is weighed (module
+    docstring): with ``floor`` the measurement's centroid threshold
+    (:func:`controller.imaging.centroid.energy_centroid`), a tail too faint to weigh in the
+    centroid does not count. NaN for a window without any. ``hdr``: an image or its :class:`Excess`."""
     _, sm, _, noise = excess(hdr, windows)
     out = np.full(len(windows), np.nan)
     for k, ((r0, r1, c0, c1), sides) in enumerate(zip(windows, facing, strict=True)):
-        e = np.where(sm[r0:r1, c0:c1] > 3.0 * noise, sm[r0:r1, c0:c1], 0.0)
+        w = sm[r0:r1, c0:c1]
+        e = np.where(w > max(3.0 * noise, floor * float(w.max(initial=0.0))), w, 0.0)
         h, w = e.shape
         br, bc = max(1, round(BAND * h)), max(1, round(BAND * w))
         top, bottom, left, right = (bool(x) for x in sides)

@@ -93,6 +93,26 @@ def test_queue_shortest_slew_first(cfg):
     assert order_queue(cfg, ids, current, pts)[-1] == "H02"
 
 
+def test_with_several_beams_the_queue_groups_like_slews_and_ends_with_the_quickest(cfg):
+    ids = [h.id for h in cfg.heliostats]
+    pts = {h: _pointing(cfg, h, (500, 500)) for h in ids}
+    current = {h: (500 + 40 * i, 500) for i, h in enumerate(ids)}
+    one, four = order_queue(cfg, ids, current, pts), order_queue(cfg, ids, current, pts, beams=4)
+    assert sorted(four) == sorted(ids) and four[:4] == one[:4]  # the first round: the first at standby
+
+    def onto_target(hid):  # standby to aim point, the slower axis (trapezoid, as test_slew_time)
+        p, ax = pts[hid], cfg.heliostat(hid).axes
+        d = np.abs(np.subtract(p.aim_steps(None), p.standby_steps(None)))
+        return max(slew_time_s(d[0], ax.azimuth.speed_steps_per_s, ax.azimuth.acceleration_steps_per_s2),
+                   slew_time_s(d[1], ax.elevation.speed_steps_per_s, ax.elevation.acceleration_steps_per_s2))
+
+    rest = [onto_target(h) for h in four[4:]]
+    assert rest == sorted(rest, reverse=True) and rest[0] > rest[-1]
+    # A heliostat measured alone earlier tonight goes last, where a pass's lone beam is.
+    late = order_queue(cfg, ids, current, pts, beams=4, last=(four[1],))
+    assert late[-1] == four[1] and late[:-1] == [h for h in four if h != four[1]]
+
+
 def test_beam_chain_matches_with_a_multi_threshold_library(small_config):
     """The default ``library build`` features (``multi-hu``) need Hu moments at several
     thresholds: the chain's observation carries what its library matches on."""
@@ -114,3 +134,23 @@ def test_beam_chain_matches_with_a_multi_threshold_library(small_config):
     assert obs.hu.size == 7 * len(lib.thresholds) > 7
     m = chain.match(obs)
     assert m is not None and m.label == "wide"
+
+
+@pytest.mark.parametrize("side", [1.0, -1.0])
+def test_a_beam_measured_beside_the_centre_parks_on_that_side(cfg, side):
+    """Several beams per target: a heliostat measured at a slot off the centre parks on the
+    slot's side, whichever side it waited on, its standby offset from the slot."""
+    from controller.geometry.spot import hit_uv
+
+    frame = TargetFrame.from_config(cfg.target(), (768, 1024))
+    aim = np.asarray(cfg.target().center_enu_m, float) + side * 2.0 * frame.u
+    h, target, lamp = cfg.heliostat("H04"), cfg.target(), cfg.light_source()
+    p = GeometryPointing(h, target, lamp, frame, 8.0, None, aim_point=aim)
+    leave = p.leave_steps(None)
+    c, b = p.rays([leave])
+    u, _ = hit_uv(c, b, frame.center, frame.normal, frame.u, frame.v)[0]
+    assert u == pytest.approx(side * (2.0 + p.standby_offset_m), abs=0.05)
+    assert not p.beam_on_target(*leave, margin_m=0.0)
+    assert p.path_to(p.aim_steps(None), leave)[-1] == leave  # off the target the short way, never back
+    centre = GeometryPointing(h, target, lamp, frame, 8.0, None)
+    assert centre.leave_steps(None) == centre.standby_steps(None)  # on the centre line: its standby
