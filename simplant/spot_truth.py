@@ -9,7 +9,8 @@ The fault :meth:`SpotTruth.swap` exchanges two heliostats' spots while both beam
 each lands where the other's was when they first met (a frozen offset, so each spot still
 moves with its own heliostat's steps) — what two heliostats pointing far off, each onto the
 other's slot, would look like. Its truth follows the light: the spot made by a is recorded
-as a's, where it lands.
+as a's, where it lands. The fault :meth:`SpotTruth.stray` moves only one of the two, where the
+other's was when they first met: a heliostat pointing far off, towards another's slot.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ class SpotTruth:
         self.log: deque[dict[str, np.ndarray]] = deque(maxlen=keep)
         self.pair: tuple[str, str] | None = None
         self._offsets: dict[str, np.ndarray] | None = None
+        self._both = True  # swap: both spots move; stray: only the first
         self._lock = threading.Lock()
         self.misassigned_count = 0
         self.checked = 0
@@ -33,7 +35,13 @@ class SpotTruth:
     def swap(self, a: str, b: str) -> None:
         """Exchange the spots of ``a`` and ``b`` whenever both beams are in view (module docstring)."""
         with self._lock:
-            self.pair, self._offsets = (a, b), None
+            self.pair, self._offsets, self._both = (a, b), None, True
+
+    def stray(self, a: str, onto: str) -> None:
+        """Move ``a``'s spot where ``onto``'s was when both beams were first in view, whenever
+        both are (a frozen offset, as :meth:`swap`); ``onto``'s spot stays where it is."""
+        with self._lock:
+            self.pair, self._offsets, self._both = (a, onto), None, False
 
     def shifts(self, rels: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         """Offsets (m ENU) of the swapped spots for this render (empty when the fault is off or
@@ -44,7 +52,9 @@ class SpotTruth:
                 return {}
             if self._offsets is None:
                 a, b = self.pair
-                self._offsets = {a: rels[b] - rels[a], b: rels[a] - rels[b]}
+                self._offsets = {a: rels[b] - rels[a]}
+                if self._both:
+                    self._offsets[b] = rels[a] - rels[b]
             return dict(self._offsets)
 
     @staticmethod

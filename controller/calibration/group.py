@@ -15,9 +15,9 @@ meet at a *round* (:meth:`SharedCapture.capture`, called by each one's cycle in 
    (:func:`controller.imaging.spots.window_shifts`,
    :func:`controller.imaging.spots.confirm_by_step`). Its measurement is frame 1 with
    everything outside its cell replaced by the background, at the pose of frame 1;
-4. a heliostat whose spot is missing or ambiguous, or reaches so far towards another slot
-   that isolating it would cut it (its window's energy centroid moves more than ``SPILL_M``
-   without the border band on those sides, :func:`controller.imaging.spots.spills`), is
+4. a heliostat whose spot is missing or ambiguous (every one, if a spot of the round is missing
+   in frame 1), or reaches so far towards another slot that isolating it would cut it (its
+   window's centroid moves more than ``SPILL_M`` without its border band there, ``spills``), is
    **measured again alone** (:meth:`TargetGate.acquire_alone`, no newcomer admitted meanwhile):
    the first stays while the others park, any further one parks and comes back. A
    measurement is never taken from a spot whose identity was not confirmed.
@@ -36,10 +36,10 @@ from typing import Any
 import numpy as np
 
 from controller.calibration.approach import approach_path
+from controller.calibration.identity import identity_step
 from controller.calibration.slots import IDENTITY_STEP_M
 from controller.errors import HeliocalError
-from controller.geometry.spot import hit_uv
-from controller.imaging.spots import confirm_by_step, excess, isolate, spills, window_shifts, window_spots
+from controller.imaging import spots
 
 # A spot whose window's energy centroid moves more than this when the window loses its border
 # band on the sides facing another slot (:func:`controller.imaging.spots.spills`) reaches so
@@ -49,6 +49,11 @@ from controller.imaging.spots import confirm_by_step, excess, isolate, spills, w
 # tail) are kept: measuring them alone cost a quarter of the shared captures' gain without a
 # better daytime error (docs/campaigns.md).
 SPILL_M = 0.1
+# The energy a cell's measurement weighs must move with its heliostat's step: a spot cut by its
+# cell moves less than the step, not across it (≤ 0.04 m on the simulated plant's nights); energy
+# moving with another step — another heliostat's spot on this one — pulls it across (0.155 m,
+# tests/calibration/test_beams_sim.py).
+ACROSS_M = IDENTITY_STEP_M / 4
 
 
 @dataclass
@@ -65,33 +70,6 @@ class _Round:
     level: float | None = None  # frame 1's background b (imaging.spots.Excess)
     windows: list[tuple[int, int, int, int]] | None = None  # where each spot is looked for
     cells: list[tuple[int, int, int, int]] | None = None  # where each is measured (slots.py, Eq. 2)
-
-
-def identity_step(pointing, pose: tuple[int, int], slot: int, k: int, frame
-                  ) -> tuple[tuple[int, int], np.ndarray]:
-    """The known step of a heliostat at ``pose`` (motor steps, both ≥ 0: the approach ended
-    moving up on both axes, so the step takes up no backlash) holding ``slot`` of ``k``, and
-    its spot's predicted displacement (u, v) m on ``frame``: steps ∝ (cos θ / |∂uv/∂az|,
-    sin θ / |∂uv/∂el|), θ = 90° · slot / (K − 1) — each axis counted in metres of spot motion, so
-    the K displacements spread evenly from the azimuth's direction on the target to the
-    elevation's whatever the axes' gearing (the tolerance of Eq. 1 is half the closest pair's
-    distance) — scaled to move the spot about IDENTITY_STEP_M. The displacement is the
-    reflected central ray's hit point on the target plane (:func:`controller.geometry.spot.hit_uv`)
-    traced with the heliostat's model (``pointing.rays``) after the step minus before it."""
-    base = np.array(pose, float)
-
-    def moved(steps) -> np.ndarray:  # (n, 2) steps -> (n, 2) m of (u, v)
-        c, b = pointing.rays(base + np.asarray(steps, float))
-        uv = hit_uv(c, b, frame.center, frame.normal, frame.u, frame.v)
-        return uv[1:] - uv[:1]
-
-    probe = 1000.0
-    per_step = moved([(0, 0), (probe, 0), (0, probe)]).T / probe  # m of (u, v) per step
-    theta = 0.5 * math.pi * slot / max(k - 1, 1)
-    want = np.array([math.cos(theta), math.sin(theta)]) / np.maximum(np.linalg.norm(per_step, axis=0), 1e-12)
-    scale = IDENTITY_STEP_M / max(float(np.linalg.norm(per_step @ want)), 1e-12)
-    step = np.rint(want * scale).astype(int)
-    return (int(step[0]), int(step[1])), moved([(0, 0), tuple(step)])[0]
 
 
 def slot_parks(pointing, slot: int, k: int, frame, current: tuple[int, int] | None) -> bool:
@@ -171,6 +149,11 @@ class SharedCapture:
         u0, u1, v0, v1 = self.layout.cells_m[self.gate.slot(ticket)]
         hu, hv = self.frame.width_m / 2.0, self.frame.height_m / 2.0
         return v0 > -hv, v1 < hv, u0 > -hu, u1 < hu
+
+    def _uvs(self, px) -> np.ndarray:
+        """(n, 2) px (x, y) → (n, 2) m (u, v) on the target; NaN stays NaN."""
+        return np.array([self.uv(self.frame.pixel_to_enu(x, y)) if np.isfinite(x + y) else (np.nan, np.nan)
+                         for x, y in px]).reshape(-1, 2)
 
     def _pixel_m(self) -> float:
         """The size of the view's pixels on the target, m (the smaller side)."""
@@ -290,7 +273,8 @@ class SharedCapture:
             self._leave(rnd, ticket)
         if label is not None:
             cyc.az, cyc.el = pose  # the measurement is frame 1's, at frame 1's pose
-            return rnd.frame1, partial(isolate, windows=rnd.windows, cell=rnd.cells[label], level=rnd.level)
+            cell = rnd.cells[label]
+            return rnd.frame1, partial(spots.isolate, windows=rnd.windows, cell=cell, level=rnd.level)
         if rnd.stays == ticket:
             return self._alone_here(cyc, pose), None
         cyc.az, cyc.el = pose
@@ -329,19 +313,21 @@ class SharedCapture:
                 rnd.cells = [self.window(self.layout.cells_m[self.gate.slot(t)]) for t in tickets]
                 # Each capture merged, smoothed and levelled once for the four uses below (frame
                 # 1's HDR image kept for the members' own analysis, merge).
-                hdr = [excess(self.merge(rnd.frame1), win), excess(self._merge(rnd.frame2), win)]
+                hdr = [spots.excess(self.merge(rnd.frame1), win), spots.excess(self._merge(rnd.frame2), win)]
                 rnd.level = hdr[0].b
-                here, there = window_spots(hdr[0], win), window_spots(hdr[1], win)
-                moved = here + window_shifts(hdr[0], hdr[1], rnd.cells, self._max_shift_px(), win)
+                here, there = spots.window_spots(hdr[0], win), spots.window_spots(hdr[1], win)
+                moved = here + spots.window_shifts(hdr[0], hdr[1], rnd.cells, self._max_shift_px(), win)
                 moved[~np.isfinite(there).all(axis=1)] = np.nan  # a spot in both captures
-                first, second = (np.array([self.uv(self.frame.pixel_to_enu(x, y)) if np.isfinite(x + y)
-                                           else (np.nan, np.nan) for x, y in px]).reshape(-1, 2)
-                                 for px in (here, moved))
                 steps = np.array([rnd.members[t][1] for t in tickets])
-                ok = confirm_by_step(first, second, steps)
-                facing = [self._facing(t) for t in tickets]
-                spill = spills(hdr[0], win, facing, self.floor) * self._pixel_m()
-                ok = [a and bool(b <= SPILL_M) for a, b in zip(ok, spill, strict=True)]
+                facing, floor = [self._facing(t) for t in tickets], self.floor
+                spill = spots.spills(hdr[0], win, facing, floor) * self._pixel_m()
+                weighed = [self._uvs(spots.cell_centroids(h, rnd.cells, win, floor)) for h in hdr]
+                across = spots.moved_across(*weighed, steps)
+                # A spot missing from its window in frame 1 is elsewhere, maybe in another's cell.
+                whole = bool(np.isfinite(here).all())
+                confirmed = spots.confirm_by_step(self._uvs(here), self._uvs(moved), steps)
+                ok = [whole and a and bool(b <= SPILL_M) and bool(c <= ACROSS_M)
+                      for a, b, c in zip(confirmed, spill, across, strict=True)]
                 rnd.assigned = {t: (k if ok[k] else None) for k, t in enumerate(tickets)}
                 with self.gate.cv:  # the first to be measured alone stays; no newcomer before it
                     rnd.stays = min((t for t, k in rnd.assigned.items() if k is None), default=None)

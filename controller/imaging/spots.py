@@ -51,7 +51,11 @@ SNR = 8.0
 FLOOR = 0.05
 MATCH_PX = 96  # a window is registered at most this many pixels across (Δ's resolution: 1/10 of its factor)
 BAND = 0.1  # the border band :func:`spills` takes off, a fraction of the window's size
-MIN_MATCH = 0.5  # a registration this poorly correlated is no shift: the spot changed, not moved
+# A registration less correlated than this is no shift: the cell's content did not move as one
+# — a spot that changed, or two spots that moved apart: another heliostat's beam in the cell,
+# whose energy would be in this one's centroid. A spot stepped alone correlates ≥ 0.99 on the
+# simulated plant; one with another's spot on it, 0.83 (tests/calibration/test_beams_sim.py).
+MIN_MATCH = 0.9
 
 
 def _smooth(img: np.ndarray) -> np.ndarray:
@@ -143,6 +147,21 @@ def spills(hdr, windows, facing, floor: float = 0.0) -> np.ndarray:
     return out
 
 
+def cell_centroids(hdr, cells, windows, floor: float = 0.0) -> np.ndarray:
+    """The energy centroid (x, y) px of each of the n ``cells`` (r0, r1, c0, c1) of ``hdr`` (an
+    image or its :class:`Excess`, the background taken outside every one of ``windows``): the
+    excess above 3 σ_b and above ``floor`` times the cell's peak, as a measurement of that cell
+    weighs it (:func:`controller.imaging.centroid.energy_centroid`); NaN for a cell without any."""
+    _, sm, _, noise = excess(hdr, windows)
+    out = np.full((len(cells), 2), np.nan)
+    for k, (r0, r1, c0, c1) in enumerate(cells):
+        w = sm[r0:r1, c0:c1]
+        c = _centroid(np.where(w > max(3.0 * noise, floor * float(w.max(initial=0.0))), w, 0.0))
+        if c is not None:
+            out[k] = c + (c0, r0)
+    return out
+
+
 def _centroid(e: np.ndarray) -> np.ndarray | None:
     total = float(e.sum())
     if total <= 0:
@@ -203,6 +222,16 @@ def isolate(hdr: np.ndarray, windows, cell, level: float | None = None) -> np.nd
     r0, r1, c0, c1 = cell
     out[r0:r1, c0:c1] = img[r0:r1, c0:c1]
     return out
+
+
+def moved_across(first_m: np.ndarray, second_m: np.ndarray, steps_m: np.ndarray) -> np.ndarray:
+    """How far (m) each of n points moved across its predicted displacement: ``first_m`` and
+    ``second_m`` (n, 2) m where it was in the two captures, ``steps_m`` (n, 2) m the displacement
+    (|d̂ × Δ|); NaN where either is missing."""
+    d = np.asarray(second_m, float).reshape(-1, 2) - np.asarray(first_m, float).reshape(-1, 2)
+    s = np.asarray(steps_m, float).reshape(-1, 2)
+    u = s / np.maximum(np.linalg.norm(s, axis=1, keepdims=True), 1e-12)
+    return np.abs(u[:, 0] * d[:, 1] - u[:, 1] * d[:, 0])
 
 
 def confirm_by_step(first_m: np.ndarray, second_m: np.ndarray, steps_m: np.ndarray) -> list[bool]:

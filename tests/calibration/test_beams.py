@@ -15,7 +15,7 @@ import yaml
 from controller.calibration import slots
 from controller.calibration.beams import beams_allowed
 from controller.calibration.gate import TargetGate
-from controller.calibration.group import identity_step
+from controller.calibration.identity import identity_step
 from controller.calibration.slots import GAP_M, IDENTITY_STEP_M, slot_layout, spot_reach_m, target_frame
 from controller.config import load_config
 from controller.errors import ConfigError, InputError

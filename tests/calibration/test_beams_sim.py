@@ -2,7 +2,8 @@
 capture under a far lamp, each spot is confirmed by its own step; when the plant exchanges
 their spots (``SpotTruth.swap``) neither is confirmed, both are measured again alone (the
 first where it stands once the other is parked, the other after parking), and nothing is
-recorded under the wrong heliostat (the plant's truth of whose spot is where); a stop while
+recorded under the wrong heliostat (the plant's truth of whose spot is where); so too when
+one beam points far off, towards the other's slot (``SpotTruth.stray``); a stop while
 both beams wait for their shared capture parks both and records nothing; a beam alone on the
 target (the last of three with two slots) is measured without the step, its slot handed on
 while the beam before it was still on its way to standby."""
@@ -121,6 +122,16 @@ def test_two_beams_share_captures_and_a_swapped_identity_is_measured_alone(small
         assert plant.spot_truth.checked == checked + 2 and plant.spot_truth.misassigned_count == 0
         meta = store.campaign_by_name("swapped").meta["beams"]
         assert meta["slots"] == 2 and sorted(meta["measured_alone"]) == sorted(IDS)
+
+        # One beam far off, its spot on the other's: its own cell holds only a tail that does not
+        # move as one (a registration correlated < MIN_MATCH); the other's cell holds both spots,
+        # and the energy its measurement would weigh moves across its own step (ACROSS_M).
+        # Both are measured again alone; nothing is recorded wrongly.
+        plant.spot_truth.stray(IDS[0], onto=IDS[1])
+        stray, runs = look("stray")
+        assert sorted(stray.group.alone) == sorted(IDS)
+        assert {r.status for r in runs.values()} == {"measured"}
+        assert plant.spot_truth.checked == checked + 4 and plant.spot_truth.misassigned_count == 0
 
         # Ctrl-C while both beams are at their slots, the shared capture forming: both park.
         stop = _StopWhenBothCapture()
