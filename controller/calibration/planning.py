@@ -37,20 +37,21 @@ def order_queue(cfg: PlantConfig, ids: list[str], current: dict[str, tuple[int, 
     (K > 1): queued last even so, the heliostats whose spot had to be measured again alone
     earlier (a large or split spot): a pass's last round is often one beam, measured alone
     anyway."""
-    def standby(hid: str) -> float:
-        p = pointing[hid]
+    def steps(hid: str, of) -> tuple[int, int] | None:  # None: out of reach, its cycle will report why
         try:
-            s = p.standby_steps(p.model)
-        except (LimitError, ValueError, UnsafePath):  # no standby: put it last, its cycle will report why
-            return math.inf
-        return _slew_s(cfg, hid, current.get(hid, s), s)
+            return of(pointing[hid].model)
+        except (LimitError, ValueError, UnsafePath):
+            return None
+
+    standbys = {hid: steps(hid, pointing[hid].standby_steps) for hid in ids}
+
+    def standby(hid: str) -> float:  # no standby: last
+        s = standbys[hid]
+        return math.inf if s is None else _slew_s(cfg, hid, current.get(hid, s), s)
 
     def approach(hid: str) -> float:
-        p = pointing[hid]
-        try:
-            return _slew_s(cfg, hid, p.standby_steps(p.model), p.aim_steps(p.model))
-        except (LimitError, ValueError, UnsafePath):
-            return -math.inf
+        s, a = standbys[hid], steps(hid, pointing[hid].aim_steps)
+        return -math.inf if s is None or a is None else _slew_s(cfg, hid, s, a)
 
     queue = sorted(ids, key=lambda h: (standby(h), h))
     if beams > 1:

@@ -132,8 +132,7 @@ def spills(hdr, windows, facing, floor: float = 0.0) -> np.ndarray:
     _, sm, _, noise = excess(hdr, windows)
     out = np.full(len(windows), np.nan)
     for k, ((r0, r1, c0, c1), sides) in enumerate(zip(windows, facing, strict=True)):
-        w = sm[r0:r1, c0:c1]
-        e = np.where(w > max(3.0 * noise, floor * float(w.max(initial=0.0))), w, 0.0)
+        e = _weighed(sm[r0:r1, c0:c1], noise, floor)
         h, w = e.shape
         br, bc = max(1, round(BAND * h)), max(1, round(BAND * w))
         top, bottom, left, right = (bool(x) for x in sides)
@@ -155,11 +154,16 @@ def cell_centroids(hdr, cells, windows, floor: float = 0.0) -> np.ndarray:
     _, sm, _, noise = excess(hdr, windows)
     out = np.full((len(cells), 2), np.nan)
     for k, (r0, r1, c0, c1) in enumerate(cells):
-        w = sm[r0:r1, c0:c1]
-        c = _centroid(np.where(w > max(3.0 * noise, floor * float(w.max(initial=0.0))), w, 0.0))
+        c = _centroid(_weighed(sm[r0:r1, c0:c1], noise, floor))
         if c is not None:
             out[k] = c + (c0, r0)
     return out
+
+
+def _weighed(region: np.ndarray, noise: float, floor: float) -> np.ndarray:
+    """``region`` of the smoothed excess where it is above 3 σ_b and ``floor`` times its peak
+    (a measurement's centroid threshold), 0 elsewhere."""
+    return np.where(region > max(3.0 * noise, floor * float(region.max(initial=0.0))), region, 0.0)
 
 
 def _centroid(e: np.ndarray) -> np.ndarray | None:
