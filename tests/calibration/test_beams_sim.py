@@ -166,3 +166,26 @@ def test_a_beam_alone_on_the_target_is_measured_without_the_identity_step(small_
         first, _, third = sorted(store.runs(r.campaign_id), key=lambda run: run.queue_index)
         assert first.on_target_s < third.on_target_s < first.off_target_s
     assert plant.safety.violations == 0 and plant.safety.max_on_target <= 2
+
+
+def test_a_lamp_that_silently_fails_under_two_beams_gives_no_beam_and_moves_none_by_a_correction(
+        small_config, tmp_path):
+    """#28 with several beams: the shared capture holds no spot, so no beam is confirmed; each is
+    looked at alone, records ``no_beam``, and the pass stops (no_beam.STOP_AFTER)."""
+    ids = ["H07", *IDS, "H10"]
+    with _far_lamp_plant(small_config, tmp_path, ids) as (plant, store, field):
+        assert Campaign(field, CampaignOptions(name="cal"), heliostat_ids=ids).run().status == "finished"
+        models = {h: store.latest_model(h) for h in ids}
+        measured = store.count("measurements")
+        plant.lamp_panel.no_light.add(plant.lit)  # the panel goes on confirming; the lamp gives no light
+        c = Campaign(field, CampaignOptions(name="dark"), heliostat_ids=ids)
+        r = c.run()
+        assert c.slots is not None and c.slots.k == 2 and c.group.rounds >= 1
+        runs = store.runs(r.campaign_id)
+        assert {run.status for run in runs} == {"no_beam"} and len(runs) == len(ids)
+        assert all(not run.measurements and not run.corrections for run in runs)
+        assert store.count("measurements") == measured
+        assert {h: store.latest_model(h) for h in ids} == models
+        assert r.status == "partial" and f"{len(ids)} of {len(ids)} heliostats" in r.cause
+        assert not any(plant.safety.on_target(t.id) for t in field.cfg.targets)
+    assert plant.safety.violations == 0 and plant.safety.max_on_target <= 2
