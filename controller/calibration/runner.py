@@ -37,14 +37,14 @@ from typing import Any, Protocol
 
 from controller.calibration.beam_chain import BeamChain
 from controller.calibration.beams import beams_allowed
-from controller.calibration.context import CycleContext
+from controller.calibration.context import CycleContext, CycleObserver
 from controller.calibration.exposure import capture_unsaturated
 from controller.calibration.field import Field, LampLit
 from controller.calibration.gate import TargetGate
 from controller.calibration.group import SharedCapture, slot_parks
 from controller.calibration.lamp_change import clear_targets
 from controller.calibration.machine import STATES, CalibrationCycle
-from controller.calibration.no_beam import NoBeamWatch
+from controller.calibration.no_beam import NoBeamWatch, RefusalObserver
 from controller.calibration.observers import CampaignObserver, Observers
 from controller.calibration.outcome import CampaignResult, outcome
 from controller.calibration.planning import order_queue
@@ -276,6 +276,7 @@ class Campaign:
         cycles = self._cycles
         stop = self._stop
         watch = NoBeamWatch(self.cfg.light_source(self.opt.light_source).id, self.cfg.target().id, self.lamp)
+        observer = RefusalObserver(self.observer, watch, cycles)  # counts refusals early
         self.observer.campaign_started(cid, list(queue), set(done))
 
         def one(ticket: int, qi: int, hid: str) -> RunRecord | None:
@@ -284,14 +285,17 @@ class Campaign:
             if gate.blocked or stop.is_set():
                 gate.release(ticket)
                 return None
+            cyc = CalibrationCycle(self._context(hid, qi, ticket, gate, pointing[hid], observer))
+            cycles[hid] = cyc
+            # Checked once registered (not yet run): a pass that stops later holds it back
+            # (RefusalObserver); one stopped by now is seen here.
             if watch.stopped:  # no beam for several heliostats in a row: the light source is suspect
+                cycles.pop(hid, None)
                 gate.release(ticket)
                 rec = watch.not_measured(hid, qi, self.time.now())
                 rec.id = self.store.record_run(cid, rec)
                 self.observer.run_recorded(cid, rec)
                 return rec
-            cyc = CalibrationCycle(self._context(hid, qi, ticket, gate, pointing[hid]))
-            cycles[hid] = cyc
             rec = cyc.run()
             cycles.pop(hid, None)
             if rec.fault_cause == INTERRUPTED:
@@ -331,7 +335,7 @@ class Campaign:
                               sum(r.sequential_share_s for r in session), status, cause, len(session))
 
     def _context(self, hid: str, qi: int, ticket: int, gate: TargetGate,
-                 pointing: GeometryPointing) -> CycleContext:
+                 pointing: GeometryPointing, observer: CycleObserver) -> CycleContext:
         cal = self.cfg.calibration
         chain = self.chain
         name = self.opt.name
@@ -356,7 +360,7 @@ class Campaign:
             coarse_confidence=None if self.opt.observe else cal.coarse_correction,
             backlash_steps=(h.axes.azimuth.backlash_steps, h.axes.elevation.backlash_steps),
             move_timeout_s=self.opt.move_timeout_s, time=self.time, timeouts=timeouts,
-            save_images=save, observer=self.observer, group=self.group)
+            save_images=save, observer=observer, group=self.group)
 
 
 class _StateTable(CampaignObserver):

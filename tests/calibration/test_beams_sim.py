@@ -171,13 +171,15 @@ def test_a_beam_alone_on_the_target_is_measured_without_the_identity_step(small_
 def test_a_lamp_that_silently_fails_under_two_beams_gives_no_beam_and_moves_none_by_a_correction(
         small_config, tmp_path):
     """#28 with several beams: the shared capture holds no spot, so no beam is confirmed; each is
-    looked at alone, records ``no_beam``, and the pass stops (no_beam.STOP_AFTER)."""
-    ids = ["H07", *IDS, "H10"]
+    looked at alone and records ``no_beam``; after three the pass stops (no_beam.STOP_AFTER) and
+    the heliostats waiting for a slot are held back."""
+    ids = ["H07", *IDS, "H10", "H11", "H12"]
     with _far_lamp_plant(small_config, tmp_path, ids) as (plant, store, field):
         assert Campaign(field, CampaignOptions(name="cal"), heliostat_ids=ids).run().status == "finished"
         models = {h: store.latest_model(h) for h in ids}
         measured = store.count("measurements")
-        plant.lamp_panel.no_light.add(plant.lit)  # the panel goes on confirming; the lamp gives no light
+        lamp = plant.lit
+        plant.lamp_panel.no_light.add(lamp)  # the panel goes on confirming; the lamp gives no light
         c = Campaign(field, CampaignOptions(name="dark"), heliostat_ids=ids)
         r = c.run()
         assert c.slots is not None and c.slots.k == 2 and c.group.rounds >= 1
@@ -187,5 +189,13 @@ def test_a_lamp_that_silently_fails_under_two_beams_gives_no_beam_and_moves_none
         assert store.count("measurements") == measured
         assert {h: store.latest_model(h) for h in ids} == models
         assert r.status == "partial" and f"{len(ids)} of {len(ids)} heliostats" in r.cause
+        # Three in a row without a beam stop the pass: the heliostats already waiting at standby
+        # for a slot are held back, not put on the target to find it dark.
+        looked = [run for run in runs if run.on_target_s is not None]
+        assert 3 <= len(looked) < len(ids)
+        for run in runs:
+            if run.on_target_s is None:
+                assert "not put on the target" in run.fault_cause or "not moved" in run.fault_cause
+                assert f"light source {lamp} was confirmed lit by the lamp panel" in run.fault_cause
         assert not any(plant.safety.on_target(t.id) for t in field.cfg.targets)
     assert plant.safety.violations == 0 and plant.safety.max_on_target <= 2
