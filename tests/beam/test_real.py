@@ -199,3 +199,26 @@ def test_real_spots_on_held_out_empty_targets_centroid_with_known_truth():
           f"old default mean {old.mean():.2f} max {old.max():.2f}")
     assert e.mean() < 1.0 and e.max() < 2.6, e
     assert e.mean() < 0.7 * old.mean()
+
+
+def test_centroid_error_on_real_backgrounds_grows_as_the_spot_gets_fainter():
+    """The composites above at 0.5, 1 and 2 times each spot's own brightness (docs/imaging.md,
+    "Brightness"). Measured mean / p95 / max px: 1.61 / 3.71 / 5.43, 0.71 / 1.71 / 2.17,
+    0.49 / 1.19 / 1.55."""
+    from controller.imaging.presence import detect_beam
+
+    empty = sorted((REAL / "utis-empty").glob("*.png"))
+    held_out = [read_image(p).astype(float) for i, p in enumerate(empty) if i % 3 == 2]
+    spots = []
+    for sample in SAMPLES:
+        spot, truth = main_lobe(sample)
+        own = detect_beam(read_image(PAINT / f"{sample}-cropped.png"))
+        spots.append((float(own.smoothed.max() - own.floor) * spot, truth))
+    mean = {}
+    for scale in (0.5, 1.0, 2.0):
+        e = np.array([np.hypot(*(np.array(analyze(bg + scale * spot).centroid_px) - truth))
+                      for spot, truth in spots for bg in held_out])
+        mean[scale] = float(e.mean())
+        print(f"\nbrightness x{scale}: mean {e.mean():.2f} p95 {np.percentile(e, 95):.2f} "
+              f"max {e.max():.2f} px")
+    assert mean[2.0] < mean[1.0] < mean[0.5] < 2.0, mean
