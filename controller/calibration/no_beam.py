@@ -45,20 +45,20 @@ class NoBeamWatch:
 
     def refused(self, heliostat_id: str) -> None:
         """``heliostat_id``'s frame held no beam (its run will end ``no_beam``)."""
-        with self._lock:
-            if heliostat_id not in self._counted:
-                self._counted.add(heliostat_id)
-                self._row += 1
+        self._count(heliostat_id, no_beam=True, beam_seen=False)
 
     def ended(self, run: RunRecord) -> None:
         """A heliostat's run ended: a beam seen (any measurement) resets the count."""
+        self._count(run.heliostat_id, run.status == NO_BEAM, bool(run.measurements))
+
+    def _count(self, heliostat_id: str, no_beam: bool, beam_seen: bool) -> None:
         with self._lock:
-            if run.heliostat_id in self._counted:
+            if heliostat_id in self._counted:
                 return
-            self._counted.add(run.heliostat_id)
-            if run.status == NO_BEAM:
+            self._counted.add(heliostat_id)
+            if no_beam:
                 self._row += 1
-            elif run.measurements:
+            elif beam_seen:
                 self._row = 0
 
     @property

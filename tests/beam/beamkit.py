@@ -16,6 +16,12 @@ REAL = REPO / "tests" / "data" / "real"  # the real Jülich records (see its REA
 PAINT = REAL / "paint"
 TOWER = REAL / "aa39" / "tower-measurements.json"
 
+# The empty-target photos sorted by name; every third (index 2, 5, 8, …) is held out: never
+# looked at while the presence statistic and the centroid's settings were chosen.
+EMPTY = sorted((REAL / "utis-empty").glob("*.png"))
+HELD_OUT = [p for i, p in enumerate(EMPTY) if i % 3 == 2]
+TUNING = [p for i, p in enumerate(EMPTY) if i % 3 != 2]
+
 WGS84_A = 6378137.0
 WGS84_F = 1.0 / 298.257223563
 
@@ -76,6 +82,20 @@ def main_lobe(sample: str) -> tuple[np.ndarray, np.ndarray]:
     w = np.where(labels == int(np.argmax(energy)), flux, 0.0)
     yy, xx = np.indices(w.shape)
     return w / w.max(), np.array([(w * xx).sum(), (w * yy).sum()]) / w.sum()
+
+
+def real_spots() -> list[tuple[np.ndarray, np.ndarray]]:
+    """(spot, true centroid (x, y) px) for each PAINT sample: UTIS's main lobe at the brightness
+    it has in its own photo (its smoothed excess there), to lay onto empty-target photos."""
+    from controller.imaging.presence import detect_beam
+    from controller.io.images import read_image
+
+    out = []
+    for sample in paint_samples():
+        spot, truth = main_lobe(sample)
+        own = detect_beam(read_image(PAINT / f"{sample}-cropped.png"))
+        out.append((float(own.smoothed.max() - own.floor) * spot, truth))
+    return out
 
 
 def gaussian(shape, x0, y0, sx, sy=None, amp=1.0) -> np.ndarray:

@@ -14,14 +14,11 @@ import json
 import cv2
 import numpy as np
 import pytest
-from beamkit import PAINT, REAL, cli, paint_samples
+from beamkit import EMPTY, HELD_OUT, PAINT, TUNING, cli, paint_samples
 
 from controller.imaging.presence import THRESHOLD, detect_beam
 from controller.io.images import read_image
 
-EMPTY = sorted((REAL / "utis-empty").glob("*.png"))
-TUNING = [p for i, p in enumerate(EMPTY) if i % 3 != 2]
-HELD_OUT = [p for i, p in enumerate(EMPTY) if i % 3 == 2]
 SAMPLES = paint_samples()
 
 

@@ -49,7 +49,7 @@ import json
 import cv2
 import numpy as np
 import pytest
-from beamkit import PAINT, REAL, main_lobe, paint_samples, project_to_image
+from beamkit import HELD_OUT, PAINT, main_lobe, paint_samples, project_to_image, real_spots
 
 from controller.imaging.beam import analyze
 from controller.io.images import read_image
@@ -180,17 +180,10 @@ def test_real_spots_on_held_out_empty_targets_centroid_with_known_truth():
     the 20 held-out empty-target photos: the true centroid is known exactly, the background is
     real. Measured (mean / p95 / max px): default 0.72 / 1.77 / 2.16; centroid="segment" (old
     default) 1.39 / 3.01 / 3.78; fit 1.04 / 2.69 / 3.27; local 1.38 / 2.77 / 3.61."""
-    from controller.imaging.presence import detect_beam
-
-    empty = sorted((REAL / "utis-empty").glob("*.png"))
-    held_out = [p for i, p in enumerate(empty) if i % 3 == 2]
     errs = {"energy": [], "segment": []}
-    for sample in SAMPLES:
-        spot, truth = main_lobe(sample)
-        own = detect_beam(read_image(PAINT / f"{sample}-cropped.png"))
-        amp = float(own.smoothed.max() - own.floor)
-        for p in held_out:
-            img = read_image(p).astype(float) + amp * spot
+    for spot, truth in real_spots():
+        for p in HELD_OUT:
+            img = read_image(p).astype(float) + spot
             for mode in errs:
                 c = np.array(analyze(img, centroid=mode).centroid_px)
                 errs[mode].append(float(np.hypot(*(c - truth))))
@@ -205,15 +198,8 @@ def test_centroid_error_on_real_backgrounds_grows_as_the_spot_gets_fainter():
     """The composites above at 0.5, 1 and 2 times each spot's own brightness (docs/imaging.md,
     "Brightness"). Measured mean / p95 / max px: 1.61 / 3.71 / 5.43, 0.71 / 1.71 / 2.17,
     0.49 / 1.19 / 1.55."""
-    from controller.imaging.presence import detect_beam
-
-    empty = sorted((REAL / "utis-empty").glob("*.png"))
-    held_out = [read_image(p).astype(float) for i, p in enumerate(empty) if i % 3 == 2]
-    spots = []
-    for sample in SAMPLES:
-        spot, truth = main_lobe(sample)
-        own = detect_beam(read_image(PAINT / f"{sample}-cropped.png"))
-        spots.append((float(own.smoothed.max() - own.floor) * spot, truth))
+    held_out = [read_image(p).astype(float) for p in HELD_OUT]
+    spots = real_spots()
     mean = {}
     for scale in (0.5, 1.0, 2.0):
         e = np.array([np.hypot(*(np.array(analyze(bg + scale * spot).centroid_px) - truth))

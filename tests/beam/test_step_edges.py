@@ -22,7 +22,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
-from beamkit import PAINT, REAL, main_lobe
+from beamkit import HELD_OUT, real_spots
 from scipy.special import erf
 
 from controller.imaging import step_edges
@@ -80,16 +80,12 @@ def test_the_step_found_is_the_one_laid_down():
 
 def _held_out_composites(step: bool):
     """(image, truth) for each PAINT main lobe on each held-out empty target (module doc)."""
-    empty = sorted((REAL / "utis-empty").glob("*.png"))
-    held_out = [p for i, p in enumerate(empty) if i % 3 == 2]
     rng = np.random.default_rng(1)
     yy, xx = np.indices(SHAPE).astype(float)
-    for sample in sorted(p.name.split("-")[0] for p in PAINT.glob("*-cropped.png")):
-        spot, truth = main_lobe(sample)
-        own = detect_beam(read_image(PAINT / f"{sample}-cropped.png"))
-        amp = float(own.smoothed.max() - own.floor)
-        for p in held_out:
-            img = read_image(p).astype(float) + amp * spot
+    for spot, truth in real_spots():
+        amp = float(spot.max())
+        for p in HELD_OUT:
+            img = read_image(p).astype(float) + spot
             if step:
                 th, off = rng.uniform(0.0, np.pi), rng.uniform(-50.0, 50.0)
                 h = rng.uniform(0.05, 0.25) * amp * rng.choice([-1.0, 1.0])
