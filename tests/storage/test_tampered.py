@@ -45,9 +45,15 @@ def demo_db(tmp_path_factory) -> Path:
     with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()) as err:
         assert main(["demo", "--heliostats", "1", "--nights", "1", "--out", str(out)]) == 0, err.getvalue()
     db = out / "campaign.db"
-    with sqlite3.connect(db) as c:
-        c.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+    _query(db, "PRAGMA wal_checkpoint(TRUNCATE)")
     return db
+
+
+def _query(db: Path, sql: str) -> list[tuple]:
+    """Rows of ``sql`` on ``db``, the connection closed at once: an open one, closed later by
+    the garbage collector, would delete the WAL file while a test copies the folder."""
+    with contextlib.closing(sqlite3.connect(db)) as c:
+        return c.execute(sql).fetchall()
 
 
 def _commands(db: Path, out: Path) -> dict[str, list[str]]:
@@ -99,7 +105,7 @@ def test_the_untouched_database_is_read_by_every_command(demo_db, tmp_path):
 @pytest.mark.parametrize("value", ["'{not json'", "'[1, 2'", "'\"text\"'", "'42'"])
 def test_a_json_column_that_is_not_json_of_its_kind(demo_db, tmp_path, table, column, kind, value):
     db = _tampered(demo_db, tmp_path, f"UPDATE {table} SET {column}={value}")
-    row = sqlite3.connect(db).execute(f"SELECT MIN(id) FROM {table}").fetchone()[0]
+    row = _query(db, f"SELECT MIN(id) FROM {table}")[0][0]
     _expect_refused(db, tmp_path, READERS[table], f"table {table}, row ", column)
     assert row is not None
 
@@ -164,7 +170,7 @@ def test_damaged_pages_are_refused_naming_the_database(demo_db, tmp_path):
     file at open (PRAGMA quick_check), whichever table the page belongs to."""
     clean = _tampered(demo_db, tmp_path)
     size = clean.stat().st_size
-    page = sqlite3.connect(clean).execute("PRAGMA page_size").fetchone()[0]
+    page = _query(clean, "PRAGMA page_size")[0][0]
     rng = random.Random(27)
     assert size // page >= 10
     for number in range(1, size // page):
@@ -203,7 +209,7 @@ def test_a_read_only_database_is_read(demo_db, tmp_path):
 
 
 def test_reports_find_the_frames_from_any_folder(demo_db, tmp_path, monkeypatch):
-    paths = [r[0] for r in sqlite3.connect(demo_db).execute("SELECT path FROM images")]
+    paths = [r[0] for r in _query(demo_db, "SELECT path FROM images")]
     assert paths and all(p.startswith("images/") for p in paths), paths[:3]  # relative to the database
     db = _tampered(demo_db, tmp_path)
     elsewhere = tmp_path / "elsewhere"
