@@ -12,10 +12,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from controller.calibration.planner import plan_field
 from controller.config import load_config
 from controller.geometry.aiming import aim_normal
 from controller.geometry.frames import wgs84_to_enu
 from controller.geometry.paint_io import kinematics_from_properties, read_towers
+from controller.storage.db import open_existing
 from tests.conftest import run_cli
 
 FIELD = Path(__file__).resolve().parents[1] / "data" / "real" / "paint-field"
@@ -99,6 +101,13 @@ def test_the_shared_folder_imports_and_refit_and_aim_work_on_it(tmp_path):
     ax = cfg.heliostat("BK20").axes
     assert ax.azimuth.soft_limits.min_steps <= aim["az_steps"] <= ax.azimuth.soft_limits.max_steps
     assert ax.elevation.soft_limits.min_steps <= aim["el_steps"] <= ax.elevation.soft_limits.max_steps
+    # The planner reads the field and its refitted models; with the sun only (no lamp written in
+    # yet) it says so for each heliostat, with the daytime error its model predicts.
+    with open_existing(db) as store:
+        models = store.latest_models(["BF17", "BK20"])
+    plan = plan_field(cfg, models, "next", workers=1)
+    assert plan.items == [] and {u.heliostat_id for u in plan.unmeasurable} == {"BF17", "BK20"}
+    assert all("no lamp" in u.why and 0 < u.predicted_mrad < 100 for u in plan.unmeasurable)
 
 
 def test_an_import_exports_back_and_a_reimport_adds_only_new_records(tmp_path):
@@ -151,6 +160,26 @@ def test_an_import_exports_back_and_a_reimport_adds_only_new_records(tmp_path):
     code, err = import_json(folder, db)
     assert code == 2 and changed in err and "imported" in err and len(err.strip().splitlines()) == 1
     assert count(db, "measurements") == n + 2 and count(db, "campaigns") == 2
+
+
+def test_an_existing_configuration_is_used_as_it_is_and_never_overwritten(tmp_path):
+    folder = subset(tmp_path, ["BK20", "BG29"])
+    code, first = import_json(folder, tmp_path / "a.db")
+    assert code == 0, first
+    config = tmp_path / "a.config.yaml"
+    code, r = import_json(folder, tmp_path / "b.db", "--config", str(config))
+    assert code == 0, r
+    assert r["imported"] == first["imported"] == count(tmp_path / "b.db", "measurements")
+    assert r["config"] == str(config) and not r["config_written"]
+    assert r["config_sha256"] == first["config_sha256"]
+    text = config.read_text()
+    shutil.copytree(FIELD / "BF17", folder / "BF17")  # a heliostat the configuration does not have
+    for args in ([], ["--config", str(config)]):
+        code, err = import_json(folder, tmp_path / "a.db", *args)
+        assert code == 2 and len(err.strip().splitlines()) == 1, err
+        assert ("a.config.yaml: exists and is not the field configuration" in err if not args
+                else "BF17_properties.json: heliostat 'BF17' is not in" in err)
+    assert config.read_text() == text and count(tmp_path / "a.db", "measurements") == first["imported"]
 
 
 def _no_utis_nor_helios(d: dict) -> None:
