@@ -166,12 +166,12 @@ def _assess(cfg: PlantConfig, h: FolderHeliostat, refused: dict[str, str], notes
         return out
     conf = cfg.heliostat(h.heliostat_id)
     kin = HeliostatKinematics.from_config(conf)
+    az, el = conf.axes.azimuth.soft_limits, conf.axes.elevation.soft_limits
     miss = []
     for r in h.records:
         s = r.record.sample
         if r.utc is None:
             continue
-        az, el = conf.axes.azimuth.soft_limits, conf.axes.elevation.soft_limits
         if not (az.min_steps <= s.az_steps <= az.max_steps and el.min_steps <= s.el_steps <= el.max_steps):
             out.outside_soft_limits += 1
         try:
