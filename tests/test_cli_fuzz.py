@@ -15,6 +15,7 @@ import argparse
 import contextlib
 import io
 import shlex
+import shutil
 import signal
 import subprocess
 import sys
@@ -174,6 +175,12 @@ TABLE: dict[str, list[Entry]] = {
                            {"config": Slot("--config", YAML, "config")},
                            {"--serial-link": OUTPUTS, "--modbus-tcp": "an address",
                             "--modbus-rtu": OUTPUTS, "--units": "unit numbers"})],
+    "import paint": [Entry("import paint {v[paint]} --db {db} --config {config} --timestamps {ts}",
+                           {"db": Slot("--db", DB, "db", NEW_DB),
+                            "config": Slot("--config", YAML, "paint_config"),
+                            "ts": Slot("--timestamps", JSON, "paint_ts")},
+                           {"DIR": "a folder: each file in it is read and named "
+                                   "(tests/storage/test_paint_import.py)"})],
     "lamps": [Entry("lamps --config {config} status", {"config": Slot("--config", YAML, "config")},
                     {"LAMP": "a lamp channel name"})],
     "sun": [Entry("sun --config {config} --time 2026-06-21T12:00:00Z",
@@ -253,6 +260,15 @@ def valid(tmp_path_factory) -> dict[str, str]:
         assert main(["model", "fit", *map(str, sorted(AA39.glob("AA39-calibration-properties_*.json"))),
                      "--heliostat-properties", str(v["props"]), "--towers", str(v["towers"]),
                      "--out", str(v["model"])]) == 0, err.getvalue()
+    # A PAINT folder of one heliostat, its times and the field configuration its import writes.
+    paint = REPO / "tests" / "data" / "real" / "paint-field"
+    shutil.copytree(paint / "BK20", d / "paint" / "BK20")
+    for name in ("tower-measurements.json", "timestamps.json"):
+        shutil.copy(paint / name, d / "paint" / name)
+    v["paint"], v["paint_ts"] = d / "paint", d / "paint" / "timestamps.json"
+    v["paint_config"] = d / "p.config.yaml"  # written beside p.db
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()) as err:
+        assert main(["import", "paint", str(v["paint"]), "--db", str(d / "p.db")]) == 0, err.getvalue()
     # "{v[manifest_of]}{img}": a manifest listing the image under test (written per run)
     return {k: str(p) for k, p in v.items()}
 

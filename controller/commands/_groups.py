@@ -9,9 +9,10 @@ import importlib
 import pkgutil
 
 
-def register_group(subparsers, package: str, help_text: str) -> argparse.ArgumentParser:
-    """Add the group named after the last part of ``package`` with every module inside it."""
-    group = package.rsplit(".", 1)[-1]
+def register_group(subparsers, package: str, help_text: str,
+                   name: str | None = None) -> argparse.ArgumentParser:
+    """Add the group ``name`` (default: the last part of ``package``) with every module inside it."""
+    group = name or package.rsplit(".", 1)[-1]
     parser = subparsers.add_parser(group, help=help_text, description=help_text)
     sub = parser.add_subparsers(dest=f"{group}_command", metavar="SUBCOMMAND")
     path = importlib.import_module(package).__path__

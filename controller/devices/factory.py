@@ -11,7 +11,7 @@ from __future__ import annotations
 from controller.config import Camera
 from controller.devices.camera import DoubleCcdCamera
 from controller.devices.drive import Drive, DriveLimits
-from controller.link_config import Link, ModbusRtuLink, ModbusTcpLink, SerialLink
+from controller.link_config import Link, ModbusRtuLink, ModbusTcpLink, NoLink, SerialLink
 
 
 def open_camera(cfg: Camera, manifest: str | None = None) -> DoubleCcdCamera:
@@ -48,7 +48,13 @@ class LinkPool:
         return opts
 
     def drive(self, link: Link, limits: DriveLimits) -> Drive:
-        """A drive for ``link``; opens the underlying bus/connection on first use."""
+        """A drive for ``link``; opens the underlying bus/connection on first use. ConfigError
+        for ``link: none`` (a heliostat known by its records only: nothing is sent to it)."""
+        if isinstance(link, NoLink):
+            from controller.errors import ConfigError
+
+            raise ConfigError("link: none: this heliostat has no link to its drive (records only, e.g. "
+                              "imported from PAINT); write its link into the configuration to drive it")
         key = link.bus_key
         if isinstance(link, SerialLink):
             from controller.devices.serial_drive import SerialBus, SerialDrive

@@ -11,7 +11,8 @@ Formats (those of the PAINT database of the Jülich solar tower and of ARTIST's 
 * tower measurements: per target ``normal_vector`` (ENU) and ``coordinates.center`` (WGS84);
 * a calibration record: ``motor_position.axis_1_motor_position`` (elevation steps) and
   ``axis_2_motor_position`` (azimuth), ``target_name``, ``sun_azimuth`` (degrees from **south**,
-  positive towards east) and ``sun_elevation``, ``focal_spot.{UTIS,HeliOS}`` [lat, lon, alt].
+  positive towards east) and ``sun_elevation``, ``focal_spot.{UTIS,HeliOS}`` [lat, lon, alt];
+* timestamps: ``{"<heliostat>_<record id>": UTC time}`` (PAINT's ``timestamps.json``).
 
 Every file goes through the bounded reader (size, UTF-8, nesting); a missing or wrong key
 raises InputError naming the file and key.
@@ -21,6 +22,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
@@ -69,23 +71,29 @@ def _number(value, key: str, source: str) -> float:
 
 @dataclass(frozen=True, eq=False)  # numpy fields
 class TargetPlane:
-    """A tower target: ``name``, centre (m ENU) and unit plane normal (ENU)."""
+    """A tower target: ``name``, centre (m ENU), unit plane normal (ENU) and, when the file
+    surveys more points than the centre (its corners), ``size_m``: (width, height) in m."""
 
     name: str
     center_enu: np.ndarray
     normal: np.ndarray
+    size_m: tuple[float, float] | None = None
 
 
 @dataclass(frozen=True)
 class Towers:
-    """Targets of a tower-measurements file and the WGS84 origin of the plant frame."""
+    """Targets of a tower-measurements file, the WGS84 origin of the plant frame and the
+    plant's ``power_plant_properties.ID`` ("" when absent); ``described_by`` names the file
+    the targets came from in messages."""
 
     origin_wgs84: tuple[float, float, float]
     targets: dict[str, TargetPlane]
+    plant_id: str = ""
+    described_by: str = "the towers file"
 
     def target(self, name: str, source: str = "record") -> TargetPlane:
         if name not in self.targets:
-            raise InputError(f"{source}: target {name!r} is not in the towers file "
+            raise InputError(f"{source}: target {name!r} is not in {self.described_by} "
                              f"(known: {', '.join(sorted(self.targets))})")
         return self.targets[name]
 
@@ -105,10 +113,28 @@ def read_towers(path: str | Path) -> Towers:
         normal = _numbers(_get(t, "normal_vector", f"{src}: {name}"), 3, f"{name}.normal_vector", src)
         if np.linalg.norm(normal) == 0:
             raise InputError(f"{src}: {name}.normal_vector is zero")
-        targets[name] = TargetPlane(name, wgs84_to_enu(*center, *origin), normal / np.linalg.norm(normal))
+        normal = normal / np.linalg.norm(normal)
+        center_enu = wgs84_to_enu(*center, *origin)
+        points = [wgs84_to_enu(*_numbers(v, 3, f"{name}.coordinates.{key}", src), *origin)
+                  for key, v in t["coordinates"].items() if key != "center"]
+        targets[name] = TargetPlane(name, center_enu, normal, plane_extent(center_enu, normal, points))
     if not targets:
         raise InputError(f"{src}: no targets")
-    return Towers(origin, targets)  # type: ignore[arg-type]
+    plant_id = data["power_plant_properties"].get("ID")
+    return Towers(origin, targets, plant_id if isinstance(plant_id, str) else "")  # type: ignore[arg-type]
+
+
+def plane_extent(center, normal, points) -> tuple[float, float] | None:
+    """(width, height), m, of ``points`` and ``center`` (m ENU) on a plane of unit ``normal``:
+    their spread along the plane's level axis h = (ẑ × n)/|ẑ × n| (east for a level plane) and
+    along v = n × h. None without points."""
+    if not points:
+        return None
+    n = np.asarray(normal, float)
+    h = np.cross([0.0, 0.0, 1.0], n)
+    h = h / np.linalg.norm(h) if np.linalg.norm(h) > 1e-9 else np.array([1.0, 0.0, 0.0])
+    rel = np.asarray([*points, center], float) - np.asarray(center, float)
+    return float(np.ptp(rel @ h)), float(np.ptp(rel @ np.cross(n, h)))
 
 
 def read_heliostat_properties(path: str | Path) -> dict:
@@ -141,9 +167,9 @@ def kinematics_from_properties(properties: dict, origin_wgs84,
 
 @dataclass(frozen=True, eq=False)  # numpy fields
 class PaintRecord:
-    """One calibration record in the plant frame: the fit's :class:`Sample` (UTIS spot), the
-    target plane, the sun angles (azimuth clockwise from north, degrees) and every method's
-    focal spot (m ENU)."""
+    """One calibration record in the plant frame: the fit's :class:`Sample` (the spot of
+    ``method``, UTIS unless asked otherwise), the target plane, the sun angles (azimuth
+    clockwise from north, degrees) and every method's focal spot (m ENU)."""
 
     source: str
     sample: Sample
@@ -151,11 +177,14 @@ class PaintRecord:
     sun_azimuth_deg: float
     sun_elevation_deg: float
     focal_spots: dict[str, np.ndarray]
+    method: str | None = "UTIS"
 
 
-def read_record(path: str | Path, towers: Towers, *, with_spot: bool = True) -> PaintRecord:
+def read_record(path: str | Path, towers: Towers, *, with_spot: bool = True,
+                methods: tuple[str, ...] = ("UTIS",)) -> PaintRecord:
     """A calibration record. ``with_spot=False`` reads no focal spot (for a prediction, which
-    must not see the measurement): ``sample.spot_enu`` is then NaN."""
+    must not see the measurement): ``sample.spot_enu`` is then NaN. ``methods``: the focal-spot
+    methods the sample may take, in order of preference (the first the record has is used)."""
     src = str(path)
     data = _load_json(path, "calibration record")
     el_steps = _number(_get(data, "motor_position.axis_1_motor_position", src), "axis_1_motor_position", src)
@@ -176,11 +205,31 @@ def read_record(path: str | Path, towers: Towers, *, with_spot: bool = True) -> 
             if isinstance(fs, dict) and method in fs:
                 spots[method] = wgs84_to_enu(*_numbers(fs[method], 3, f"focal_spot.{method}", src),
                                              *towers.origin_wgs84)
-        if "UTIS" not in spots:
-            raise InputError(f"{src}: missing key 'focal_spot.UTIS'")
-    spot = spots.get("UTIS", np.full(3, np.nan))
+    method = next((m for m in methods if m in spots), None)
+    if with_spot and method is None:
+        raise InputError(f"{src}: missing key 'focal_spot.{methods[0]}'"
+                         + (f" (nor {', '.join(methods[1:])})" if len(methods) > 1 else ""))
+    spot = spots[method] if method else np.full(3, np.nan)
     sample = Sample(azel_to_vector(sun_az, sun_el), az_steps, el_steps, spot)
-    return PaintRecord(src, sample, target, sun_az, sun_el, spots)
+    return PaintRecord(src, sample, target, sun_az, sun_el, spots, method)
+
+
+def read_timestamps(path: str | Path) -> dict[str, str]:
+    """A PAINT ``timestamps.json``: ``{"<heliostat>_<record id>": UTC time}``, each time ISO 8601
+    with its offset (``Z``), returned as ISO 8601 UTC with milliseconds (the store's stamps)."""
+    src = str(path)
+    data = _load_json(path, "timestamps file")
+    out = {}
+    for key, value in data.items():
+        try:
+            t = datetime.fromisoformat(value.replace("Z", "+00:00")) if isinstance(value, str) else None
+        except ValueError:
+            t = None
+        if t is None or t.tzinfo is None:
+            raise InputError(f"{src}: {key}: expected an ISO 8601 time with its UTC offset, "
+                             f"got {str(value)[:40]!r}")
+        out[key] = t.astimezone(UTC).isoformat(timespec="milliseconds")
+    return out
 
 
 @dataclass(frozen=True)

@@ -191,6 +191,20 @@ MIGRATIONS: tuple[str, ...] = (
         PRIMARY KEY (night_id, heliostat_id)
     );
     """,
+    # v10: records imported from another system's files (``heliocal import paint``): the file
+    # each measurement came from (its heliostat and record id, the bytes' SHA-256), so that a
+    # re-import adds only new records, and the focal-spot method it holds.
+    """
+    CREATE TABLE imported_records (
+        measurement_id INTEGER PRIMARY KEY REFERENCES measurements(id),
+        source TEXT NOT NULL,
+        heliostat_id TEXT NOT NULL,
+        record_id TEXT NOT NULL,
+        method TEXT NOT NULL,
+        sha256 TEXT NOT NULL,
+        UNIQUE (source, heliostat_id, record_id)
+    );
+    """,
 )
 
 SCHEMA_VERSION = len(MIGRATIONS)
