@@ -1,6 +1,6 @@
 """Command groups (``heliocal report ...``, ``heliocal sim ...``): a group is a subpackage of
-:mod:`controller.commands`; each module in it defines ``register(subparsers)`` like a
-top-level command module."""
+:mod:`controller.commands`; each public module in it defines ``register(subparsers)`` like a
+top-level command module (modules starting with ``_`` are its commands' helpers)."""
 
 from __future__ import annotations
 
@@ -17,6 +17,8 @@ def register_group(subparsers, package: str, help_text: str,
     sub = parser.add_subparsers(dest=f"{group}_command", metavar="SUBCOMMAND")
     path = importlib.import_module(package).__path__
     for info in sorted(pkgutil.iter_modules(path), key=lambda m: m.name):
+        if info.name.startswith("_"):  # a private helper of the group's commands
+            continue
         importlib.import_module(f"{package}.{info.name}").register(sub)
     parser.set_defaults(func=lambda args: parser.print_help() or 2)
     return parser

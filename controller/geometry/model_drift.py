@@ -33,6 +33,9 @@ from dataclasses import dataclass
 import numpy as np
 
 DRIFTING = ("az_offset", "el_offset")
+# The jump between sessions of PAINT records (rad): what a day does to a Jülich heliostat's
+# references beside the walk (docs/tracking-model.md, "On real heliostats").
+PAINT_JUMP_RAD = 0.1e-3
 
 
 @dataclass(frozen=True)
@@ -101,3 +104,14 @@ def chain_precision(s: Sessions, components: int = len(DRIFTING)) -> np.ndarray:
         if e + 1 < m:
             diff[e, e + 1] = s.scale[e + 1] / s.step_sd[e]
     return np.kron(diff.T @ diff, np.eye(components))
+
+
+def offsets_at(session_times: np.ndarray, offsets: np.ndarray, t: float | None) -> np.ndarray:
+    """The references' offsets from the newest session's (same unit as ``offsets`` (E, 2)) at
+    time ``t`` (days): between two sessions the random walk's mean given both, the straight
+    line between them (the Brownian bridge); before the first session the first's; at or
+    after the newest, or at an unknown time, zero (the model as fitted)."""
+    times, d = np.asarray(session_times, float), np.asarray(offsets, float)
+    if t is None or len(times) == 0 or t >= times[-1]:
+        return np.zeros(d.shape[1] if d.ndim == 2 else len(DRIFTING))
+    return np.array([np.interp(t, times, d[:, c]) for c in range(d.shape[1])])

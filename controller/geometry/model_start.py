@@ -12,11 +12,12 @@ joint references moved by the median difference between measured and modelled no
 (the angles of kinematics Eq. 3; the median so that a few wrong records do not move it).
 
 A properties file can be wrong in a way the kinematics cannot evaluate: an actuator whose
-initial stroke length puts the stroke at the measurements' motor steps outside the actuator's
-triangle [|o − r|, o + r] (actuators Eq. 1) has no joint angle there. Such an actuator's
-initial stroke is not believed: its prior becomes N(L_mid − L₀, σ_L²), L_mid the middle of
-the strokes that keep every measurement inside the triangle (for steps s_min … s_max,
-[|o − r| − s_min/k, o + r − s_max/k]), σ_L = :data:`SUSPECT_STROKE_SIGMA_M`, and its joint
+initial stroke length puts the stroke at the measurements' motor steps, anywhere in its step
+range or at 0 steps (the law's reference) outside the actuator's triangle [|o − r|, o + r]
+(actuators Eq. 1) has no joint angle there. Such an actuator's initial stroke is not believed:
+its prior becomes N(L_mid − L₀, σ_L²), L_mid the middle of the strokes that keep every measurement and 0 steps
+inside the triangle (for steps s_min … s_max, 0 among them: [|o − r| − s_min/k,
+o + r − s_max/k]), σ_L = :data:`SUSPECT_STROKE_SIGMA_M`, and its joint
 reference gets σ = :data:`SUSPECT_OFFSET_SIGMA_RAD` (the file's initial angle is suspect too).
 The actuator's law itself identifies L₀: its curvature over the stroke depends on it.
 
@@ -66,9 +67,9 @@ def implied_normals(centers: np.ndarray, source_dirs: np.ndarray, spots: np.ndar
 
 def _feasible_stroke(act: LinearActuator, steps: np.ndarray) -> tuple[float, float]:
     """(lowest, highest) initial stroke, m, that keeps the stroke at every one of ``steps``
-    inside the actuator's triangle."""
-    lo = abs(act.offset - act.pivot_radius) - float(np.min(steps)) / act.increment
-    hi = act.offset + act.pivot_radius - float(np.max(steps)) / act.increment
+    and at 0 steps (the law's reference, actuators Eq. 3) inside the actuator's triangle."""
+    lo = abs(act.offset - act.pivot_radius) - min(float(np.min(steps)), 0.0) / act.increment
+    hi = act.offset + act.pivot_radius - max(float(np.max(steps)), 0.0) / act.increment
     return lo, hi
 
 
@@ -80,9 +81,11 @@ def repair(kin: HeliostatKinematics, prior: np.ndarray, sigma: np.ndarray,
     prior, sigma, notes = prior.copy(), sigma.copy(), []
     for axis, stroke_term, offset_term, col in _AXES:
         act: LinearActuator = getattr(kin, axis)
-        s = steps[:, col]
+        # The actuator travels its whole range: a file whose stroke leaves the triangle anywhere
+        # in it is wrong, even where no record went.
+        s = np.concatenate([steps[:, col], [act.min_increment, act.max_increment]])
         l0 = act.initial_stroke_length + prior[_I[stroke_term]]
-        stroke = s / act.increment + l0
+        stroke = np.append(s, 0.0) / act.increment + l0
         lowest, highest = abs(act.offset - act.pivot_radius), act.offset + act.pivot_radius
         outside = np.maximum(lowest - stroke, stroke - highest)
         if (outside <= 0).all():
@@ -93,7 +96,7 @@ def repair(kin: HeliostatKinematics, prior: np.ndarray, sigma: np.ndarray,
                              f"{np.ptp(s) / act.increment:.3f} m of stroke, more than its triangle allows "
                              f"(offset {act.offset} m, pivot radius {act.pivot_radius} m): "
                              "check its properties")
-        worst = float(s[np.argmax(outside)])
+        worst = float(np.append(s, 0.0)[np.argmax(outside)])
         mid = (lo + hi) / 2.0
         prior[_I[stroke_term]] = mid - act.initial_stroke_length
         sigma[_I[stroke_term]] = max(sigma[_I[stroke_term]], SUSPECT_STROKE_SIGMA_M)

@@ -21,7 +21,8 @@ raises InputError naming the file and key.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+import re
+from dataclasses import dataclass, replace
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -235,20 +236,69 @@ def read_timestamps(path: str | Path) -> dict[str, str]:
 @dataclass(frozen=True)
 class PaintSet:
     """The inputs of a fit on PAINT/ARTIST files: towers, the heliostat's id (from the
-    properties file's name, ``<id>-heliostat-properties.json``), properties, nominal
-    kinematics and the records."""
+    properties file's name, ``<id>-heliostat-properties.json`` or ``<id>_properties.json``),
+    properties, nominal kinematics, the records (each sample with its time when timestamps
+    were given) and ``notes``: what the reading had to decide (a record measured by one
+    method only, a record without a time)."""
 
     towers: Towers
     heliostat_id: str
     properties: dict
     kinematics: HeliostatKinematics
     records: list[PaintRecord]
+    notes: tuple[str, ...] = ()
 
 
-def read_paint_set(records: list[str], properties: str | Path, towers: str | Path) -> PaintSet:
-    """Read and check every file of a fit (InputError naming the file and key)."""
+def heliostat_id_of(properties: str | Path) -> str:
+    """The heliostat's id from its properties file's name: the part before the first - or _."""
+    return re.split(r"[-_]", Path(properties).stem)[0]
+
+
+def record_id_of(record: str | Path) -> str:
+    """A PAINT record's id from its file name ``<id>_calibration_properties.json``."""
+    return Path(record).name.split("_")[0]
+
+
+def record_times(heliostat_id: str, records: list[str],
+                 timestamps: dict[str, str]) -> tuple[list[float | None], list[str]]:
+    """Each record's time, days since 1970 UTC, from PAINT ``timestamps`` (``"<heliostat>_<id>"``),
+    and notes. A record missing from them is placed by its id between the records that have a
+    time (PAINT ids rise with time), or has none when its id is not a number or no record
+    around it has one."""
+    days: list[float | None] = []
+    for r in records:
+        stamp = timestamps.get(f"{heliostat_id}_{record_id_of(r)}")
+        days.append(None if stamp is None else datetime.fromisoformat(stamp).timestamp() / 86400.0)
+    ids = [record_id_of(r) for r in records]
+    known = [(int(i), d) for i, d in zip(ids, days, strict=True) if d is not None and i.isdigit()]
+    notes = []
+    for k, (rid, d) in enumerate(zip(ids, days, strict=True)):
+        if d is not None:
+            continue
+        if rid.isdigit() and known:
+            xs, ys = zip(*sorted(known), strict=True)
+            days[k] = float(np.interp(int(rid), xs, ys))
+            notes.append(f"{records[k]}: no time in the timestamps; placed by its id at "
+                         f"{datetime.fromtimestamp(days[k] * 86400.0, UTC).isoformat(timespec='seconds')}")
+        else:
+            notes.append(f"{records[k]}: no time in the timestamps; counted with the newest records")
+    return days, notes
+
+
+def read_paint_set(records: list[str], properties: str | Path, towers: str | Path, *,
+                   timestamps: dict[str, str] | None = None,
+                   methods: tuple[str, ...] = ("UTIS",)) -> PaintSet:
+    """Read and check every file of a fit (InputError naming the file and key); ``timestamps``
+    (:func:`read_timestamps`) give each sample its time, ``methods`` the focal-spot methods a
+    record may be measured by, in order of preference."""
     tw = read_towers(towers)
     props = read_heliostat_properties(properties)
-    hid = Path(properties).stem.split("-")[0]
+    hid = heliostat_id_of(properties)
     kin = kinematics_from_properties(props, tw.origin_wgs84, hid)
-    return PaintSet(tw, hid, props, kin, [read_record(r, tw) for r in records])
+    recs = [read_record(r, tw, methods=methods) for r in records]
+    notes = [f"{r.source}: no {methods[0]} spot; {r.method}'s used" for r in recs if r.method != methods[0]]
+    if timestamps is not None:
+        days, time_notes = record_times(hid, records, timestamps)
+        recs = [replace(r, sample=replace(r.sample, time_days=d)) for r, d in zip(recs, days, strict=True)]
+        notes += time_notes
+    return PaintSet(tw, hid, props, kin, recs, tuple(notes))
