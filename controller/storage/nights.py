@@ -10,10 +10,12 @@ from __future__ import annotations
 
 import json
 
+from controller.calibration.field import LampEnd
 from controller.calibration.planner import PlanItem
 from controller.calibration.records import CAMPAIGN_STATUSES, NIGHT_KINDS, NightRecord, utc_now
 from controller.storage.checks import enum_column, json_column
 from controller.storage.db import CampaignStore
+from controller.storage.lamp_states import record_lamp_states
 from controller.storage.plans import load_plan, record_plan
 
 NIGHTS_SCHEMA = 8  # the schema version that added the nights table
@@ -89,6 +91,15 @@ class NightBook:
                                 (night, len(night) + 1, night + "/"))
         return None if rows[0]["t"] is None else float(rows[0]["t"])
 
+    def measured(self, night: str) -> dict[str, int]:
+        """Per heliostat, the geometries night ``night``'s passes measured, over every session
+        (an interrupted pass's runs too: they are recorded as they end)."""
+        rows = self.store.query("SELECT r.heliostat_id AS h, COUNT(*) AS n FROM heliostat_runs r "
+                                "JOIN campaigns c ON r.campaign_id=c.id WHERE substr(c.name, 1, ?)=? "
+                                "AND r.status='measured' GROUP BY r.heliostat_id",
+                                (len(night) + 1, night + "/"))
+        return {r["h"]: int(r["n"]) for r in rows}
+
     def record_heliostats(self, night_id: int, rows: list[dict]) -> None:
         """What each heliostat of night ``night_id`` ended with (``night_heliostats``, schema v9:
         position, geometries planned and measured, predicted daytime RMS, why none was
@@ -110,6 +121,10 @@ class NightBook:
                  "planned": r["planned"], "measured": r["measured"],
                  "predicted_rms_mrad": r["predicted_rms_mrad"], "unmeasurable": r["unmeasurable"]}
                 for r in rows]
+
+    def record_lamp_states(self, session: str, ended: str, lamps: list[LampEnd]) -> None:
+        """How ``session`` left each lamp (``lamp_states``, :mod:`controller.storage.lamp_states`)."""
+        record_lamp_states(self.store, session, ended, lamps)
 
     def plan(self, night: str) -> list[PlanItem]:
         return load_plan(self.store, night)
