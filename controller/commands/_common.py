@@ -137,3 +137,18 @@ def output_file(path: str | Path, option: str = "--out") -> Path:
     if not os.access(parent, os.W_OK | os.X_OK) or (p.exists() and not os.access(p, os.W_OK)):
         raise InputError(f"{option} {p}: not writable")
     return p
+
+
+def check_camera(cfg, args: argparse.Namespace, command: str, needed: bool = True) -> None:
+    """Before any work: a command that captures (``needed``) has a camera — ``--simulate`` (the
+    simulated plant's), ``--camera-manifest`` (recorded pairs) or the configuration's
+    ``camera.driver`` (:func:`controller.devices.factory.open_camera` opens it); InputError
+    saying what to give."""
+    simulate, manifest = getattr(args, "simulate", False), getattr(args, "camera_manifest", None)
+    if simulate and manifest:
+        raise InputError("--simulate uses the simulated plant's camera; --camera-manifest cannot be given "
+                         "with it")
+    if needed and not simulate and not manifest and cfg.camera.driver is None:
+        raise InputError(f"{command}: no camera; set camera.driver in the configuration (gige or file, "
+                         "docs/camera.md), pass --camera-manifest FILE (recorded pairs) or --simulate "
+                         "(the embedded simulated plant)")

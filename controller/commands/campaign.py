@@ -22,7 +22,13 @@ from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
 from controller.commands._campaign_list import list_campaigns
-from controller.commands._common import add_config_option, add_json_option, output_dir, print_json
+from controller.commands._common import (
+    add_config_option,
+    add_json_option,
+    check_camera,
+    output_dir,
+    print_json,
+)
 from controller.commands._numbers import SEED, Number
 from controller.errors import InputError
 
@@ -109,14 +115,7 @@ def _ids(args, cfg) -> list[str]:
             raise InputError(f"--heliostats: an id is given twice in {args.heliostats!r}")
         for hid in ids:
             cfg.heliostat(hid)
-    if args.simulate and args.camera_manifest:
-        raise InputError("--simulate uses the simulated plant's camera; --camera-manifest cannot be given "
-                         "with it")
-    if not args.simulate and not args.camera_manifest and cfg.camera.driver is None:
-        raise InputError(
-            f"campaign {args.campaign_command}: no camera; pass --camera-manifest FILE (recorded pairs), "
-            "set camera.driver in the configuration (docs/camera.md) or pass --simulate (embedded "
-            "simulated plant)")
+    check_camera(cfg, args, f"campaign {args.campaign_command}")
     return ids
 
 

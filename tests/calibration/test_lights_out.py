@@ -60,12 +60,13 @@ def _outside_view(path) -> tuple[dict[str, bool], list[int], list[int]]:
     lamps = yaml.safe_load(path.read_text())["lamps"]
     mbpoll = shutil.which("mbpoll")
     if mbpoll is None:
-        print("mbpoll is not installed (Debian package mbpoll, .ci/system-packages): panel read by heliocal only")
+        print("mbpoll is not installed (Debian package mbpoll, .ci/system-packages): the panel is read "
+              "by heliocal only")
         return lit, [], []
 
     def bits(table: str) -> list[int]:
-        out = subprocess.run([mbpoll, "-m", "tcp", "-p", str(lamps["port"]), "-a", "1", "-0", "-1", "-t", table,
-                              "-r", "0", "-c", str(len(lamps["channels"])), "127.0.0.1"],
+        out = subprocess.run([mbpoll, "-m", "tcp", "-p", str(lamps["port"]), "-a", "1", "-0", "-1",
+                              "-t", table, "-r", "0", "-c", str(len(lamps["channels"])), "127.0.0.1"],
                              capture_output=True, text=True, check=True, timeout=scaled_s(10)).stdout
         return [int(line.split(":")[1]) for line in out.splitlines() if line.startswith("[")]
 
