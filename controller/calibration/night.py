@@ -36,6 +36,7 @@ from controller.calibration.observers import Observers
 from controller.calibration.planner import PlanItem, plan_field
 from controller.calibration.records import NightRecord
 from controller.calibration.runner import Campaign, CampaignObserver, CampaignOptions, CampaignResult
+from controller.config import PlantConfig
 from controller.errors import HeliocalError
 
 STRATEGIES = ("design", "round-robin")
@@ -53,6 +54,7 @@ class NightStore(Protocol):
     def add_to_summary(self, name: str, extra: dict) -> None: ...
     def record_heliostats(self, night_id: int, rows: list[dict]) -> None: ...
     def record_lamp_states(self, session: str, ended: str, lamps: list[LampEnd]) -> None: ...
+    def record_field(self, cfg: PlantConfig, ids: list[str], config_path: str, sha256: str) -> None: ...
     def measured(self, night: str) -> dict[str, int]: ...
 
 
@@ -62,10 +64,12 @@ def calibration_night(book: NightStore, campaign: Campaign) -> CampaignResult:
     lamp is switched off and confirmed dark, and recorded (:mod:`controller.calibration.lights_out`)."""
     name = campaign.opt.name
     rec, _ = book.open_night(name, "calibration")
+    plant = campaign.field
+    book.record_field(plant.cfg, campaign.ids, plant.config_path, plant.config_sha256)
 
     def lights_out(ended: str) -> list[LampEnd]:
         lit = [campaign.lamp.lamp] if campaign.lamp else []
-        return lights_out_at_end(campaign.field, book, name, ended, campaign.observer, lit=lit)
+        return lights_out_at_end(plant, book, name, ended, campaign.observer, lit=lit)
 
     try:
         r = campaign.run()
@@ -205,6 +209,8 @@ class PlannedNight:
     # -- the night -------------------------------------------------------------------------------
     def run(self) -> NightSummary:
         rec, _ = self.book.open_night(self.name, "planned")
+        f = self.field
+        self.book.record_field(f.cfg, self.ids, f.config_path, f.config_sha256)  # what the models rest on
         results: list[CampaignResult] = []
         first: list[str] = []
         try:

@@ -24,8 +24,10 @@ from pathlib import Path
 from controller.commands._campaign_list import list_campaigns
 from controller.commands._common import (
     add_config_option,
+    add_field_change_option,
     add_json_option,
     check_camera,
+    check_db_field,
     output_dir,
     print_json,
 )
@@ -53,6 +55,7 @@ def register(subparsers) -> None:
     r.add_argument("--report", default=None, metavar="DIR", help="also write the morning report into DIR")
     r.add_argument("--notify", default=None, metavar="CMD",
                    help="run CMD (a shell command) at the end with the summary JSON on its standard input")
+    add_field_change_option(r)
     add_json_option(r)
     r.set_defaults(func=run)
     n = sub.add_parser("night", help="run or resume tonight's planned night",
@@ -71,6 +74,7 @@ def register(subparsers) -> None:
                    help="simulated plant seconds per wall second (with --simulate; default 20)")
     n.add_argument("--strategy", default="design", choices=("design", "round-robin"),
                    help="planner strategy (default design: the daytime variance reduction)")
+    add_field_change_option(n)
     add_json_option(n)
     n.set_defaults(func=run_night_command)
     ls = sub.add_parser("list", help="the nights and campaigns recorded in a database",
@@ -116,6 +120,7 @@ def _ids(args, cfg) -> list[str]:
         for hid in ids:
             cfg.heliostat(hid)
     check_camera(cfg, args, f"campaign {args.campaign_command}")
+    check_db_field(args.db, cfg, ids, args)  # the models in DB were fitted on this field
     return ids
 
 

@@ -20,7 +20,12 @@ import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 
-from controller.commands._common import add_config_option, check_camera
+from controller.commands._common import (
+    add_config_option,
+    add_field_change_option,
+    check_camera,
+    check_db_field,
+)
 from controller.commands._numbers import SEED, Number
 from controller.errors import InputError
 from controller.io.yaml_files import read_text
@@ -54,6 +59,7 @@ def register(subparsers) -> None:
     tok.add_argument("--token-file", default=None, metavar="F", help="read the token from file F")
     p.add_argument("--run-dir", default=None, metavar="DIR",
                    help="simulation run directory (ptys; with --simulate; default a temporary folder)")
+    add_field_change_option(p)
     p.set_defaults(func=run)
 
 
@@ -114,6 +120,7 @@ def run(args: argparse.Namespace) -> int:
         for hid in ids:
             cfg.heliostat(hid)
     check_camera(cfg, args, "console")
+    check_db_field(args.db, cfg, ids, args)  # the models it aims with were fitted on this field
     if args.reports and not Path(args.reports).is_dir():
         raise InputError(f"--reports {args.reports}: not a folder")
     from controller.recognition.library_io import load_library_if_present

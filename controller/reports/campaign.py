@@ -158,10 +158,13 @@ def _confusion(runs: list[RunRecord], truth: Mapping[str, ReferenceTruth],
 
 
 def write_report(store: CampaignStore, out_dir: str | Path, campaign_id: int | None = None, *,
-                 truth: Mapping[str, ReferenceTruth] | None = None) -> Path:
+                 truth: Mapping[str, ReferenceTruth] | None = None,
+                 accept_field_change: bool = False) -> Path:
     """Write the report of ``campaign_id`` (default: the latest) into ``out_dir``; returns the
     path of ``report.md``. ``truth`` (heliostat id -> :class:`ReferenceTruth`, e.g. a simulated
-    plant's) adds the reference's case and errors and the confusion matrix against it."""
+    plant's) adds the reference's case and errors and the confusion matrix against it.
+    ``accept_field_change``: predict with the models although the campaign's configuration file
+    now describes another field (:func:`controller.storage.field_prints.check_field`)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     camp = store.campaign(campaign_id)
@@ -234,7 +237,7 @@ def write_report(store: CampaignStore, out_dir: str | Path, campaign_id: int | N
             lines.append(f"| {lab} | " + " | ".join(str(v) for v in row) + f" | {c['unknown'][lab]} |")
         lines += ["", f"Recognition rate {c['recognition_rate']:.1f} % of {c['n']} heliostats "
                       "(first measurement; unknown counts as a miss).", "", f"![confusion]({png})"]
-    model_lines, model_figs = model_section(store, camp, out) if runs else ([], [])
+    model_lines, model_figs = model_section(store, camp, out, accept_field_change) if runs else ([], [])
     lines += model_lines
     for title, png in model_figs:
         lines += ["", f"### {title}", "", f"![{title}]({png})"]

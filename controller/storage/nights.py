@@ -13,8 +13,10 @@ import json
 from controller.calibration.field import LampEnd
 from controller.calibration.planner import PlanItem
 from controller.calibration.records import CAMPAIGN_STATUSES, NIGHT_KINDS, NightRecord, utc_now
+from controller.config import PlantConfig
 from controller.storage.checks import enum_column, json_column
 from controller.storage.db import CampaignStore
+from controller.storage.field_prints import record_field
 from controller.storage.lamp_states import record_lamp_states
 from controller.storage.plans import load_plan, record_plan
 
@@ -121,6 +123,11 @@ class NightBook:
                  "planned": r["planned"], "measured": r["measured"],
                  "predicted_rms_mrad": r["predicted_rms_mrad"], "unmeasurable": r["unmeasurable"]}
                 for r in rows]
+
+    def record_field(self, cfg: PlantConfig, ids: list[str], config_path: str, sha256: str) -> None:
+        """What the models of ``ids`` are fitted on from now (``field_prints``,
+        :mod:`controller.storage.field_prints`)."""
+        record_field(self.store, cfg, ids, config_path, sha256)
 
     def record_lamp_states(self, session: str, ended: str, lamps: list[LampEnd]) -> None:
         """How ``session`` left each lamp (``lamp_states``, :mod:`controller.storage.lamp_states`)."""
