@@ -31,7 +31,7 @@ from controller.calibration.daytime import DaytimeTally, predicted_daytime, sun_
 from controller.calibration.field import Field, LampEnd
 from controller.calibration.lamp_change import LampChange, LampChangeError, LampChanger, Standby
 from controller.calibration.lights_out import lights_out_at_end, not_dark_message, require_dark
-from controller.calibration.nights import Pass, run_night
+from controller.calibration.nights import Pass, failed_geometries, flagged_keys, run_night
 from controller.calibration.observers import Observers
 from controller.calibration.planner import PlanItem, plan_field
 from controller.calibration.records import NightRecord
@@ -56,6 +56,8 @@ class NightStore(Protocol):
     def record_lamp_states(self, session: str, ended: str, lamps: list[LampEnd]) -> None: ...
     def record_field(self, cfg: PlantConfig, ids: list[str], config_path: str, sha256: str) -> None: ...
     def measured(self, night: str) -> dict[str, int]: ...
+    def record_geometry_failures(self, night: str, failures: list[dict]) -> None: ...
+    def flagged(self, ids: list[str] | None = None) -> list[dict]: ...
 
 
 def calibration_night(book: NightStore, campaign: Campaign) -> CampaignResult:
@@ -136,6 +138,7 @@ class NightSummary:
     lamp_changes: list[dict] = field(default_factory=list)
     unmeasurable: list[dict] = field(default_factory=list)
     lights_out: list[dict] = field(default_factory=list)  # every lamp as the night left it (LampEnd)
+    flagged: list[dict] = field(default_factory=list)  # geometries that failed on two nights, not planned
 
     @property
     def exit_code(self) -> int:
@@ -148,7 +151,7 @@ class NightSummary:
                 "daytime_error_predicted_mrad": self.daytime_error_predicted_mrad, "status": self.status,
                 "cause": self.cause, "first_calibrated": self.first_calibrated, "passes": self.passes,
                 "lamp_changes": self.lamp_changes, "unmeasurable": self.unmeasurable,
-                "lights_out": self.lights_out}
+                "lights_out": self.lights_out, "flagged": self.flagged}
 
 
 class PlannedNight:
@@ -251,9 +254,14 @@ class PlannedNight:
     def _plan(self) -> list[PlanItem]:
         plan = self.book.plan(self.name)
         if not plan:
+            flags = self.book.flagged(self.ids)  # failed on two nights: not planned until cleared
+            if flags:
+                self.progress(f"{self.name}: {len(flags)} flagged geometr{'y' if len(flags) == 1 else 'ies'} "
+                              "not planned (each failed on two nights; heliocal campaign flags)")
             with self.field.time.computing():
                 done = plan_field(self.field.cfg, self.field.models(self.ids), self.name,
-                                  strategy=self.strategy, night_index=self.index, workers=self.workers)
+                                  strategy=self.strategy, night_index=self.index, workers=self.workers,
+                                  flagged=flagged_keys(flags))
             plan = done.items
             self.unmeasurable = [u.to_json() for u in done.unmeasurable]
             self.book.record_plan(plan)
@@ -285,6 +293,8 @@ class PlannedNight:
                                            target=p.target, queue_last=last), list(p.aims))
         with self._lock:
             self.measured |= {f"{p.name}/{run.heliostat_id}" for run in r.runs if run.status == "measured"}
+        self.book.record_geometry_failures(self.name, failed_geometries(self.plan, p, r,
+                                                                        self.field.cfg.calibration.target))
         if self._watched:
             # The operator's view of the field as the night goes: the controller's own computing,
             # for the heliostats whose models changed (the whole field the first time).
@@ -342,7 +352,8 @@ class PlannedNight:
                          [{"name": r.name, "status": r.status, "cause": r.cause,
                            "measured": sum(run.status in ("measured", "calibrated") for run in r.runs),
                            "heliostats": len(r.runs)} for r in results],
-                         [c.to_json() for c in self.changes], self.unmeasurable, [e.to_json() for e in ends])
+                         [c.to_json() for c in self.changes], self.unmeasurable, [e.to_json() for e in ends],
+                         self.book.flagged(self.ids))
         self.book.finish_night(rec.id, status, cause, s.to_json())
         self.progress(f"{self.name}: {status}; {measured}/{len(self.plan)} geometries measured; "
                       "field predicted "

@@ -1,7 +1,8 @@
 """``heliocal campaign run --config C --db DB [--json]``: the calibration campaign (night 0);
 ``heliocal campaign night --config C --db DB [--simulate] [--seed S] [--json]``: tonight's
 planned night (docs/nights.md); ``heliocal campaign list --db DB [--json]``: the nights and
-campaigns recorded in a database.
+campaigns recorded in a database; ``heliocal campaign flags --db DB [--clear IDS|all]``: the
+geometries flagged after failing on two nights.
 
 Rerunning the same command after an interruption (even ``kill -9``) resumes the campaign in
 the database: heliostats already recorded are skipped, the others are calibrated. The
@@ -31,6 +32,7 @@ from controller.commands._common import (
     output_dir,
     print_json,
 )
+from controller.commands._flags import flags_command
 from controller.commands._numbers import SEED, Number
 from controller.errors import InputError
 
@@ -83,6 +85,15 @@ def register(subparsers) -> None:
     ls.add_argument("--db", required=True, metavar="DB", help="campaign database (SQLite)")
     add_json_option(ls)
     ls.set_defaults(func=list_campaigns)
+    fl = sub.add_parser("flags", help="geometries flagged after failing on two nights; clear them",
+                        description="The planned geometries that failed on two nights: not planned again "
+                                    "until cleared (--clear IDS or all, optionally only under --lamp).")
+    fl.add_argument("--db", required=True, metavar="DB", help="campaign database (SQLite)")
+    fl.add_argument("--clear", default=None, metavar="IDS|all",
+                    help="clear the flags of these heliostats (comma-separated ids, or all)")
+    fl.add_argument("--lamp", default=None, metavar="LAMP", help="with --clear: only the flags under LAMP")
+    add_json_option(fl)
+    fl.set_defaults(func=flags_command)
     p.set_defaults(func=lambda args: p.print_help() or 2)
 
 
@@ -120,7 +131,6 @@ def _ids(args, cfg) -> list[str]:
         for hid in ids:
             cfg.heliostat(hid)
     check_camera(cfg, args, f"campaign {args.campaign_command}")
-    check_db_field(args.db, cfg, ids, args)  # the models in DB were fitted on this field
     return ids
 
 
@@ -129,6 +139,7 @@ def run(args: argparse.Namespace) -> int:
 
     cfg = load_config(args.config)
     ids = _ids(args, cfg)
+    check_db_field(args.db, cfg, ids, args)  # the models in DB were fitted on this field
     name = args.name or default_name(args.config)
     quiet = args.json or not sys.stderr.isatty()
     db = Path(args.db)

@@ -33,6 +33,7 @@ from controller.calibration.records import CampaignRecord, RunRecord
 from controller.errors import InputError
 from controller.io.images import pyplot, read_image, save_figure, write_atomic
 from controller.reports.confusion_plot import plot_confusion
+from controller.reports.failures import failed_captures
 from controller.reports.model_section import model_section
 from controller.reports.summary import ReferenceTruth, summarize
 from controller.storage.db import CampaignStore
@@ -246,9 +247,12 @@ def write_report(store: CampaignStore, out_dir: str | Path, campaign_id: int | N
         lines += ["", "## Beam before / after (first and last measurement, HIGH sensor)", ""]
         lines += [f"- {hid}: " + " → ".join(f"[![{k}]({t})]({src})" for k, t, src in pics)
                   for hid, pics in thumbs.items()]
+    failed, failed_html = failed_captures(store, [cid], out, write_thumbnail)  # what the camera saw
+    lines += failed
     md = "\n".join(lines) + "\n"
     write_atomic(out / "report.md", lambda t: t.write_text(md, encoding="utf-8"))
-    page = _html(camp, lines, cols, rows, figs + model_figs, conf, thumbs, _table_html(model_lines))
+    page = _html(camp, lines, cols, rows, figs + model_figs, conf, thumbs,
+                 _table_html(model_lines) + failed_html)
     write_atomic(out / "report.html", lambda t: t.write_text(page, encoding="utf-8"))
     write_atomic(out / "heliostats.csv", lambda t: _write_csv(t, cols, rows))
     return out / "report.md"

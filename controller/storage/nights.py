@@ -17,6 +17,7 @@ from controller.config import PlantConfig
 from controller.storage.checks import enum_column, json_column
 from controller.storage.db import CampaignStore
 from controller.storage.field_prints import record_field
+from controller.storage.geometry_flags import flagged, record_failures
 from controller.storage.lamp_states import record_lamp_states
 from controller.storage.plans import load_plan, record_plan
 
@@ -65,6 +66,17 @@ class NightBook:
         if self.store.schema_version < NIGHTS_SCHEMA:
             return []
         return [_night(r, self.store.path) for r in self.store.query("SELECT * FROM nights ORDER BY idx")]
+
+    def passes(self) -> set[int]:
+        """The ids of the campaigns that are passes of a planned night (``<night>/...``, not its
+        first ``/calibration``): they *measure* their heliostats, the others *calibrate* them —
+        what each counts everywhere (``campaign list``, the console)."""
+        if self.store.schema_version < NIGHTS_SCHEMA:
+            return set()
+        rows = self.store.query("SELECT c.id FROM campaigns c JOIN nights n ON n.kind='planned' "
+                                "AND substr(c.name, 1, length(n.name) + 1) = n.name || '/' "
+                                "WHERE c.name NOT LIKE '%/calibration'")
+        return {int(r["id"]) for r in rows}
 
     def unfinished(self, kind: str = "planned") -> NightRecord | None:
         """The latest night of ``kind`` when it did not finish (to be resumed), else None."""
@@ -128,6 +140,15 @@ class NightBook:
         """What the models of ``ids`` are fitted on from now (``field_prints``,
         :mod:`controller.storage.field_prints`)."""
         record_field(self.store, cfg, ids, config_path, sha256)
+
+    def record_geometry_failures(self, night: str, failures: list[dict]) -> None:
+        """Geometries of night ``night`` tried without a measurement
+        (:mod:`controller.storage.geometry_flags`)."""
+        record_failures(self.store, night, failures)
+
+    def flagged(self, ids: list[str] | None = None) -> list[dict]:
+        """The geometries flagged (failed on two nights) of heliostats ``ids`` (None: all)."""
+        return flagged(self.store, ids)
 
     def record_lamp_states(self, session: str, ended: str, lamps: list[LampEnd]) -> None:
         """How ``session`` left each lamp (``lamp_states``, :mod:`controller.storage.lamp_states`)."""
