@@ -40,7 +40,7 @@ def run_night_cli(args: argparse.Namespace) -> int:
             summary, code = (_simulated(args, cfg, store, ids, base, progress) if args.simulate
                              else _field(args, cfg, store, book, ids, base, progress))
         except KeyboardInterrupt:
-            lamps = "every lamp off, " if args.simulate or cfg.lamps is not None else ""
+            lamps = "every lamp confirmed dark, " if args.simulate or cfg.lamps is not None else ""
             print(f"heliocal campaign night: interrupted; {lamps}heliostats in motion parked. Rerun the same "
                   "command to resume the night.", file=sys.stderr)
             return 130

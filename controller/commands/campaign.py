@@ -148,7 +148,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         summary, result = _run(args, cfg, ids, name, quiet, db)
     except KeyboardInterrupt:
-        _interrupted(args, db, name)
+        _interrupted(args, db, name, cfg.lamps is not None)
         return 130
     summary["campaign"] = name
     summary["resumed"] = result.resumed
@@ -171,7 +171,7 @@ def run(args: argparse.Namespace) -> int:
     return result.exit_code
 
 
-def _interrupted(args: argparse.Namespace, db: Path, name: str) -> None:
+def _interrupted(args: argparse.Namespace, db: Path, name: str, cfg_lamps: bool) -> None:
     """Ctrl-C / SIGTERM: the runner parked what moved and recorded the campaign as interrupted;
     say how far it got and how to go on."""
     from controller.reports.summary import summarize
@@ -185,8 +185,9 @@ def _interrupted(args: argparse.Namespace, db: Path, name: str) -> None:
                 summary.update(summarize(store, camp.id), campaign=name, recorded=len(store.runs(camp.id)))
     if args.json:
         print_json(summary)
+    lamps = "every lamp confirmed dark, " if args.simulate or cfg_lamps else ""  # else LampNotDark, exit 1
     print(f"heliocal campaign run: interrupted; {summary['recorded']} heliostat(s) recorded in {db}; "
-          "heliostats in motion were parked. Rerun the same command to resume.", file=sys.stderr)
+          f"{lamps}heliostats in motion were parked. Rerun the same command to resume.", file=sys.stderr)
     if args.notify:
         notify(args.notify, summary)
 
