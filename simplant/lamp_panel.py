@@ -16,7 +16,8 @@ server (:class:`simplant.firmware.modbus.ModbusSimServer`).
 Fault hooks for tests: :attr:`SimLampPanel.no_confirm` — a lamp whose coil is written but
 which stays dark and never confirms (a blown lamp, a tripped breaker); :attr:`no_light` — a
 lamp that confirms (its input follows the coil) but gives no light (a sensor that lies: the
-controller cannot tell, the scoring can).
+controller cannot tell, the scoring can); :attr:`stuck_lit` — a lamp that stays lit when
+switched off (a welded contactor: its coil reads off, its input still confirms lit).
 """
 
 from __future__ import annotations
@@ -65,6 +66,7 @@ class SimLampPanel:
                       for i in range(self.size)]
         self.no_confirm: set[str] = set()
         self.no_light: set[str] = set()
+        self.stuck_lit: set[str] = set()
         self.writes: list[tuple[str, bool]] = []  # (channel, on) in the order received
         self.port: int | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -89,6 +91,8 @@ class SimLampPanel:
         if channel is None:
             return  # a spare coil: wired to nothing
         self.writes.append((channel, on))
+        if not on and channel in self.stuck_lit:
+            return  # the contactor does not open: the lamp stays as it is
         light = on and channel not in self.no_confirm and channel not in self.no_light
         if channel.startswith(FIDUCIALS):
             self.plant.set_fiducials(light, channel.removeprefix(FIDUCIALS))

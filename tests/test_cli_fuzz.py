@@ -72,6 +72,8 @@ TABLE: dict[str, list[Entry]] = {
                            {"--name": "a campaign name", "--heliostats": "heliostat ids", "--report": OUTPUTS,
                             "--notify": "a command run at the end"})],
     "campaign list": [Entry("campaign list --db {db}", {"db": Slot("--db", DB, "db")})],
+    "campaign flags": [Entry("campaign flags --db {db}", {"db": Slot("--db", DB, "db")},
+                             {"--clear": "heliostat ids", "--lamp": "a lamp id"})],
     # The packaged plant has no lamps: section, which a planned night needs and checks right
     # after the configuration: the database and recorded pairs are read as by campaign run.
     "campaign night": [Entry("campaign night --config {config} --db {out}/n.db",

@@ -4,7 +4,13 @@ from __future__ import annotations
 
 import argparse
 
-from controller.commands._common import add_json_option, print_json, staged_output_dir
+from controller.commands._common import (
+    add_field_change_option,
+    add_json_option,
+    check_store_field,
+    print_json,
+    staged_output_dir,
+)
 
 
 def register(subparsers) -> None:
@@ -23,8 +29,10 @@ def register(subparsers) -> None:
         "--config",
         default=None,
         metavar="FILE",
-        help="plant config giving the site origin (default: stored with the campaign)",
+        help="plant config giving the site origin (default: stored with the campaign); checked against the "
+             "field the models were fitted on",
     )
+    add_field_change_option(p)
     add_json_option(p)
     p.set_defaults(func=run)
 
@@ -33,13 +41,16 @@ def run(args: argparse.Namespace) -> int:
     from controller.storage.db import open_existing
     from controller.storage.paint import export_paint
 
-    site = None
+    site, cfg = None, None
     if args.config:
         from controller.config import load_config
 
-        s = load_config(args.config).site
+        cfg = load_config(args.config)
+        s = cfg.site
         site = (s.latitude_deg, s.longitude_deg, s.elevation_m)
     with staged_output_dir(args.out) as stage, open_existing(args.db) as store:
+        if cfg is not None:  # a model is never exported against another field
+            check_store_field(store, cfg, [h.id for h in cfg.heliostats], args)
         cid = None if args.campaign is None else store.find_campaign(args.campaign).id
         paths = export_paint(store, stage, site, cid)
     if args.json:

@@ -15,20 +15,24 @@ from controller.link_config import Link, ModbusRtuLink, ModbusTcpLink, NoLink, S
 
 
 def open_camera(cfg: Camera, manifest: str | None = None) -> DoubleCcdCamera:
-    """The field camera: recorded pairs from ``manifest`` when given, else the driver the
-    configuration names (``camera.driver: gige``, docs/camera.md). InputError when neither."""
-    if manifest is not None:
+    """The field camera, the one way every command opens it (``campaign run|night``, the
+    console, ``commission``, ``capture``): recorded pairs from ``manifest`` when given (a
+    command's ``--camera-manifest``), else the driver the configuration names
+    (``camera.driver``: ``gige``, the GigE Vision imagers of ``camera.gige``; ``file``, the
+    recorded pairs of ``camera.manifest``; docs/camera.md). The simulated plant's cameras are
+    the simulator's (``--simulate``). InputError when there is none."""
+    if manifest is not None or cfg.driver == "file":
         from controller.devices.file_camera import FileCamera
 
-        return FileCamera(manifest)
+        return FileCamera(manifest if manifest is not None else cfg.manifest)
     if cfg.driver == "gige":
         from controller.devices.gige import GigeCamera
 
         return GigeCamera(cfg)
     from controller.errors import InputError
 
-    raise InputError("no camera: the configuration sets no camera.driver (e.g. gige, docs/camera.md) "
-                     "and no recorded pairs were given")
+    raise InputError("no camera: the configuration sets no camera.driver (gige: GigE Vision imagers, file: "
+                     "recorded pairs; docs/camera.md) and no recorded pairs were given")
 
 
 class LinkPool:
