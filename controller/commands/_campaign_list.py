@@ -22,22 +22,15 @@ def _row(store, c) -> dict:
             "measured": sum(r.status == "measured" for r in runs), "target": c.target, "lamp": c.light_source}
 
 
-def _night_of(name: str, nights: list[str]) -> str | None:
-    """The night a campaign belongs to: the longest night name it is, or starts with (a planned
-    night ``<base>/night-k`` is named after the calibration night ``<base>``)."""
-    mine = [n for n in nights if name == n or name.startswith(n + "/")]
-    return max(mine, key=len, default=None)
-
-
 def list_campaigns(args: argparse.Namespace) -> int:
     from controller.storage.db import open_existing
-    from controller.storage.nights import NightBook
+    from controller.storage.nights import NightBook, night_of
 
     with open_existing(args.db) as store:
         rows = [_row(store, c) for c in store.campaigns()]
         nights = []
         recorded = NightBook(store).nights()
-        owner = {r["id"]: _night_of(r["name"], [n.name for n in recorded]) for r in rows}
+        owner = {r["id"]: night_of(r["name"], [n.name for n in recorded]) for r in rows}
         for n in recorded:
             mine = [r for r in rows if owner[r["id"]] == n.name]
             s = n.summary

@@ -145,7 +145,7 @@ def _geometry_plot(cfg: PlantConfig, ids: list[str], meas, models, out: Path) ->
                for key, c in colours.items()]
     fig.legend(handles=handles, loc="lower center", ncol=min(8, len(handles)), fontsize=8, frameon=False)
     fig.tight_layout(rect=(0, 0.05, 1, 1))
-    save_figure(fig, out / "geometries.png", dpi=90)
+    save_figure(fig, out / "geometries.png", dpi=90, bbox_inches="tight")
     return "Measured geometries", "geometries.png"
 
 
@@ -171,5 +171,5 @@ def _daytime_plot(per: dict[str, float], nights: list[dict], out: Path) -> tuple
         ax.legend(loc="center left", bbox_to_anchor=(1.02, 0.5), fontsize=8)
         ax.set_title("Daytime error after each night", fontsize=10)
     fig.tight_layout()
-    save_figure(fig, out / "daytime.png", dpi=90)
+    save_figure(fig, out / "daytime.png", dpi=90, bbox_inches="tight")
     return "Daytime pointing", "daytime.png"
