@@ -62,6 +62,8 @@ def field_map(rows: list[dict], out: Path, name: str = "field_map.png") -> str:
 
 def distributions(rows: list[dict], out: Path, name: str = "distributions.png") -> str:
     """Histograms of the predicted daytime RMS and of the geometries measured per heliostat."""
+    from matplotlib.ticker import MaxNLocator
+
     plt = pyplot()
     v = np.array([r["predicted_rms_mrad"] for r in rows if r["predicted_rms_mrad"] is not None], float)
     got = np.array([r["measured"] for r in rows], int)
@@ -72,6 +74,8 @@ def distributions(rows: list[dict], out: Path, name: str = "distributions.png") 
         a.legend(fontsize=8)
     a.set_xlabel("predicted daytime RMS per heliostat, mrad")
     a.set_ylabel("heliostats")
+    for ax in (a, b):
+        ax.yaxis.set_major_locator(MaxNLocator(integer=True))  # counts of heliostats
     counts = np.bincount(got, minlength=1) if got.size else np.zeros(1, int)
     b.bar(np.arange(len(counts)), counts, color="#2f9e44")
     b.set_xlabel("geometries measured tonight")

@@ -150,6 +150,8 @@ def _geometry_plot(cfg: PlantConfig, ids: list[str], meas, models, out: Path) ->
 
 
 def _daytime_plot(per: dict[str, float], nights: list[dict], out: Path) -> tuple[str, str]:
+    from matplotlib.ticker import MaxNLocator
+
     plt = pyplot()
 
     fig, axes = plt.subplots(1, 2 if nights else 1, figsize=(10 if nights else 5.5, 3.6), squeeze=False)
@@ -158,6 +160,7 @@ def _daytime_plot(per: dict[str, float], nights: list[dict], out: Path) -> tuple
     ax.hist(vals, bins=max(5, min(20, len(vals))), color="tab:blue", alpha=0.8)
     ax.set_xlabel("predicted daytime RMS per heliostat, mrad")
     ax.set_ylabel("heliostats")
+    ax.yaxis.set_major_locator(MaxNLocator(integer=True))  # counts of heliostats
     ax.set_title("Predicted open-loop daytime error", fontsize=10)
     if nights:
         ax = axes[0, 1]
