@@ -188,7 +188,9 @@ def overlay_png(c: Console, hid: str) -> bytes:
     cv2.circle(img, (ax, ay), r, (0, 0, 0), thick + 2)
     cv2.circle(img, (ax, ay), r, (255, 255, 0), thick)
     cv2.drawMarker(img, (ax, ay), (255, 255, 0), cv2.MARKER_CROSS, round(16 * size), thick)
-    lines[-1] += f"; aim {u:+.2f} {v:+.2f} m from the centre"
+    # In the image's own directions: u runs to the right, v down (TargetFrame).
+    lines[-1] += (f"; aim {abs(u):.2f} m {'right' if u >= 0 else 'left'}, {abs(v):.2f} m "
+                  f"{'down' if v >= 0 else 'up'} of the centre")
     _caption(img, lines, size)
     ok, buf = cv2.imencode(".png", img)
     if not ok:

@@ -22,9 +22,9 @@ from tests.calibration.conftest import REPO
 
 @pytest.fixture(scope="module")
 def nights(tmp_path_factory):
-    """Night 0 (from the truth) and two planned nights of an 8-heliostat, 2-target field."""
+    """Night 0 (from the truth) and two planned nights of a 6-heliostat, 2-target field."""
     base = yaml.safe_load((REPO / "configs" / "demo.yaml").read_text())
-    field = CheapField(field_data(base, 8, 2, 2), tmp_path_factory.mktemp("nights"), speedup=1000.0)
+    field = CheapField(field_data(base, 6, 2, 1), tmp_path_factory.mktemp("nights"), speedup=1000.0)
     calibrate_from_truth(field, "field")
     for k in (1, 2):
         run_cheap_night(field, None, f"field/night-{k}", 8 * 3600.0)
