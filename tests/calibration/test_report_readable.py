@@ -116,3 +116,17 @@ def test_each_heliostat_is_followed_night_by_night(nights):
     first = [trends[h][0]["first_look_error_mrad"] for h in ids]
     last = [trends[h][-1]["first_look_error_mrad"] for h in ids]
     assert sum(last) < sum(first) / 3
+
+
+def test_the_trend_of_a_large_field_follows_its_worst_heliostats(nights, drawn, tmp_path, monkeypatch):
+    monkeypatch.setattr(field_figures, "TREND_LINES", 2)  # "large": more heliostats than lines
+    with CampaignStore(nights.db_path, readonly=True) as store:
+        book = NightBook(store)
+        recs = book.nights()
+        rows = book.heliostats(recs[-1].id)
+        assert field_figures.trend(store, recs[-1].index, rows, recs, tmp_path) == "trend.png"
+        assert field_figures.trend(store, 0, rows, recs, tmp_path / "first") is None  # one night: no trend
+    texts = {t for t, _, _ in drawn["trend.png"]}
+    worst = {r["heliostat"] for r in sorted(rows, key=lambda r: -r["predicted_rms_mrad"])[:2]}
+    assert texts & {r["heliostat"] for r in rows} == worst
+    assert "The 2 heliostats with the largest predicted error tonight" in texts and "field (RMS)" in texts
