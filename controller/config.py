@@ -16,7 +16,6 @@ rule broken.
 
 from __future__ import annotations
 
-import hashlib
 import math
 from pathlib import Path
 from typing import Annotated, Literal
@@ -24,13 +23,31 @@ from typing import Annotated, Literal
 from pydantic import Field, ValidationError, field_validator, model_validator
 
 from controller.camera_config import Camera, Gige, Sensor  # noqa: F401 - the camera section
-from controller.config_rules import INT32_MAX, Direction, Position, PriorSigma, Section, Steps
+from controller.config_rules import Direction, Position, PriorSigma, Section
 from controller.errors import ConfigError, InputError
+from controller.field_file import config_sha256, load_field  # noqa: F401 - config_sha256 re-exported
+from controller.heliostat_config import (  # noqa: F401 - the heliostats section
+    Axes,
+    AxisConfig,
+    FieldFile,
+    Heliostat,
+    Kinematics,
+    Mirror,
+    SoftLimits,
+)
 from controller.io.config_keys import did_you_mean, key_path
-from controller.io.files import read_bytes
-from controller.io.yaml_files import parse_yaml, read_text
+from controller.io.yaml_files import MAX_BYTES, parse_yaml, read_text
 from controller.lamp_config import CommandLamps, Lamps, ModbusRtuLamps, ModbusTcpLamps, check_channels  # noqa: F401
-from controller.link_config import Link, ModbusRtuLink, ModbusTcpLink, SerialLink  # noqa: F401 - the links section
+from controller.link_config import (  # noqa: F401 - the links section
+    Bus,
+    Link,
+    ModbusRtuBus,
+    ModbusRtuLink,
+    ModbusTcpBus,
+    ModbusTcpLink,
+    SerialBus,
+    SerialLink,
+)
 
 Vec3 = tuple[float, float, float]
 _Model = Section  # every section: unknown keys refused, only finite numbers (controller.config_rules)
@@ -98,68 +115,6 @@ class LampSource(_Model):
 
 
 LightSource = Annotated[SunSource | LampSource, Field(discriminator="kind")]
-
-
-class SoftLimits(_Model):
-    min_steps: Steps
-    max_steps: Steps
-
-    @model_validator(mode="after")
-    def _ordered(self) -> SoftLimits:
-        if self.min_steps >= self.max_steps:
-            raise ValueError(f"min_steps ({self.min_steps}) must be below max_steps ({self.max_steps})")
-        return self
-
-
-class AxisConfig(_Model):
-    """One linear-actuator axis. Names and units as in the PAINT/ARTIST heliostat records."""
-
-    increment: float = Field(gt=0, le=1e9, description="motor steps per metre of stroke")
-    initial_stroke_length: float = Field(gt=0, le=10, description="stroke L0 at step 0, m")
-    offset: float = Field(gt=0, le=10, description="actuator mount offset from the pivot, m")
-    pivot_radius: float = Field(gt=0, le=10, description="lever arm from pivot to actuator rod end, m")
-    initial_angle: float = Field(ge=-math.pi, le=math.pi, description="axis angle at step 0, rad")
-    clockwise_axis_movement: bool = False
-    # Steps travel as int32 on both wire protocols (PROTOCOL.md, MODBUS.md).
-    min_increment: int = Field(ge=0, le=INT32_MAX, description="hard range start, steps")
-    max_increment: int = Field(gt=0, le=INT32_MAX, description="hard range end, steps")
-    soft_limits: SoftLimits
-    speed_steps_per_s: float = Field(default=1500.0, gt=0, le=100000)
-    acceleration_steps_per_s2: float = Field(default=3000.0, gt=0, le=1000000)
-    backlash_steps: int = Field(default=0, ge=0, le=1000)
-
-    @model_validator(mode="after")
-    def _limits_inside_range(self) -> AxisConfig:
-        if self.min_increment >= self.max_increment:
-            raise ValueError("min_increment must be below max_increment")
-        lo, hi = self.soft_limits.min_steps, self.soft_limits.max_steps
-        if lo < self.min_increment or hi > self.max_increment:
-            raise ValueError(
-                f"soft_limits [{lo}, {hi}] must lie inside the hard range "
-                f"[{self.min_increment}, {self.max_increment}]"
-            )
-        return self
-
-
-class Axes(_Model):
-    azimuth: AxisConfig
-    elevation: AxisConfig
-
-
-class Mirror(_Model):
-    width_m: float = Field(gt=0, le=30)
-    height_m: float = Field(gt=0, le=30)
-    focal_length_m: float = Field(gt=0, le=10000, description="on-axis focal length, m")
-    slope_error_mrad: float = Field(default=1.5, ge=0, le=20)
-    reflectivity: float = Field(default=0.93, gt=0, le=1)
-
-
-class Heliostat(_Model):
-    id: str
-    position_enu_m: Position
-    mirror: Mirror
-    axes: Axes
-    link: Link
 
 
 class ModelSettings(_Model):
@@ -251,6 +206,8 @@ class PlantConfig(_Model):
     targets: tuple[Target, ...] = Field(min_length=1)
     light_sources: tuple[LightSource, ...] = Field(min_length=1)
     heliostats: tuple[Heliostat, ...] = Field(min_length=1)
+    field: FieldFile | None = Field(default=None, description="the heliostats in a file of their own "
+                                    "(docs/configuration.md); None: heliostats inline")
     camera: Camera
     calibration: Calibration
     person_zones: tuple[PersonZone, ...] = ()
@@ -354,7 +311,8 @@ def _by_id(items, item_id: str, what: str):
 
 
 def parse_config(data: object, source: str = "<config>") -> PlantConfig:
-    """Validate an already-parsed YAML document; errors name ``source`` and the key path."""
+    """Validate an already-parsed YAML document; errors name ``source`` and the key path. A
+    ``field`` section's file is read relative to ``source``'s folder."""
     if data is None:
         raise ConfigError(f"{source}: the configuration is empty (see docs/configuration.md)")
     if not isinstance(data, dict):
@@ -362,27 +320,37 @@ def parse_config(data: object, source: str = "<config>") -> PlantConfig:
                           f"got {type(data).__name__}")
     # Top-level "x-" keys hold YAML anchors shared by several entries (as in compose files).
     data = {k: v for k, v in data.items() if not str(k).startswith("x-")}
+    if "field" in data and data["field"] is not None:
+        data = _with_field(data, source)
     try:
         return PlantConfig.model_validate(data)
     except ValidationError as exc:
-        err = exc.errors()[0]
-        rule = err["msg"].removeprefix("Value error, ")
-        if err["type"] == "extra_forbidden":
-            rule = "unknown key" + did_you_mean(str(err["loc"][-1]), PlantConfig)
-        elif err["type"] == "missing":
-            rule = "required key is missing"
-        more = f" (and {len(exc.errors()) - 1} more problems)" if len(exc.errors()) > 1 else ""
-        if not err["loc"] and err["type"] == "value_error":
-            raise ConfigError(f"{source}: {rule}{more}") from None  # the rule names its key path
-        raise ConfigError(f"{source}: {key_path(err['loc'])}: {rule}{more}") from None
+        raise _config_error(exc, source) from None
 
 
-def config_sha256(path: str | Path) -> str:
-    """SHA-256 of a configuration file's bytes: which configuration a campaign was started with."""
+def _with_field(data: dict, source: str) -> dict:
+    """``data`` with the heliostats of its ``field`` section's file."""
+    if "heliostats" in data:
+        raise ConfigError(f"{source}: heliostats: given both inline and in field.file; keep one")
     try:
-        return hashlib.sha256(read_bytes(path, "configuration")).hexdigest()
-    except InputError as exc:
-        raise ConfigError(str(exc)) from None
+        spec = FieldFile.model_validate(data["field"])
+    except ValidationError as exc:
+        raise _config_error(exc, source, ("field",)) from None
+    return {**data, "field": spec, "heliostats": load_field(spec, source)}
+
+
+def _config_error(exc: ValidationError, source: str, prefix: tuple = ()) -> ConfigError:
+    """The one line of pydantic's first error: file, key path (under ``prefix``), rule."""
+    err = exc.errors()[0]
+    rule = err["msg"].removeprefix("Value error, ")
+    if err["type"] == "extra_forbidden":
+        rule = "unknown key" + did_you_mean(str(err["loc"][-1]), PlantConfig)
+    elif err["type"] == "missing":
+        rule = "required key is missing"
+    more = f" (and {len(exc.errors()) - 1} more problems)" if len(exc.errors()) > 1 else ""
+    if not err["loc"] and err["type"] == "value_error" and not prefix:
+        return ConfigError(f"{source}: {rule}{more}")  # the rule names its key path
+    return ConfigError(f"{source}: {key_path(prefix + tuple(err['loc']))}: {rule}{more}")
 
 
 def load_config(path: str | Path) -> PlantConfig:
@@ -394,5 +362,7 @@ def load_config(path: str | Path) -> PlantConfig:
     try:
         data = parse_yaml(read_text(p, "configuration"), str(p))
     except InputError as exc:
-        raise ConfigError(str(exc)) from None
+        large = p.is_file() and p.stat().st_size > MAX_BYTES
+        hint = " (a large field's heliostats go in a field file: docs/configuration.md)" if large else ""
+        raise ConfigError(f"{exc}{hint}") from None
     return parse_config(data, str(p))

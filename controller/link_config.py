@@ -1,7 +1,8 @@
 """The links of the plant configuration (``heliostats[i].link``, docs/configuration.md): how
 the controller reaches each heliostat's drive — our serial frame protocol on an RS-485 bus,
-Modbus TCP through a gateway, or Modbus RTU. Re-exported by :mod:`controller.config`, whose
-:func:`load_config` validates it.
+Modbus TCP through a gateway, or Modbus RTU — and the buses of a field kept in its own file
+(``field.buses``: the same links without their station). Re-exported by
+:mod:`controller.config`, whose :func:`load_config` validates it.
 """
 
 from __future__ import annotations
@@ -65,3 +66,38 @@ class ModbusRtuLink(_Model):
 
 
 Link = Annotated[SerialLink | ModbusTcpLink | ModbusRtuLink, Field(discriminator="kind")]
+
+
+# The buses and gateways of ``field.buses`` (docs/configuration.md, "The field in its own
+# file"): a link without its station; ``link(station)`` completes it with the field file's
+# ``station`` column (a bus address or unit id, 1 … 247).
+
+
+class SerialBus(_Model):
+    kind: Literal["serial"]
+    device: str
+    baud: Baud = 115200
+
+    def link(self, station: int) -> SerialLink:
+        return SerialLink(kind="serial", device=self.device, address=station, baud=self.baud)
+
+
+class ModbusTcpBus(_Model):
+    kind: Literal["modbus-tcp"]
+    host: str
+    port: int = Field(ge=1, le=65535)
+
+    def link(self, station: int) -> ModbusTcpLink:
+        return ModbusTcpLink(kind="modbus-tcp", host=self.host, port=self.port, unit=station)
+
+
+class ModbusRtuBus(_Model):
+    kind: Literal["modbus-rtu"]
+    device: str
+    baud: Baud = 115200
+
+    def link(self, station: int) -> ModbusRtuLink:
+        return ModbusRtuLink(kind="modbus-rtu", device=self.device, unit=station, baud=self.baud)
+
+
+Bus = Annotated[SerialBus | ModbusTcpBus | ModbusRtuBus, Field(discriminator="kind")]
