@@ -123,5 +123,6 @@ def test_a_field_of_10000_heliostats_loads(tmp_path):
     assert path.stat().st_size < 100_000 and path.with_suffix(".csv").stat().st_size < 1 << 20
     cfg = load_config(path)
     assert len(cfg.heliostats) == 10_000
-    assert cfg.heliostat("F09999").position_enu_m == tuple(data["heliostats"][9998]["position_enu_m"])
-    assert cfg.heliostat("F09999").mirror.focal_length_m == data["heliostats"][9998]["mirror"]["focal_length_m"]
+    last, row = cfg.heliostat("F09999"), data["heliostats"][9998]
+    assert last.position_enu_m == tuple(row["position_enu_m"])
+    assert last.mirror.focal_length_m == row["mirror"]["focal_length_m"]

@@ -1,4 +1,5 @@
-"""``heliocal sim {firmware,errorset}``: the embedded simulated plant's pieces."""
+"""``heliocal sim {plant,firmware,lamp-panel,errorset}``: the simulated plant, whole on real
+transports or in pieces."""
 
 from controller.commands._groups import register_group
 
