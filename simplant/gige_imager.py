@@ -30,6 +30,8 @@ from collections.abc import Callable
 
 import numpy as np
 
+from controller.errors import DeviceError
+
 GVCP_PORT = 3956
 _DISCOVERY, _PACKET_RESEND = 0x0002, 0x0040
 _READ_REG, _WRITE_REG, _READ_MEM, _WRITE_MEM = 0x0080, 0x0082, 0x0084, 0x0086
@@ -42,12 +44,16 @@ _PIXEL_FORMATS = {0x01080001: np.uint8, 0x01100007: np.uint16}  # Mono8, Mono16
 _KEPT_FRAMES = 4  # frames whose packets are kept for resend requests
 
 
-def _aravis():
-    import gi
+def aravis():
+    """Aravis 0.8 and Gio through PyGObject; DeviceError saying what to install."""
+    try:
+        import gi
 
-    gi.require_version("Aravis", "0.8")
-    from gi.repository import Aravis, Gio
-
+        gi.require_version("Aravis", "0.8")
+        from gi.repository import Aravis, Gio
+    except (ImportError, ValueError) as exc:
+        raise DeviceError(f"the simulated GigE imagers need Aravis 0.8 through PyGObject ({exc}); install "
+                          "gir1.2-aravis-0.8 and the gige extra (docs/camera.md)") from None
     return Aravis, Gio
 
 
@@ -57,7 +63,7 @@ class GigeImagerServer:
     serves (OSError when the address is taken); :meth:`stop` ends it."""
 
     def __init__(self, address: str, serial: str, frame: Callable[[], tuple[np.ndarray, int]]) -> None:
-        arv, gio = _aravis()
+        arv, gio = aravis()
         self.address = address
         self.serial = serial
         self._frame = frame

@@ -29,7 +29,11 @@ from pathlib import Path
 import yaml
 
 from controller.config import PlantConfig, parse_config
+from controller.devices.drive import DriveLimits
+from controller.devices.factory import LinkPool
+from controller.devices.lamp_panel import open_lamp_panel
 from controller.errors import DeviceError, InputError
+from simplant.gige_imager import aravis, discover
 from simplant.gige_plant import GigeCamera
 from simplant.plant import SimulatedPlant, load_config_data
 from simplant.settings import SimulationSettings
@@ -51,6 +55,7 @@ class RehearsalPlant:
                 raise InputError(f"{config}: the camera of target {t.id!r}: the simulated GigE imagers "
                                  f"deliver Mono8 or Mono16 frames of at most {MAX_SENSOR_PX}x{MAX_SENSOR_PX} "
                                  f"pixels (bit_depth {cam.bit_depth}, {cam.width_px}x{cam.height_px})")
+        aravis()  # before anything is served
         self.config = Path(config)
         self.out = out
         self.run_dir = Path(tempfile.mkdtemp(prefix="heliocal-plant-"))
@@ -98,11 +103,6 @@ class RehearsalPlant:
     def _wait_for_answers(self, cfg: PlantConfig) -> None:
         """Until every drive, the lamp panel and every imager answers through the product's
         drivers (DeviceError naming the first that does not within :data:`ANSWER_S`)."""
-        from controller.devices.drive import DriveLimits
-        from controller.devices.factory import LinkPool
-        from controller.devices.lamp_panel import open_lamp_panel
-        from simplant.gige_imager import discover
-
         with LinkPool(timeout_s=0.5, retries=2) as pool:
             for h in cfg.heliostats:
                 drive = pool.drive(h.link, DriveLimits.from_axes(h.axes))

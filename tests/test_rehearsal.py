@@ -21,7 +21,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from tests.conftest import scaled_s
+from tests.conftest import run_cli, scaled_s
 
 REPO = Path(__file__).resolve().parents[1]
 DEMO = REPO / "configs" / "demo.yaml"
@@ -202,3 +202,43 @@ def test_the_lamp_panel_alone_switches_and_confirms_over_modbus(tmp_path):
     finally:
         code, err = _interrupt(panel)
     assert code == 0 and "Traceback" not in err, err
+
+
+def test_a_field_file_stays_the_field_file_and_sigterm_cleans_up(tmp_path):
+    """C with its heliostats in a field file (a serial bus, a Modbus RTU bus, a Modbus TCP
+    gateway): the written configuration refers to the same file, its buses to the served devices."""
+    if MISSING:
+        pytest.skip(MISSING)
+    from simplant.cheap_night import write_config
+
+    data = yaml.safe_load(DEMO.read_text())
+    data["heliostats"] = [h for h in data["heliostats"] if h["id"] in ("H01", "H07", "H13")]
+    data["heliostats"][1]["link"] = {"kind": "modbus-rtu", "device": "/dev/ttyUSB9", "unit": 2}
+    write_config(data, tmp_path / "plant.yaml")
+    out = tmp_path / "served.yaml"
+    argv = [*CLI, "sim", "plant", "--config", "plant.yaml", "--write-config", out.name, "--json"]
+    plant = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
+    try:
+        line = plant.stdout.readline()
+        assert line, plant.stderr.read()
+        assert json.loads(line)["heliostats"] == 3
+        written = yaml.safe_load(out.read_text())
+        assert "heliostats" not in written and written["field"]["file"] == str(tmp_path / "plant.csv")
+        buses = {b["kind"]: b for b in written["field"]["buses"].values()}
+        assert set(buses) == {"serial", "modbus-rtu", "modbus-tcp"}
+        assert Path(buses["serial"]["device"]).exists() and Path(buses["modbus-rtu"]["device"]).exists()
+        assert buses["modbus-tcp"]["host"] == "127.0.0.1" and buses["modbus-tcp"]["port"] != 15020
+        run_dir = Path(written["camera"]["crf_file"]).parent
+    finally:
+        plant.terminate()
+        code = plant.wait(timeout=scaled_s(30))
+    assert code == 0, plant.stderr.read()
+    assert not out.exists() and not run_dir.exists() and (tmp_path / "plant.csv").exists()
+
+
+def test_an_existing_output_is_never_overwritten(tmp_path):
+    out = tmp_path / "mine.yaml"
+    out.write_text("site: {}\n")
+    code, stdout, err = run_cli(["sim", "plant", "--config", str(DEMO), "--write-config", str(out)])
+    assert code == 2 and stdout == "" and len(err.splitlines()) == 1 and "exists already" in err, err
+    assert out.read_text() == "site: {}\n"

@@ -24,7 +24,7 @@ from pathlib import Path
 
 from controller.commands._common import add_config_option, add_json_option, print_json
 from controller.commands._numbers import SEED, Number
-from controller.errors import HeliocalError, InputError
+from controller.errors import InputError
 
 
 def register(subparsers) -> None:
@@ -51,12 +51,9 @@ def run(args) -> int:
                          "when it stops; remove it or choose another name)")
     if not out.parent.is_dir():
         raise InputError(f"--write-config {out}: no folder {out.parent}")
-    try:
-        from simplant.rehearsal import RehearsalPlant
-        from simplant.settings import SimulationSettings
-    except ImportError as exc:  # Aravis through PyGObject: the GigE imagers' device model
-        raise HeliocalError(f"the simulated plant's GigE cameras need Aravis 0.8 and PyGObject ({exc}); "
-                            "install gir1.2-aravis-0.8 and the gige extra (docs/camera.md)") from None
+    from simplant.rehearsal import RehearsalPlant
+    from simplant.settings import SimulationSettings
+
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
