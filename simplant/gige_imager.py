@@ -37,6 +37,7 @@ _DISCOVERY, _PACKET_RESEND = 0x0002, 0x0040
 _READ_REG, _WRITE_REG, _READ_MEM, _WRITE_MEM = 0x0080, 0x0082, 0x0084, 0x0086
 _DISCOVERY_SIZE = 0xF8  # bootstrap registers a discovery answer carries
 _SCPS0 = 0x0D04  # bootstrap register: stream channel 0's packet size (low 16 bits)
+_GVCP_CAPABILITY, _PACKET_RESEND_SUPPORTED = 0x0934, 1 << 2  # bootstrap register and its bit
 _ACCESS_DENIED = 0x8006  # GVCP status of a write from a host without the control channel
 _GVSP_OVERHEAD = 20 + 8 + 8  # IP, UDP and GVSP headers within a packet size
 _LEADER, _TRAILER, _PAYLOAD = 1, 2, 3
@@ -69,6 +70,9 @@ class GigeImagerServer:
         self._frame = frame
         self._fake = arv.FakeCamera.new(serial)
         self._fake.set_inet_address(gio.InetAddress.new_from_string(address))
+        # Unlike the fake's own socket layer, this one resends lost packets: say so.
+        self._fake.write_register(_GVCP_CAPABILITY, self._fake.read_register(_GVCP_CAPABILITY)[1]
+                                  | _PACKET_RESEND_SUPPORTED)
         self._pointer = _gpointer(self._fake)
         self._registers = _register_addresses(self._fake.get_genicam_xml()[0])
         self._lock = threading.Lock()  # the device model: GVCP and stream threads share it
