@@ -30,7 +30,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from controller.errors import DeviceError
+from controller.devices import gige_device
 
 GVCP_PORT = 3956
 _DISCOVERY, _PACKET_RESEND = 0x0002, 0x0040
@@ -46,16 +46,9 @@ _KEPT_FRAMES = 4  # frames whose packets are kept for resend requests
 
 
 def aravis():
-    """Aravis 0.8 and Gio through PyGObject; DeviceError saying what to install."""
-    try:
-        import gi
-
-        gi.require_version("Aravis", "0.8")
-        from gi.repository import Aravis, Gio
-    except (ImportError, ValueError) as exc:
-        raise DeviceError(f"the simulated GigE imagers need Aravis 0.8 through PyGObject ({exc}); install "
-                          "gir1.2-aravis-0.8 and the gige extra (docs/camera.md)") from None
-    return Aravis, Gio
+    """Aravis 0.8 through PyGObject, as the product's GigE driver loads it (a CameraError saying
+    what to install when it is missing)."""
+    return gige_device.aravis()
 
 
 class GigeImagerServer:
@@ -64,12 +57,14 @@ class GigeImagerServer:
     serves (OSError when the address is taken); :meth:`stop` ends it."""
 
     def __init__(self, address: str, serial: str, frame: Callable[[], tuple[np.ndarray, int]]) -> None:
-        arv, gio = aravis()
+        from gi.repository import Gio
+
+        arv = aravis()
         self.address = address
         self.serial = serial
         self._frame = frame
         self._fake = arv.FakeCamera.new(serial)
-        self._fake.set_inet_address(gio.InetAddress.new_from_string(address))
+        self._fake.set_inet_address(Gio.InetAddress.new_from_string(address))
         # Unlike the fake's own socket layer, this one resends lost packets: say so.
         self._fake.write_register(_GVCP_CAPABILITY, self._fake.read_register(_GVCP_CAPABILITY)[1]
                                   | _PACKET_RESEND_SUPPORTED)

@@ -36,14 +36,13 @@ REHEARSAL = {
 
 
 def _missing() -> str | None:
-    try:
-        import gi
+    from controller.errors import DeviceError
+    from simplant.gige_imager import aravis
 
-        gi.require_version("Aravis", "0.8")
-        from gi.repository import Aravis  # noqa: F401
-    except (ImportError, ValueError) as exc:
-        return (f"Aravis 0.8 through PyGObject is not importable ({exc}); install gir1.2-aravis-0.8 and "
-                "PyGObject")
+    try:
+        aravis()
+    except DeviceError as exc:
+        return str(exc)
     return None
 
 

@@ -13,11 +13,13 @@ lamp lighting when its coil is written on; prints one line (``--json``: ``{"ok":
 
 from __future__ import annotations
 
-import signal
-import sys
-import threading
-
-from controller.commands._common import add_config_option, add_json_option, print_json
+from controller.commands._common import (
+    add_config_option,
+    add_json_option,
+    print_json,
+    serve_until,
+    stop_on_signals,
+)
 from controller.commands._numbers import Number
 from controller.errors import InputError
 
@@ -39,9 +41,7 @@ def run(args) -> int:
     channels = panel_channels(load_config(args.config))
     if not channels:
         raise InputError(f"{args.config}: no lamp and no registering camera: the panel would have no channel")
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+    stop = stop_on_signals()
     panel = SimLampPanel(PanelLamps(channels), channels)
     try:
         port = panel.start(port=args.port)
@@ -56,9 +56,7 @@ def run(args) -> int:
             listed = ", ".join(f"{name}={i}" for name, i in channels.items())
             print(f"serving a lamp panel on 127.0.0.1:{port} unit {panel.unit}, channels {listed}; "
                   "stop with Ctrl-C or SIGTERM")
-        sys.stdout.flush()
-        while not stop.wait(0.2):
-            pass
+        serve_until(stop)
     finally:
         panel.stop()
     return 0

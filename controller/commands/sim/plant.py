@@ -17,12 +17,15 @@ OUT.yaml that exists already; 1: a device that does not come up.
 
 from __future__ import annotations
 
-import signal
-import sys
-import threading
 from pathlib import Path
 
-from controller.commands._common import add_config_option, add_json_option, print_json
+from controller.commands._common import (
+    add_config_option,
+    add_json_option,
+    print_json,
+    serve_until,
+    stop_on_signals,
+)
 from controller.commands._numbers import SEED, Number
 from controller.errors import InputError
 
@@ -54,9 +57,7 @@ def run(args) -> int:
     from simplant.rehearsal import RehearsalPlant
     from simplant.settings import SimulationSettings
 
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+    stop = stop_on_signals()
     settings = SimulationSettings(clock_speedup=args.speedup, seed=args.seed)
     plant = RehearsalPlant(args.config, cfg, out, settings)
     try:
@@ -68,9 +69,7 @@ def run(args) -> int:
             print(f"serving the simulated plant of {args.config}: {ready['heliostats']} heliostats on "
                   f"{', '.join(ready['drives'])}; lamp panel {ready['lamp_panel']}; cameras (GigE LOW / "
                   f"HIGH) {cams}; configuration {out}; stop with Ctrl-C or SIGTERM")
-        sys.stdout.flush()
-        while not stop.wait(0.2):
-            pass
+        serve_until(stop)
     finally:
         plant.stop()
     return 0
