@@ -92,7 +92,7 @@ class SimulatedPlant:
         self.run_dir = Path(run_dir)
         self.data = copy.deepcopy(cfg_data)
         if self.data.get("field"):  # the field file stays where it is when the config is rewritten
-            self.data["field"]["file"] = str(field_path(self.data["field"]["file"], source).resolve())
+            self.data["field"]["file"] = str(field_path(self.data["field"]["file"], source).absolute())
         cfg = parse_config(self.data, source)
         self.cfg = cfg
         self.ids = heliostat_ids or [h.id for h in cfg.heliostats]
@@ -361,7 +361,12 @@ class SimulatedPlant:
 
 
 def load_config_data(path: str | Path) -> dict:
-    """The raw YAML mapping of a config file (validated by :func:`controller.config.load_config` first)."""
-    return yaml.safe_load(Path(path).read_text(encoding="utf-8"))
+    """The raw YAML mapping of a config file (validated by :func:`controller.config.load_config`
+    first), its field file's path (``field.file``) made absolute: the mapping goes to places that
+    do not know the file's folder."""
+    data = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
+    if data.get("field"):
+        data["field"]["file"] = str(field_path(data["field"]["file"], str(path)).absolute())
+    return data
 
 
