@@ -20,6 +20,7 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import functools
+import logging
 import queue
 import re
 import socket
@@ -43,6 +44,7 @@ _GVSP_OVERHEAD = 20 + 8 + 8  # IP, UDP and GVSP headers within a packet size
 _LEADER, _TRAILER, _PAYLOAD = 1, 2, 3
 _PIXEL_FORMATS = {0x01080001: np.uint8, 0x01100007: np.uint16}  # Mono8, Mono16
 _KEPT_FRAMES = 4  # frames whose packets are kept for resend requests
+_log = logging.getLogger(__name__)
 
 
 def aravis():
@@ -81,8 +83,6 @@ class GigeImagerServer:
         self._threads: list[threading.Thread] = []
         self._gvcp: socket.socket | None = None
         self._gvsp: socket.socket | None = None
-        self.frames_sent = 0
-        self.last_error: str | None = None  # why the last triggered frame was not sent
 
     # -- lifecycle ------------------------------------------------------------------------
     def start(self) -> None:
@@ -131,8 +131,8 @@ class GigeImagerServer:
         return buf.raw
 
     def _write_memory(self, address: int, data: bytes) -> None:
-        _libaravis().arv_fake_camera_write_memory(self._pointer, address, len(data),
-                                            ctypes.create_string_buffer(data, len(data)))
+        buf = ctypes.create_string_buffer(data, len(data))
+        _libaravis().arv_fake_camera_write_memory(self._pointer, address, len(data), buf)
 
     # -- GVCP -----------------------------------------------------------------------------
     def _serve_control(self) -> None:
@@ -217,7 +217,8 @@ class GigeImagerServer:
                 image, timestamp_ns = self._frame()
                 self._send(image, timestamp_ns, (where.get_address().to_string(), where.get_port()))
             except Exception as exc:  # noqa: BLE001 - a frame lost is what a camera does; say why
-                self.last_error = f"{type(exc).__name__}: {exc}"
+                _log.warning("simulated GigE imager %s: a triggered frame was not sent: %s: %s", self.address,
+                             type(exc).__name__, exc)
 
     def _send(self, image: np.ndarray, timestamp_ns: int, destination: tuple[str, int]) -> None:
         """Stream ``image`` as one GVSP block: leader, payload packets, trailer."""
@@ -244,7 +245,6 @@ class GigeImagerServer:
         self._destination = destination
         for p in packets:
             self._gvsp.sendto(p, destination)
-        self.frames_sent += 1
 
     def _resend(self, block: int, first: int, last: int) -> None:
         packets = self._sent.get(block & 0xFFFF)
