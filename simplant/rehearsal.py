@@ -59,14 +59,21 @@ class RehearsalPlant:
         self.config = Path(config)
         self.out = out
         self.run_dir = Path(tempfile.mkdtemp(prefix="heliocal-plant-"))
-        self.plant = SimulatedPlant(load_config_data(config), self.run_dir, settings=settings,
-                                    source=str(config))
+        try:
+            self.plant = SimulatedPlant(load_config_data(config), self.run_dir, settings=settings,
+                                        source=str(config))
+        except BaseException:
+            shutil.rmtree(self.run_dir, ignore_errors=True)
+            raise
         self.cameras: dict[str, GigeCamera] = {}
         self.written = False
 
     def start(self) -> dict:
         """Serve every device, wait until each answers, write ``out``; what serves where."""
-        cfg = self.plant.start()
+        try:
+            cfg = self.plant.start()
+        except ValueError as exc:  # a field the simulated plant cannot serve (simplant.plant_drives)
+            raise InputError(f"{self.config}: {exc}") from None
         data = self.plant.data
         shared = None  # the top-level camera section goes to the first target without its own
         for k, t in enumerate(cfg.targets):

@@ -241,3 +241,18 @@ def test_an_existing_output_is_never_overwritten(tmp_path):
     code, stdout, err = run_cli(["sim", "plant", "--config", str(DEMO), "--write-config", str(out)])
     assert code == 2 and stdout == "" and len(err.splitlines()) == 1 and "exists already" in err, err
     assert out.read_text() == "site: {}\n"
+
+
+def test_a_field_the_plant_cannot_serve_is_refused_in_one_line(tmp_path):
+    if MISSING:
+        pytest.skip(MISSING)
+    data = yaml.safe_load(DEMO.read_text())
+    h14 = next(h for h in data["heliostats"] if h["id"] == "H14")
+    h14["link"] = {**h14["link"], "port": 15021, "unit": 1}  # a second gateway, H13's unit id
+    (tmp_path / "two.yaml").write_text(yaml.safe_dump(data))
+    out = tmp_path / "served.yaml"
+    code, stdout, err = run_cli(["sim", "plant", "--config", str(tmp_path / "two.yaml"),
+                                 "--write-config", str(out)])
+    assert code == 2 and stdout == "" and len(err.splitlines()) == 1, err
+    assert "every Modbus TCP gateway on one port: unit 1 is configured twice" in err
+    assert not out.exists()
