@@ -5,4 +5,4 @@ from controller.commands._groups import register_group
 
 
 def register(subparsers) -> None:
-    register_group(subparsers, __name__, "run pieces of the simulated plant")
+    register_group(subparsers, __name__, "run the simulated plant on real transports, whole or in pieces")
