@@ -22,6 +22,7 @@ from pathlib import Path
 import pytest
 
 from tests.docs_markdown import broken_links, code_blocks, table_cells
+from tests.test_rehearsal import REHEARSAL
 
 REPO = Path(__file__).resolve().parents[1]
 PAGES = [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]
@@ -40,6 +41,8 @@ NOT_HERE = {
         "run, and its printed figures checked, by tests/test_docs_examples.py",
     "heliocal demo --heliostats 2 --nights 1 --out demo":
         "the demo run this test's fixture makes (demo/ of the sandbox)",
+    **dict.fromkeys(REHEARSAL.values(), "the rehearsal: serves until Ctrl-C, or needs it serving; "
+                                        "tests/test_rehearsal.py runs these as written"),
 }
 PLACEHOLDER = re.compile(r"(?!H\d+$)[A-Z][A-Z0-9_]*([.:][A-Za-z0-9_.]+)?")
 
