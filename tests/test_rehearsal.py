@@ -161,8 +161,6 @@ def test_campaign_night_measures_the_heliostats_on_real_transports(rehearsal):
     assert all(lamp["confirmed"] and lamp["by"] == "panel" for lamp in summary["lamps"])
 
 
-@pytest.mark.xfail(strict=True, reason="lights out at every end of a campaign or night is issue 40 item 1, "
-                   "done in branch wt/ops; remove this mark when it is merged")
 def test_every_lamp_reads_dark_after_each_normal_end(rehearsal):
     for step in ("run", "night"):
         lamps = rehearsal[f"lamps_after_{step}"]
