@@ -134,7 +134,7 @@ def layout_rms(cfg, hid: str, index: int, nights: int) -> tuple[float, int]:
     observation and ``nights`` planned nights (module docstring, ``--layout``), and the number
     of planned measurements. Uses the model only: no truth, no measurement."""
     cal = cfg.calibration
-    model, cov = model_covariance(None, cal.model.prior_sigma)
+    model, cov = model_covariance(None, cal.model)
     kin = HeliostatKinematics.from_config(cfg.heliostat(hid))
     centre = np.asarray(cfg.target().center_enu_m, float)
     a = beam_jacobians(kin, model, planner_sun(cfg), centre)

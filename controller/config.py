@@ -128,6 +128,10 @@ class ModelSettings(_Model):
     age_halflife_days: float = Field(default=30.0, gt=0, le=3650,
                                      description="a measurement this many days older than the newest "
                                                  "weighs half in the fit (drift)")
+    field_prior: str | None = Field(
+        default=None, min_length=1, max_length=4096,
+        description="PRIOR.json of 'heliocal model prior': the field's prior of the terms (relative to "
+                    "this file's folder); none: the documented one")
 
     @field_validator("prior_sigma")
     @classmethod
@@ -323,10 +327,22 @@ def parse_config(data: object, source: str = "<config>") -> PlantConfig:
     data = {k: v for k, v in data.items() if not str(k).startswith("x-")}
     if "field" in data and data["field"] is not None:
         data = _with_field(data, source)
+    data = _with_prior_path(data, source)
     try:
         return PlantConfig.model_validate(data)
     except ValidationError as exc:
         raise _config_error(exc, source) from None
+
+
+def _with_prior_path(data: dict, source: str) -> dict:
+    """``data`` with ``calibration.model.field_prior`` taken relative to ``source``'s folder."""
+    cal = data.get("calibration")
+    model = cal.get("model") if isinstance(cal, dict) else None
+    path = model.get("field_prior") if isinstance(model, dict) else None
+    if not isinstance(path, str) or not path or Path(path).is_absolute():
+        return data
+    resolved = str(Path(source).resolve().parent / path)
+    return {**data, "calibration": {**data["calibration"], "model": {**model, "field_prior": resolved}}}
 
 
 def _with_field(data: dict, source: str) -> dict:

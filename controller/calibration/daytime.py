@@ -132,7 +132,7 @@ def _daytime_chunk(ctx, tasks: list) -> list[tuple]:
     per, sum_sq, count, pooled = {}, 0.0, 0, []
     hist = np.zeros(len(HIST_EDGES) - 1, np.int64)
     for hid, rec in tasks:
-        model, cov = model_covariance(rec, cfg.calibration.model.prior_sigma)
+        model, cov = model_covariance(rec, cfg.calibration.model)
         kin = HeliostatKinematics.from_config(cfg.heliostat(hid))
         pe = predicted_error(kin, model, cov, directions, target, draws=DRAWS)
         per[hid] = pe.rms
@@ -161,7 +161,7 @@ class DaytimeTally:
         cfg, directions, _ = self.ctx
         target = np.asarray(cfg.target().center_enu_m, float)
         for hid, rec in models.items():
-            model, cov = model_covariance(rec, cfg.calibration.model.prior_sigma)
+            model, cov = model_covariance(rec, cfg.calibration.model)
             pe = predicted_error(HeliostatKinematics.from_config(cfg.heliostat(hid)), model, cov, directions,
                                  target, draws=DRAWS)
             self.sums[hid] = (float(np.sum(pe.draws_mrad**2)), pe.draws_mrad.size)

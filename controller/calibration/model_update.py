@@ -4,16 +4,19 @@ to night as a random walk (:mod:`controller.geometry.model_drift`)."""
 
 from __future__ import annotations
 
+import functools
 from datetime import datetime
 
 import numpy as np
 
 from controller.calibration.records import MeasurementRecord, ModelRecord
 from controller.config import ModelSettings
+from controller.geometry.field_prior import FieldPrior
+from controller.geometry.field_prior_io import read_prior
 from controller.geometry.kinematics import HeliostatKinematics
 from controller.geometry.model_drift import RandomWalk
 from controller.geometry.model_fit import NotIdentifiable, Sample, fit_model
-from controller.geometry.tracking_model import drift_sigma, prior_sigma
+from controller.geometry.tracking_model import TrackingModel, drift_sigma, prior_sigma
 
 
 def fit_measurements(kin: HeliostatKinematics, measurements: list[MeasurementRecord],
@@ -32,9 +35,10 @@ def fit_measurements(kin: HeliostatKinematics, measurements: list[MeasurementRec
                for m, w, s in zip(used, weights, stamps, strict=True)]
     # The references walk by σ per √day; a night is a session (no gap of NIGHT_GAP_S within it).
     walk = RandomWalk(drift_sigma(settings.prior_sigma), gap_days=NIGHT_GAP_S / 86400.0)
+    prior = model_prior(settings)
     try:
-        fit = fit_model(kin, samples, noise_mrad=settings.noise_mrad, prior_sigma=model_prior(settings),
-                        drift=walk)
+        fit = fit_model(kin, samples, noise_mrad=settings.noise_mrad, prior=TrackingModel(prior.mean),
+                        prior_sigma=prior.sigma, drift=walk)
     except NotIdentifiable:
         return None
     detail = {"covariance_si": fit.covariance.tolist(), "identified": fit.identified_terms(),
@@ -43,11 +47,21 @@ def fit_measurements(kin: HeliostatKinematics, measurements: list[MeasurementRec
                        detail)
 
 
-def model_prior(settings: ModelSettings, source: str = "") -> np.ndarray:
-    """Prior 1-σ (SI) of every tracking-model term from ``calibration.model``; InputError
-    naming ``source`` (the config file) and an unknown term key."""
-    return prior_sigma(settings.prior_sigma, f"{source}: calibration.model.prior_sigma" if source
-                       else "calibration.model.prior_sigma")
+def model_prior(settings: ModelSettings, source: str = "") -> FieldPrior:
+    """Prior mean and 1-σ (SI) of every tracking-model term from ``calibration.model``: the
+    field's prior (``field_prior``, read once per file) or the documented one, with the σ of
+    the terms ``prior_sigma`` lists replaced. InputError naming ``source`` (the config file)
+    and an unknown term key, or the prior file and its key."""
+    base = _field_prior(settings.field_prior) if settings.field_prior else None
+    sigma = prior_sigma(settings.prior_sigma, f"{source}: calibration.model.prior_sigma" if source
+                        else "calibration.model.prior_sigma", base=None if base is None else base.sigma)
+    mean = np.zeros(len(sigma)) if base is None else base.mean
+    return FieldPrior(mean, sigma, np.zeros(len(sigma), int) if base is None else base.count)
+
+
+@functools.lru_cache(maxsize=8)
+def _field_prior(path: str) -> FieldPrior:
+    return read_prior(path)
 
 
 NIGHT_GAP_S = 6 * 3600.0  # measurements further apart than this were taken on different nights

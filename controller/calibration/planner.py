@@ -188,7 +188,7 @@ def assess_many(geo: FieldGeometry, tasks: list[tuple]) -> list[tuple[list[PlanI
         for _, _, _, strategy, *_ in part:
             if strategy not in ("design", "round-robin"):
                 raise ValueError(f"unknown planning strategy {strategy!r}")
-        mc = {hid: model_covariance(rec, cal.model.prior_sigma) for hid, rec, *_ in part}
+        mc = {hid: model_covariance(rec, cal.model) for hid, rec, *_ in part}
         jobs = [(hid, *mc[hid], tid) for hid, _, _, _, _, targets, _ in part
                 for tid in targets or cal.parallel_targets()]
         found = iter(evaluate_many(geo, jobs))

@@ -22,7 +22,7 @@ from controller.geometry.correction import correction_from_offset
 from controller.geometry.kinematics import HeliostatKinematics
 from controller.geometry.spot import MirrorOptics, predict_spots, standby_clearance_m
 from controller.geometry.target_frame import TargetFrame
-from controller.geometry.tracking_model import TERMS, TrackingModel, model_aim, prior_sigma
+from controller.geometry.tracking_model import TERMS, TrackingModel, model_aim
 from controller.geometry.vectors import vector_to_azel
 
 PARK_MARGIN_M = 0.5  # a parked spot's 3σ footprint ends at least this far outside the camera's view
@@ -108,7 +108,7 @@ class GeometryPointing(BeamSafety):
         view's half-width plus 3σ of the spot's size and of its position (the model's covariance,
         the prior without a model; at least the measured normal's noise doubled, spot Eq. 3), as
         the spot at the aim point predicts them (:func:`controller.geometry.spot.standby_clearance_m`)."""
-        tm, cov = model_covariance(model, self.model_settings.prior_sigma)
+        tm, cov = model_covariance(model, self.model_settings)
         try:
             steps = np.array([self._steps(self.aim_point, model)], float)
         except (LimitError, ValueError):
@@ -227,12 +227,13 @@ def nominal_aims(cfg: PlantConfig, ids: list[str]) -> list[NominalAim]:
     return out
 
 
-def model_covariance(model: ModelRecord | None, prior: dict[str, float] | None = None) -> tuple[TrackingModel,
-                                                                                                 np.ndarray]:
-    """(model, covariance SI²) of a stored model; the nominal model with the prior covariance
-    when there is none (or it predates covariances)."""
+def model_covariance(model: ModelRecord | None, settings: ModelSettings) -> tuple[TrackingModel, np.ndarray]:
+    """(model, covariance SI²) of a stored model; without one (or one that predates
+    covariances) the prior's model and covariance (``calibration.model``: the field's prior or
+    the documented one, :func:`controller.calibration.model_update.model_prior`)."""
     cov = None if model is None else model.detail.get("covariance_si")
     if cov is None or len(cov) != len(TERMS):
-        base = TrackingModel.zero() if model is None else TrackingModel.from_dict(model.params)
-        return base, np.diag(prior_sigma(prior, "calibration.model.prior_sigma") ** 2)
+        prior = model_prior(settings)
+        base = TrackingModel(prior.mean) if model is None else TrackingModel.from_dict(model.params)
+        return base, np.diag(prior.sigma**2)
     return TrackingModel.from_dict(model.params), np.asarray(cov, float)

@@ -197,7 +197,7 @@ def _sun_directions(config_path: str, sha256: str) -> np.ndarray:
 
 
 def _predicted(cfg: PlantConfig, kin: HeliostatKinematics, model: ModelRecord | None, dirs) -> float | None:
-    m, cov = model_covariance(model, cfg.calibration.model.prior_sigma)
+    m, cov = model_covariance(model, cfg.calibration.model)
     try:
         return predicted_error(kin, m, cov, dirs, np.asarray(cfg.target().center_enu_m, float)).rms
     except InputError:  # the heliostat reaches no aim on the evaluation path

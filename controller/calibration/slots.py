@@ -80,7 +80,7 @@ def spot_reach_m(cfg: PlantConfig, target_id: str, lamp_id: str, heliostats: dic
     for hid, rec in heliostats.items():
         h = cfg.heliostat(hid)
         kin = HeliostatKinematics.from_config(h)
-        model, cov = model_covariance(rec, cfg.calibration.model.prior_sigma)
+        model, cov = model_covariance(rec, cfg.calibration.model)
         steps, _ = aim_steps(kin, model.values, aims, lamp=np.asarray(lamp.position_enu_m, float))
         sp = predict_spots(kin, MirrorOptics.from_config(h.mirror), model.values, cov, steps, aims, frame,
                            lamp=np.asarray(lamp.position_enu_m, float), lamp_diameter_m=lamp.diameter_m,

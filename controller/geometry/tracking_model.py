@@ -144,11 +144,12 @@ class TrackingModel:
 DRIFT_KEY = "drift_mrad"
 
 
-def prior_sigma(overrides: dict[str, float] | None = None, what: str = "prior_sigma") -> np.ndarray:
-    """Prior 1-σ of every term, SI: the documented defaults with ``overrides`` (``{key: σ}`` in
-    the key's unit) applied (:data:`DRIFT_KEY` is no term and is skipped). InputError naming an
-    unknown key."""
-    sigma = PRIOR_SIGMA_SI.copy()
+def prior_sigma(overrides: dict[str, float] | None = None, what: str = "prior_sigma",
+                base: np.ndarray | None = None) -> np.ndarray:
+    """Prior 1-σ of every term, SI: ``base`` (default: the documented σ) with ``overrides``
+    (``{key: σ}`` in the key's unit) applied (:data:`DRIFT_KEY` is no term and is skipped).
+    InputError naming an unknown key."""
+    sigma = (PRIOR_SIGMA_SI if base is None else np.asarray(base, float)).copy()
     for key, v in (overrides or {}).items():
         if key == DRIFT_KEY:
             continue

@@ -282,7 +282,7 @@ def calibrated_record(cfg, hid: str, observations: int = 3) -> ModelRecord:
     from controller.geometry.tracking_model import model_aim
 
     cal = cfg.calibration
-    model, cov = model_covariance(None, cal.model.prior_sigma)
+    model, cov = model_covariance(None, cal.model)
     kin = HeliostatKinematics.from_config(cfg.heliostat(hid))
     lamp = np.asarray(cfg.light_source().position_enu_m, float)
     centre = np.asarray(cfg.target().center_enu_m, float)

@@ -53,7 +53,7 @@ def test_no_model_no_measurable_geometry_and_the_plan_says_why(demo):
 
 def test_every_planned_spot_stays_in_view_and_a_narrow_view_drops_outer_aim_points(demo):
     hid, rec = "H13", calibrated_record(demo, "H13")
-    model, cov = model_covariance(rec, demo.calibration.model.prior_sigma)
+    model, cov = model_covariance(rec, demo.calibration.model)
     geo = FieldGeometry(demo, planner_sun(demo), aim_points)
     view = geo.views["tower-target"]
     wide = evaluate(geo, hid, model, cov, "tower-target")

@@ -50,9 +50,11 @@ def test_night_with_lamp_changes_never_has_a_second_beam_in_view(base, tmp_path)
                              unsafe_lamp_change=True)
     safe = run_cheap_night(_calibrated(data, tmp_path / "with"), plan, "n1", 8 * 3600.0)
 
-    # Without the lamp change, heliostats parked for an earlier lamp throw the next one into a
-    # target's view (the defect); with it, never — and the night still measures what it did.
-    assert sum(_stray(unsafe).values()) > 0
+    # With the lamp change a second beam is never in a capture's view, and the night still
+    # measures what it did without. Without it a parked heliostat can throw the next lamp into a
+    # view, but whether a capture sees that depends on the plan and on which target captures
+    # when (one thread per target): the defect itself is shown deterministically, pose by pose,
+    # by the next test.
     assert _stray(safe) == {"T1": 0, "T2": 0, "T3": 0}
     assert len(safe.measured) >= len(unsafe.measured)
 

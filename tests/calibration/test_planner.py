@@ -61,7 +61,7 @@ def test_greedy_gain_matches_the_covariance_update(cfg):
     sun = planner_sun(cfg)
     rec = calibrated_record(cfg, "H05")
     item = plan_heliostat(cfg, "H05", rec, "n", sun)[0]
-    model, cov = model_covariance(rec, cfg.calibration.model.prior_sigma)
+    model, cov = model_covariance(rec, cfg.calibration.model)
     kin = HeliostatKinematics.from_config(cfg.heliostat("H05"))
     a = beam_jacobians(kin, model, sun, np.asarray(cfg.target().center_enu_m, float))
     lamp = np.asarray(cfg.light_source(item.geometry.lamp).position_enu_m, float)

@@ -145,7 +145,7 @@ def test_measurable_spots_are_whole_in_the_simulated_plants_view(tmp_path):
     fr = view.frame
     within, count = 0, 0
     for h in cfg.heliostats:
-        model, cov = model_covariance(models.get(h.id), cfg.calibration.model.prior_sigma)
+        model, cov = model_covariance(models.get(h.id), cfg.calibration.model)
         c = evaluate(geo, h.id, model, cov, "T1")
         for k, (lamp, point, st) in enumerate(zip(c.lamps, c.points, c.steps, strict=True)):
             hit = field.true_hit(h.id, *st, lamp, "T1")

@@ -130,8 +130,8 @@ def heliostat_row(ps, split: str, args: argparse.Namespace, prior, walk) -> dict
 def field_report(sets: list, split: str, args: argparse.Namespace) -> dict:
     """The split table of every heliostat in ``sets`` and the field's medians of their medians."""
     from controller.commands.model.fit import DRIFT_MRAD
+    from controller.geometry.field_prior_io import read_prior
     from controller.geometry.model_drift import PAINT_JUMP_RAD, RandomWalk
-    from controller.storage.prior_file import read_prior
 
     prior = read_prior(args.prior) if args.prior else None
     walk = RandomWalk(DRIFT_MRAD * 1e-3, PAINT_JUMP_RAD)

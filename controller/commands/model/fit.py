@@ -49,12 +49,12 @@ def register(subparsers) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from controller.commands._common import output_file, print_json
+    from controller.geometry.field_prior_io import read_prior
     from controller.geometry.model_drift import PAINT_JUMP_RAD, RandomWalk
     from controller.geometry.model_fit import fit_model
     from controller.geometry.paint_io import read_paint_set, read_timestamps
     from controller.geometry.tracking_model import TERMS, TrackingModel
     from controller.storage.model_file import model_document, write_model
-    from controller.storage.prior_file import read_prior
 
     out = output_file(args.out)
     prior = read_prior(args.prior) if args.prior else None
