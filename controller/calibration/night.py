@@ -27,6 +27,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
+from controller.alarms.watch import night_alarms
 from controller.calibration.daytime import DaytimeTally, predicted_daytime, sun_path
 from controller.calibration.field import Field
 from controller.calibration.lamp_change import LampChange, LampChangeError, LampChanger, Standby
@@ -55,17 +56,22 @@ class NightStore(Protocol):
 def calibration_night(book: NightStore, campaign: Campaign) -> CampaignResult:
     """Run ``campaign`` (a closed-loop calibration campaign) as a night of its own: night 0 of a
     new field, the next index otherwise; its record says how it ended."""
-    rec, _ = book.open_night(campaign.opt.name, "calibration")
+    rec, resumed = book.open_night(campaign.opt.name, "calibration")
+    audit = campaign.field.audit
+    audit.record("night.resume" if resumed else "night.start", campaign.opt.name, "calibration campaign")
     try:
         r = campaign.run()
     except KeyboardInterrupt:
         book.finish_night(rec.id, "interrupted", "interrupted by the operator; rerun to resume", {})
+        audit.record("night.end", campaign.opt.name, "interrupted")
         raise
     except BaseException as exc:
         book.finish_night(rec.id, "aborted", f"{type(exc).__name__}: {exc}", {})
+        audit.record("night.end", campaign.opt.name, f"aborted: {type(exc).__name__}: {exc}")
         raise
     lamps = [campaign.lamp.to_json()] if campaign.lamp else []
     book.finish_night(rec.id, r.status, r.cause, {"campaign": r.name, "status": r.status, "lamps": lamps})
+    audit.record("night.end", campaign.opt.name, r.status + (f": {r.cause}" if r.cause else ""))
     return r
 
 
@@ -172,7 +178,9 @@ class PlannedNight:
 
     # -- the night -------------------------------------------------------------------------------
     def run(self) -> NightSummary:
-        rec, _ = self.book.open_night(self.name, "planned")
+        rec, resumed = self.book.open_night(self.name, "planned")
+        self.field.audit.record("night.resume" if resumed else "night.start", self.name,
+                                f"{len(self.ids)} heliostat(s)")
         results: list[CampaignResult] = []
         first: list[str] = []
         try:
@@ -302,6 +310,9 @@ class PlannedNight:
                            "heliostats": len(r.runs)} for r in results],
                          [c.to_json() for c in self.changes], self.unmeasurable)
         self.book.finish_night(rec.id, status, cause, s.to_json())
+        self.field.audit.record("night.end", self.name, status + (f": {cause}" if cause else ""))
+        night_alarms(self.field.alarms, self.field.cfg.alarms, self.name, status, cause, now.per_heliostat,
+                     self.ids)
         self.progress(f"{self.name}: {status}; {measured}/{len(self.plan)} geometries measured; "
                       "field predicted "
                       f"daytime RMS {s.daytime_error_predicted_mrad['rms']:.2f} mrad")
