@@ -5,6 +5,7 @@ namespace ``urn:heliocal``, every node's id the string of its browse path below 
 ::
 
     Heliocal/
+      LastCommand   the last AllOff or Park: {"method", "target", "user", "state", "detail", "time_utc"}
       Field/        Site, HeliostatCount, PredictedDaytimeErrorMrad
       Heliostats/<id>/  State, LastMeasurementUtc, LastErrorMrad, PredictedDaytimeErrorMrad,
                         ModelVersion, ModelAgeDays, Model/<term>, Park()
@@ -78,6 +79,9 @@ async def build(server: Server, cfg: PlantConfig, ids: list[str], methods: dict[
     nodes = Nodes(idx)
     nan = float("nan")
     root = await _object(server.nodes.objects, idx, "", ROOT, folder=True)
+    lc = await root.add_variable(node_id(idx, "LastCommand"), ua.QualifiedName("LastCommand", idx),
+                                 ua.Variant("{}", S))
+    nodes.variables["LastCommand"] = lc
     f = await _object(root, idx, "Field", "Field")
     await _var(nodes, f, "Field", "Site", cfg.site.name, S)
     await _var(nodes, f, "Field", "HeliostatCount", len(ids), U)

@@ -10,6 +10,11 @@ record store (docs/plant-integration.md, "OPC UA").
 * Methods: ``Lamps/AllOff``, ``Heliostats/<id>/Park``, ``Night/Start``, ``Night/Stop``,
   ``Alarms/Acknowledge`` and ``Alarms/Shelve`` need the operator role; a viewer gets
   ``BadUserAccessDenied``. Every call, done or refused, is audited with the account's name.
+  ``AllOff`` and ``Park`` wait for the plant (a lamp's confirmation, a move): they answer
+  ``Good`` once accepted and go on in the background, one at a time (another meanwhile:
+  ``BadInvalidState``), their outcome in ``LastCommand`` and, when a lamp does not confirm,
+  its alarm — asyncua serves a connection's requests one after another, and a call that held
+  the connection for seconds would starve the caller's publish and keep-alive requests.
 * Values are written only when they change, every ``poll_s`` seconds; each new alarm event of
   the store is an ``AlarmConditionType`` event of ``Alarms``, each new model a
   ``ModelChangedEventType`` event of ``Models``.
@@ -67,6 +72,8 @@ class HeliocalServer:
         self._event_id = 0
         self._models: dict[str, int] | None = None
         self._lamp_panel = None
+        self._command: asyncio.Task | None = None
+        self._last: dict = {}
 
     # -- set-up -------------------------------------------------------------------------------
     async def start(self) -> None:
@@ -89,8 +96,9 @@ class HeliocalServer:
         server.set_security_policy(policies, permission_ruleset=Callers())
         server.set_identity_tokens([ua.UserNameIdentityToken])
         self.nodes = await build(server, self.cfg, self.ids, {
-            "park": lambda hid: self._method("operator", "Park", hid, functools.partial(self._park, hid)),
-            "all_off": self._method("operator", "AllOff", "lamps", self.plant.all_off),
+            "park": lambda hid: self._method("operator", "Park", hid, functools.partial(self._park, hid),
+                                             background=True),
+            "all_off": self._method("operator", "AllOff", "lamps", self.plant.all_off, background=True),
             "start": self._method("operator", "Start", "night", self.plant.start_night),
             "stop": self._method("operator", "Stop", "night", self.plant.stop_night),
             "acknowledge": self._method("operator", "Acknowledge", "alarm", self._acknowledge, invalid=True),
@@ -102,14 +110,18 @@ class HeliocalServer:
     async def stop(self) -> None:
         if self.server is not None:
             await self.server.stop()
+        if self._command is not None:
+            await asyncio.wait([self._command])
         await asyncio.to_thread(self.plant.close)
         if self._lamp_panel is not None:
             self._lamp_panel.close()
 
     # -- methods ------------------------------------------------------------------------------
-    def _method(self, needed: str, name: str, target: str, action, *, invalid: bool = False):
+    def _method(self, needed: str, name: str, target: str, action, *, invalid: bool = False,
+                background: bool = False):
         """An asyncua method: the caller's role checked (refusals audited), ``action(user, *args)``
-        run in a worker thread; heliocal's errors become status codes."""
+        run in a worker thread (``background``: accepted at once, module docstring); heliocal's
+        errors become status codes."""
         async def call(parent, *args):
             user = caller()
             if user is None:
@@ -121,6 +133,15 @@ class HeliocalServer:
                 _say(f"{user.name} ({user.heliocal_role}) refused {name} {target}")
                 return ua.StatusCode(ua.StatusCodes.BadUserAccessDenied)
             values = [a.Value if isinstance(a, ua.Variant) else a for a in args]
+            if background:
+                if self._command is not None and not self._command.done():
+                    _say(f"{user.name} {name} {target}: refused, {self._last['method']} still running")
+                    return ua.StatusCode(ua.StatusCodes.BadInvalidState)
+                if name == "AllOff" and self.cfg.lamps is None:
+                    return ua.StatusCode(ua.StatusCodes.BadNotSupported)
+                await self._set_last(name, target, user.name, "running", "")
+                self._command = asyncio.create_task(self._background(name, target, user.name, action, values))
+                return []
             try:
                 await asyncio.to_thread(action, user.name, *values)
             except LampError as exc:
@@ -139,6 +160,24 @@ class HeliocalServer:
             await self.refresh()
             return []
         return call
+
+    async def _background(self, name: str, target: str, user: str, action, values) -> None:
+        try:
+            await asyncio.to_thread(action, user, *values)
+        except HeliocalError as exc:
+            _say(f"{user} {name} {target}: {exc}")
+            await self._set_last(name, target, user, "failed", str(exc))
+        else:
+            _say(f"{user} {name} {target}: done")
+            await self._set_last(name, target, user, "done", "")
+        await self.refresh()
+
+    async def _set_last(self, name: str, target: str, user: str, state: str, detail: str) -> None:
+        from controller.alarms.states import now_utc
+
+        self._last = {"method": name, "target": target, "user": user, "state": state, "detail": detail,
+                      "time_utc": now_utc().isoformat(timespec="milliseconds")}
+        await self._write("LastCommand", json.dumps(self._last), ua.VariantType.String)
 
     def _park(self, hid: str, user: str) -> None:
         self.plant.park(hid, user)
