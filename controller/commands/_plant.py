@@ -40,7 +40,10 @@ def cli_user() -> str:
 
 
 def read_password(path: str) -> str:
-    """The password in ``path``: its first line without the line ending (a bounded read)."""
+    """The password in ``path``: its one line, without the line ending (a bounded read);
+    InputError naming the file when it holds more than one line."""
     text = read_text(path, "password file", max_bytes=4096)
     lines = text.splitlines()
+    if len(lines) > 1:
+        raise InputError(f"{path}: a password file holds one line (the password), this one {len(lines)}")
     return lines[0] if lines else ""

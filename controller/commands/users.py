@@ -7,7 +7,8 @@ Contract (scripts depend on it)::
     heliocal users remove NAME [--db DB]
     heliocal users list [--db DB] [--json]
 
-The password is the first line of FILE (8 to 1024 characters), stored as an scrypt hash. The
+FILE holds the password on its one line (8 to 1024 printable characters); it is stored as an
+scrypt hash. The
 console and the OPC UA server (``heliocal opcua``) sign in with these accounts. ``list --json``:
 ``[{"name", "role", "created_utc"}, ...]``. Adding and removing are audited. Exit 0, 2 bad input
 (a name that exists or does not, a bad role, an unreadable or short password file).
@@ -28,7 +29,7 @@ def register(subparsers) -> None:
     p.add_argument("action", choices=("add", "remove", "list"), help="add, remove or list")
     p.add_argument("name", nargs="?", metavar="NAME", help="the account's name (add, remove)")
     p.add_argument("--role", choices=ROLES, help="the account's role (add)")
-    p.add_argument("--password-file", metavar="FILE", help="file whose first line is the password (add)")
+    p.add_argument("--password-file", metavar="FILE", help="file holding the password on its one line (add)")
     add_db_option(p)
     add_json_option(p)
     p.set_defaults(func=run)

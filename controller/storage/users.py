@@ -73,8 +73,12 @@ def verify_password(stored: str, password: str) -> bool:
 
 
 def check_password(password: str, source: str) -> str:
+    """``password`` when it is printable text of :data:`MIN_PASSWORD` to :data:`MAX_PASSWORD`
+    characters; InputError naming ``source`` otherwise (a binary file is no password file)."""
     if not MIN_PASSWORD <= len(password) <= MAX_PASSWORD:
         raise InputError(f"{source}: the password must have {MIN_PASSWORD} to {MAX_PASSWORD} characters")
+    if not password.isprintable():
+        raise InputError(f"{source}: the password must be printable text (no control characters)")
     return password
 
 
