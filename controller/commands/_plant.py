@@ -31,6 +31,19 @@ def database(args: argparse.Namespace, *, must_exist: bool = True) -> Path:
     return p
 
 
+def heliostat_ids(text: str | None, cfg=None) -> list[str] | None:
+    """The ids of ``--heliostats`` (comma-separated, each once, in order; checked against
+    ``cfg`` when given), or None without the option; InputError when it names none."""
+    if text is None:
+        return None
+    ids = list(dict.fromkeys(i.strip() for i in text.split(",") if i.strip()))
+    if not ids:
+        raise InputError(f"--heliostats: no heliostat id in {text!r}")
+    for hid in ids if cfg is not None else ():
+        cfg.heliostat(hid)
+    return ids
+
+
 def cli_user() -> str:
     """Who a command run from a shell acts as in the audit trail: the operating system's user."""
     try:

@@ -23,6 +23,7 @@ import sys
 
 from controller.commands._common import add_json_option, output_file, print_json, staged_output_dir
 from controller.commands._numbers import Number
+from controller.commands._plant import heliostat_ids
 from controller.errors import InputError
 
 WHAT = ("tracking-table", "models")
@@ -73,15 +74,6 @@ def run(args: argparse.Namespace) -> int:
     return _models(args, fmt)
 
 
-def _ids(text: str | None) -> list[str] | None:
-    if text is None:
-        return None
-    ids = list(dict.fromkeys(i.strip() for i in text.split(",") if i.strip()))
-    if not ids:
-        raise InputError(f"--heliostats: no heliostat id in {text!r}")
-    return ids
-
-
 def _tracking_table(args: argparse.Namespace) -> int:
     from datetime import date
 
@@ -97,9 +89,7 @@ def _tracking_table(args: argparse.Namespace) -> int:
         raise InputError(f"--day: {args.day!r} is not a date (YYYY-MM-DD)") from None
     out = output_file(args.out)
     cfg = load_config(args.config)
-    ids = _ids(args.heliostats)
-    for hid in ids or ():
-        cfg.heliostat(hid)
+    ids = heliostat_ids(args.heliostats, cfg)
     with open_existing(args.db) as store:
         models = store.latest_models(ids or [h.id for h in cfg.heliostats])
     missing = [hid for hid in (ids or [h.id for h in cfg.heliostats]) if hid not in models]
@@ -130,7 +120,7 @@ def _models(args: argparse.Namespace, fmt: str) -> int:
         raise InputError("export models: --config and --day go with the tracking table")
     out = output_file(args.out) if args.out else None
     with open_existing(args.db) as store:
-        models = model_versions(store, _ids(args.heliostats))
+        models = model_versions(store, heliostat_ids(args.heliostats))
     text = json.dumps(models) + "\n" if fmt == "json" else models_csv(models)
     if out is None:
         sys.stdout.write(text)

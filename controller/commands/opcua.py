@@ -24,7 +24,7 @@ from urllib.parse import urlsplit
 
 from controller.commands._common import add_config_option
 from controller.commands._numbers import Number
-from controller.commands._plant import add_db_option, database
+from controller.commands._plant import add_db_option, database, heliostat_ids
 from controller.errors import DeviceError, InputError
 
 DEFAULT_ENDPOINT = "opc.tcp://127.0.0.1:4840/heliocal"
@@ -69,13 +69,7 @@ def run(args: argparse.Namespace) -> int:
 
     host, port = check_endpoint(args.endpoint)
     cfg = load_config(args.config)
-    ids = [h.id for h in cfg.heliostats]
-    if args.heliostats is not None:
-        ids = list(dict.fromkeys(i.strip() for i in args.heliostats.split(",") if i.strip()))
-        if not ids:
-            raise InputError(f"--heliostats: no heliostat id in {args.heliostats!r}")
-        for hid in ids:
-            cfg.heliostat(hid)
+    ids = heliostat_ids(args.heliostats, cfg) or [h.id for h in cfg.heliostats]
     db = database(args)
     with CampaignStore(db) as store:
         if not Accounts(store).any():
