@@ -3,10 +3,10 @@
 * With operator accounts in the database (``heliocal users``), a state-changing request needs
   a signed-in account: ``POST /api/login`` with ``{"user", "password"}`` returns a session
   token, which the page sends as ``X-Heliocal-Token``. A session lasts :data:`SESSION_S`.
-* The console's own ``--token`` stays for scripts: the service account ``service`` (role
-  operator).
+* The console's own ``--token`` stays for scripts: the service account ``service``, with the
+  rights the token always had (role engineer).
 * Without accounts and without a token (a console on this machine only, as before accounts
-  existed) requests act as ``local`` with the operator role.
+  existed) requests act as ``local``, with the rights they always had (role engineer).
 
 Each request's account and role decide what it may do (:func:`controller.storage.users.require`);
 every action is audited with its name.
@@ -64,11 +64,11 @@ class ConsoleAccess:
     def who(self, sent: str) -> Who | None:
         """The account a request's ``X-Heliocal-Token`` stands for, or None (401)."""
         if self.token is not None and sent and hmac.compare_digest(sent.encode(), self.token.encode()):
-            return Who(SERVICE_ACCOUNT, "operator")
+            return Who(SERVICE_ACCOUNT, "engineer")
         with self._lock:
             hit = self._sessions.get(sent) if sent else None
             if hit is not None and hit[1] > time.monotonic():
                 return hit[0]
         if self.token is None and not self.accounts_exist():
-            return Who(LOCAL_ACCOUNT, "operator")
+            return Who(LOCAL_ACCOUNT, "engineer")
         return None

@@ -11,7 +11,7 @@ Three roles, each allowed what the one before it may do and more:
 Passwords are stored as scrypt hashes (RFC 7914, :func:`hashlib.scrypt`, N=2^14, r=8, p=1, a
 16-byte random salt) in the form ``scrypt$N$r$p$<salt b64>$<hash b64>`` and compared in
 constant time. The console's old shared token stays for scripts as the service account
-:data:`SERVICE_ACCOUNT` (role operator).
+:data:`SERVICE_ACCOUNT` (role engineer: what the token always could).
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ from controller.storage.checks import RecordError
 from controller.storage.db import CampaignStore
 
 ROLES = ("viewer", "operator", "engineer")
-SERVICE_ACCOUNT = "service"  # the console token's account (role operator)
+SERVICE_ACCOUNT = "service"  # the console token's account (role engineer)
 NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.@-]{0,63}$")
 MIN_PASSWORD = 8
 MAX_PASSWORD = 1024
