@@ -113,7 +113,7 @@ TABLE: dict[str, list[Entry]] = {
                      {"db": Slot("--db", DB, "db"), "config": Slot("--config", YAML, "config")})],
     # The plant-integration commands open the database as a writer: an empty file is a new one.
     "alarms": [Entry("alarms list --db {db}", {"db": Slot("--db", DB, "db", NEW_DB)},
-                     {"--for": "a duration", "--comment": "a comment"})],
+                     {"ID": "an alarm's number", "--for": "a duration", "--comment": "a comment"})],
     "audit": [Entry("audit --db {db}", {"db": Slot("--db", DB, "db", NEW_DB)}, {"--since": "a time"})],
     "users": [Entry("users list --db {db}", {"db": Slot("--db", DB, "db", NEW_DB)},
                     {"NAME": "an account name"}),

@@ -28,7 +28,7 @@ def register(subparsers) -> None:
                               description=__doc__.split("\n\n")[0])
     p.add_argument("action", nargs="?", default="list", choices=ACTIONS,
                    help="list (default), ack, shelve, unshelve")
-    p.add_argument("id", nargs="?", type=int, metavar="ID", help="the alarm's id (ack, shelve, unshelve)")
+    p.add_argument("id", nargs="?", metavar="ID", help="the alarm's id (ack, shelve, unshelve)")
     p.add_argument("--for", dest="duration", metavar="DURATION", help="how long to shelve: 30m, 2h, 1d")
     p.add_argument("--comment", default="", metavar="TEXT", help="why (recorded with the acknowledgement)")
     p.add_argument("--all", action="store_true", help="list every alarm, those back to normal too")
@@ -49,6 +49,10 @@ def run(args) -> int:
     if (args.duration is not None) != (args.action == "shelve"):
         raise InputError("--for DURATION goes with shelve, and shelve needs it")
     duration = parse_duration(args.duration) if args.duration is not None else None
+    if args.id is not None:
+        if not args.id.isdigit() or len(args.id) > 18:
+            raise InputError(f"alarms {args.action}: ID must be an alarm's number, got {args.id!r}")
+        args.id = int(args.id)
     with CampaignStore(database(args)) as store:
         book = AlarmBook(store)
         if args.action == "list":
