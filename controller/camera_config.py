@@ -107,9 +107,11 @@ class Camera(_Model):
     read_noise_counts: float = Field(default=0.8, ge=0, le=50)
     full_well_electrons: float = Field(default=20000.0, gt=0, le=1e7)
     position_enu_m: Position | None = Field(default=None, description="camera position, m ENU")
-    driver: Literal["gige"] | None = Field(default=None, description="the field camera's driver "
-                                           "(gige: section gige); None: recorded pairs only")
+    driver: Literal["gige", "file"] | None = Field(
+        default=None, description="the field camera's driver (gige: section gige; file: the recorded "
+        "pairs of manifest); None: no camera unless a command is given one (--camera-manifest, --simulate)")
     gige: Gige | None = None
+    manifest: str | None = Field(default=None, description="recorded frame pairs (driver file)")
     registration: CameraRegistration | None = Field(
         default=None, description="register both sensors to the target's fiducials (docs/camera.md)")
 
@@ -119,6 +121,8 @@ class Camera(_Model):
             raise ValueError("sensors[0] must have the shorter exposure (LOW), sensors[1] the longer")
         if self.driver == "gige" and self.gige is None:
             raise ValueError("gige: required key is missing (driver is gige)")
+        if self.driver == "file" and not self.manifest:
+            raise ValueError("manifest: required key is missing (driver is file)")
         if self.gige is not None and self.gige.pixel_format is not None:
             bits = int(self.gige.pixel_format[4:])
             if bits != self.bit_depth:

@@ -24,14 +24,15 @@ from typing import Annotated, Literal
 from pydantic import Field, ValidationError, field_validator, model_validator
 
 from controller.alarm_config import AlarmLimits
+from controller.axis_config import Axes, AxisConfig, SoftLimits  # noqa: F401 - the axes section
 from controller.camera_config import Camera, Gige, Sensor  # noqa: F401 - the camera section
-from controller.config_rules import INT32_MAX, Direction, Position, PriorSigma, Section, Steps
+from controller.config_rules import Direction, Position, PriorSigma, Section
 from controller.errors import ConfigError, InputError
 from controller.io.config_keys import did_you_mean, key_path
 from controller.io.files import read_bytes
 from controller.io.yaml_files import parse_yaml, read_text
 from controller.lamp_config import CommandLamps, Lamps, ModbusRtuLamps, ModbusTcpLamps, check_channels  # noqa: F401
-from controller.link_config import Link, ModbusRtuLink, ModbusTcpLink, SerialLink  # noqa: F401 - the links section
+from controller.link_config import Link, ModbusRtuLink, ModbusTcpLink, NoLink, SerialLink  # noqa: F401 - links
 
 Vec3 = tuple[float, float, float]
 _Model = Section  # every section: unknown keys refused, only finite numbers (controller.config_rules)
@@ -101,52 +102,6 @@ class LampSource(_Model):
 LightSource = Annotated[SunSource | LampSource, Field(discriminator="kind")]
 
 
-class SoftLimits(_Model):
-    min_steps: Steps
-    max_steps: Steps
-
-    @model_validator(mode="after")
-    def _ordered(self) -> SoftLimits:
-        if self.min_steps >= self.max_steps:
-            raise ValueError(f"min_steps ({self.min_steps}) must be below max_steps ({self.max_steps})")
-        return self
-
-
-class AxisConfig(_Model):
-    """One linear-actuator axis. Names and units as in the PAINT/ARTIST heliostat records."""
-
-    increment: float = Field(gt=0, le=1e9, description="motor steps per metre of stroke")
-    initial_stroke_length: float = Field(gt=0, le=10, description="stroke L0 at step 0, m")
-    offset: float = Field(gt=0, le=10, description="actuator mount offset from the pivot, m")
-    pivot_radius: float = Field(gt=0, le=10, description="lever arm from pivot to actuator rod end, m")
-    initial_angle: float = Field(ge=-math.pi, le=math.pi, description="axis angle at step 0, rad")
-    clockwise_axis_movement: bool = False
-    # Steps travel as int32 on both wire protocols (PROTOCOL.md, MODBUS.md).
-    min_increment: int = Field(ge=0, le=INT32_MAX, description="hard range start, steps")
-    max_increment: int = Field(gt=0, le=INT32_MAX, description="hard range end, steps")
-    soft_limits: SoftLimits
-    speed_steps_per_s: float = Field(default=1500.0, gt=0, le=100000)
-    acceleration_steps_per_s2: float = Field(default=3000.0, gt=0, le=1000000)
-    backlash_steps: int = Field(default=0, ge=0, le=1000)
-
-    @model_validator(mode="after")
-    def _limits_inside_range(self) -> AxisConfig:
-        if self.min_increment >= self.max_increment:
-            raise ValueError("min_increment must be below max_increment")
-        lo, hi = self.soft_limits.min_steps, self.soft_limits.max_steps
-        if lo < self.min_increment or hi > self.max_increment:
-            raise ValueError(
-                f"soft_limits [{lo}, {hi}] must lie inside the hard range "
-                f"[{self.min_increment}, {self.max_increment}]"
-            )
-        return self
-
-
-class Axes(_Model):
-    azimuth: AxisConfig
-    elevation: AxisConfig
-
-
 class Mirror(_Model):
     width_m: float = Field(gt=0, le=30)
     height_m: float = Field(gt=0, le=30)
@@ -155,12 +110,18 @@ class Mirror(_Model):
     reflectivity: float = Field(default=0.93, gt=0, le=1)
 
 
+Translation = Annotated[float, Field(ge=-10, le=10)]
+
+
 class Heliostat(_Model):
     id: str
     position_enu_m: Position
     mirror: Mirror
     axes: Axes
     link: Link
+    concentrator_translation_m: tuple[Translation, Translation, Translation] = Field(
+        default=(0.0, 0.0, 0.0), description="mirror centre from the pivot in the body frame (facing "
+        "south: east, north, up), m; PAINT/ARTIST concentrator_translation_{e,n,u}")
 
 
 class ModelSettings(_Model):
@@ -296,6 +257,8 @@ class PlantConfig(_Model):
         seen: dict[tuple, str] = {}
         for index, h in enumerate(self.heliostats):
             link = h.link
+            if link.kind == "none":  # reaches nothing, so shares nothing
+                continue
             key = (*link.bus_key, link.station)
             if key in seen:
                 raise ValueError(f"heliostats[{index}].link: heliostats {seen[key]!r} and {h.id!r} "

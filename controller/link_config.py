@@ -1,7 +1,7 @@
 """The links of the plant configuration (``heliostats[i].link``, docs/configuration.md): how
 the controller reaches each heliostat's drive — our serial frame protocol on an RS-485 bus,
-Modbus TCP through a gateway, or Modbus RTU. Re-exported by :mod:`controller.config`, whose
-:func:`load_config` validates it.
+Modbus TCP through a gateway, Modbus RTU, or none (records only). Re-exported by
+:mod:`controller.config`, whose :func:`load_config` validates it.
 """
 
 from __future__ import annotations
@@ -64,4 +64,21 @@ class ModbusRtuLink(_Model):
         return self.unit
 
 
-Link = Annotated[SerialLink | ModbusTcpLink | ModbusRtuLink, Field(discriminator="kind")]
+class NoLink(_Model):
+    """No link: a heliostat the controller holds records of but cannot reach — a field imported
+    from another system's records (``heliocal import paint``, docs/import.md) until its links
+    are written in. Nothing can be sent to it: opening its drive is refused
+    (:class:`controller.devices.factory.LinkPool`)."""
+
+    kind: Literal["none"]
+
+    @property
+    def bus_key(self) -> tuple:
+        return ("none",)
+
+    @property
+    def station(self) -> int:
+        return 0
+
+
+Link = Annotated[SerialLink | ModbusTcpLink | ModbusRtuLink | NoLink, Field(discriminator="kind")]

@@ -14,10 +14,10 @@ class-global "stop server", so it runs and stops independently of the plant's Mo
 server (:class:`simplant.firmware.modbus.ModbusSimServer`).
 
 Fault hooks for tests: :attr:`SimLampPanel.no_confirm` — a lamp whose coil is written but
-which stays dark and never confirms (a blown lamp, a tripped breaker); :attr:`stuck_lit` — a
-lamp that stays lit when switched off (a welded contactor): it never confirms dark;
-:attr:`no_light` — a lamp that confirms (its input follows the coil) but gives no light (a
-sensor that lies: the controller cannot tell, the scoring can).
+which stays dark and never confirms (a blown lamp, a tripped breaker); :attr:`no_light` — a
+lamp that confirms (its input follows the coil) but gives no light (a sensor that lies: the
+controller cannot tell, the scoring can); :attr:`stuck_lit` — a lamp that stays lit when
+switched off (a welded contactor: its coil reads off, its input still confirms lit).
 """
 
 from __future__ import annotations
@@ -65,8 +65,8 @@ class SimLampPanel:
         self.coils = [self._name_of.get(i) is not None and self.actual(self._name_of[i])
                       for i in range(self.size)]
         self.no_confirm: set[str] = set()
-        self.stuck_lit: set[str] = set()
         self.no_light: set[str] = set()
+        self.stuck_lit: set[str] = set()
         self.writes: list[tuple[str, bool]] = []  # (channel, on) in the order received
         self.port: int | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -92,7 +92,7 @@ class SimLampPanel:
             return  # a spare coil: wired to nothing
         self.writes.append((channel, on))
         if not on and channel in self.stuck_lit:
-            return  # the lamp stays as it is: lit when it was
+            return  # the contactor does not open: the lamp stays as it is
         light = on and channel not in self.no_confirm and channel not in self.no_light
         if channel.startswith(FIDUCIALS):
             self.plant.set_fiducials(light, channel.removeprefix(FIDUCIALS))

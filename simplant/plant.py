@@ -43,6 +43,7 @@ import numpy as np
 import yaml
 
 from controller.config import PlantConfig, parse_config
+from controller.errors import ConfigError
 from controller.geometry.vectors import unit
 from simplant.clock import PlantClock
 from simplant.errorset import CASES
@@ -103,6 +104,9 @@ class SimulatedPlant:
         index = {h.id: i for i, h in enumerate(cfg.heliostats)}
         for hid in self.ids:
             h = cfg.heliostat(hid)
+            if h.link.kind == "none":
+                raise ConfigError(f"{source}: heliostats: {hid} has link: none (records only); the simulated "
+                                  "plant serves serial and Modbus links")
             # One generator per heliostat: its truth does not depend on which others are in the run.
             rng = np.random.default_rng([self.seed, 7, index[hid]])
             case = CASES[int(rng.integers(0, cases))]

@@ -167,7 +167,8 @@ REPEATABILITY_RAD = 0.07e-3  # per axis: ≈ 0.1 mrad of normal in all
 
 def hidden_truth(h, rng: np.random.Generator, scale: float, case=None) -> HeliostatTruth:
     """A hidden heliostat about the surveyed description of ``h`` (a configured heliostat:
-    ``position_enu_m``, ``axes.elevation``/``axes.azimuth`` with the actuator fields), with an
+    ``position_enu_m``, ``axes.elevation``/``axes.azimuth`` with the actuator fields,
+    ``concentrator_translation_m``), with an
     error ``case``'s own pointing error (``case.params``: az_offset, el_offset, tilt_east, rad)
     added. Duck-typed, so this module needs nothing of the controller."""
     def axis(a) -> dict:
@@ -176,5 +177,5 @@ def hidden_truth(h, rng: np.random.Generator, scale: float, case=None) -> Helios
 
     pointing = ("az_offset", "el_offset", "tilt_east")
     extra = {} if case is None else {k: getattr(case.params, k) for k in pointing}
-    return draw_truth(h.position_enu_m, axis(h.axes.elevation), axis(h.axes.azimuth), (0.0, 0.0, 0.0), rng,
-                      scale=scale, extra=extra)
+    return draw_truth(h.position_enu_m, axis(h.axes.elevation), axis(h.axes.azimuth),
+                      h.concentrator_translation_m, rng, scale=scale, extra=extra)

@@ -15,6 +15,7 @@ import argparse
 import contextlib
 import io
 import shlex
+import shutil
 import signal
 import subprocess
 import sys
@@ -71,6 +72,8 @@ TABLE: dict[str, list[Entry]] = {
                            {"--name": "a campaign name", "--heliostats": "heliostat ids", "--report": OUTPUTS,
                             "--notify": "a command run at the end"})],
     "campaign list": [Entry("campaign list --db {db}", {"db": Slot("--db", DB, "db")})],
+    "campaign flags": [Entry("campaign flags --db {db}", {"db": Slot("--db", DB, "db")},
+                             {"--clear": "heliostat ids", "--lamp": "a lamp id"})],
     # The packaged plant has no lamps: section, which a planned night needs and checks right
     # after the configuration: the database and recorded pairs are read as by campaign run.
     "campaign night": [Entry("campaign night --config {config} --db {out}/n.db",
@@ -147,20 +150,34 @@ TABLE: dict[str, list[Entry]] = {
     "merge": [Entry("merge {low} {high} --exposures 0.01 0.02 --crf {crf} --out {out}/hdr.npy",
                     {"low": Slot("LOW", IMAGE, "amb"), "high": Slot("HIGH", IMAGE, "rx"),
                      "crf": Slot("--crf", YAML, "crf")}, {"--out": OUTPUTS})],
-    "model fit": [Entry("model fit {rec} --heliostat-properties {props} --towers {towers} --out {out}/m.json",
+    "model fit": [Entry("model fit {rec} --heliostat-properties {props} --towers {towers} --out {out}/m.json "
+                        "--prior {prior} --timestamps {ts}",
                         {"rec": Slot("RECORD.json", JSON, "rec"),
                          "props": Slot("--heliostat-properties", JSON, "props"),
-                         "towers": Slot("--towers", JSON, "towers")}, {"--out": OUTPUTS})],
+                         "towers": Slot("--towers", JSON, "towers"), "prior": Slot("--prior", JSON, "prior"),
+                         "ts": Slot("--timestamps", JSON, "paint_ts")}, {"--out": OUTPUTS})],
+    "model prior": [Entry("model prior {model} {v[model_bk20]} --out {out}/p.json",
+                          {"model": Slot("MODEL.json", JSON, "model")}, {"--out": OUTPUTS})],
     "model refit": [Entry("model refit --config {config} --db {db}",
                           {"config": Slot("--config", YAML, "config"), "db": Slot("--db", DB, "db")},
                           {"--heliostats": "heliostat ids"})],
-    "model predict": [Entry("model predict {model} --record {rec} --towers {towers}",
+    "model predict": [Entry("model predict {model} --record {rec} --towers {towers} --timestamps {ts}",
                             {"model": Slot("MODEL.json", JSON, "model"), "rec": Slot("--record", JSON, "rec"),
-                             "towers": Slot("--towers", JSON, "towers")})],
+                             "towers": Slot("--towers", JSON, "towers"),
+                             "ts": Slot("--timestamps", JSON, "paint_ts")})],
     "model validate": [Entry("model validate {rec} --heliostat-properties {props} --towers {towers}",
                              {"rec": Slot("RECORD.json", JSON, "rec"),
                               "props": Slot("--heliostat-properties", JSON, "props"),
-                              "towers": Slot("--towers", JSON, "towers")})],
+                              "towers": Slot("--towers", JSON, "towers")},
+                             {"--paint-dir": "a folder: each file in it is read and named "
+                                             "(tests/geometry/test_model_real.py)",
+                              "--heliostats": "heliostat ids", "--plot": OUTPUTS}),
+                       Entry("model validate {v[rec]} --heliostat-properties {v[props]} --towers {v[towers]} "
+                             "--split time --train 1 --val 1 --timestamps {ts} --prior {prior} "
+                             "--plot {out}/plots",
+                             {"ts": Slot("--timestamps", JSON, "paint_ts"),
+                              "prior": Slot("--prior", JSON, "prior")},
+                             {"--plot": OUTPUTS})],
     "reprocess": [Entry("reprocess --db {db} --out {out}/new.db --workers 1",
                         {"db": Slot("--db", DB, "db")},
                         {"--out": OUTPUTS, "--images": "a folder (frames are read per pair, by workers)",
@@ -188,6 +205,12 @@ TABLE: dict[str, list[Entry]] = {
                            {"config": Slot("--config", YAML, "config")},
                            {"--serial-link": OUTPUTS, "--modbus-tcp": "an address",
                             "--modbus-rtu": OUTPUTS, "--units": "unit numbers"})],
+    "import paint": [Entry("import paint {v[paint]} --db {db} --config {config} --timestamps {ts}",
+                           {"db": Slot("--db", DB, "db", NEW_DB),
+                            "config": Slot("--config", YAML, "paint_config"),
+                            "ts": Slot("--timestamps", JSON, "paint_ts")},
+                           {"DIR": "a folder: each file in it is read and named "
+                                   "(tests/storage/test_paint_import.py)"})],
     "lamps": [Entry("lamps --config {config} status", {"config": Slot("--config", YAML, "config")},
                     {"LAMP": "a lamp channel name"})],
     "sun": [Entry("sun --config {config} --time 2026-06-21T12:00:00Z",
@@ -267,6 +290,20 @@ def valid(tmp_path_factory) -> dict[str, str]:
         assert main(["model", "fit", *map(str, sorted(AA39.glob("AA39-calibration-properties_*.json"))),
                      "--heliostat-properties", str(v["props"]), "--towers", str(v["towers"]),
                      "--out", str(v["model"])]) == 0, err.getvalue()
+    # A PAINT folder of one heliostat, its times and the field configuration its import writes.
+    paint = REPO / "tests" / "data" / "real" / "paint-field"
+    shutil.copytree(paint / "BK20", d / "paint" / "BK20")
+    for name in ("tower-measurements.json", "timestamps.json"):
+        shutil.copy(paint / name, d / "paint" / name)
+    v["paint"], v["paint_ts"] = d / "paint", d / "paint" / "timestamps.json"
+    v["paint_config"] = d / "p.config.yaml"  # written beside p.db
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()) as err:
+        assert main(["import", "paint", str(v["paint"]), "--db", str(d / "p.db")]) == 0, err.getvalue()
+        v["model_bk20"], v["prior"] = d / "bk20.json", d / "prior.json"
+        assert main(["model", "fit", *map(str, sorted((paint / "BK20" / "calibration").glob("*.json"))),
+                     "--heliostat-properties", str(paint / "BK20" / "BK20_properties.json"),
+                     "--towers", str(v["towers"]), "--out", str(v["model_bk20"])]) == 0, err.getvalue()
+        assert main(["model", "prior", str(v["model"]), str(v["model_bk20"]), "--out", str(v["prior"])]) == 0
     # "{v[manifest_of]}{img}": a manifest listing the image under test (written per run)
     return {k: str(p) for k, p in v.items()}
 

@@ -72,6 +72,8 @@ CASES = [
     ("simulation is not plant config", _set("simulation", {"seed": 1}), "simulation", "unknown key"),
     ("beyond the int32 wire range", _set("heliostats.0.axes.azimuth.max_increment", 5000000000),
      "heliostats[0].axes.azimuth.max_increment", "less than or equal to 2147483647"),
+    ("stroke outside the actuator triangle", _set("heliostats.0.axes.elevation.initial_stroke_length", 0.3),
+     "heliostats[0].axes.elevation", "m, outside the actuator triangle [0.0028, 0.6734] m"),
 ]
 
 
@@ -164,3 +166,21 @@ def test_unknown_tracking_model_term_is_refused_before_any_work(tmp_path, capsys
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and str(bad) in err and "'base_yawn_mrad'" in err
     assert not out.exists()
+
+
+def test_link_none_is_a_heliostat_nothing_can_drive(tmp_path):
+    """``link: none`` (a field known by its records, docs/import.md): several heliostats may have
+    it; opening its drive and simulating it are refused in one ConfigError."""
+    from controller.config import parse_config
+    from controller.devices.drive import DriveLimits
+    from controller.devices.factory import LinkPool
+    from simplant.plant import SimulatedPlant
+
+    data = _demo_data()
+    for h in data["heliostats"][:2]:
+        h["link"] = {"kind": "none"}
+    h = parse_config(data).heliostats[1]
+    with LinkPool() as pool, pytest.raises(ConfigError, match="link: none: this heliostat has no link"):
+        pool.drive(h.link, DriveLimits.from_axes(h.axes))
+    with pytest.raises(ConfigError, match="H01 has link: none"):
+        SimulatedPlant(data, tmp_path / "run")

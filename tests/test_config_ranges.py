@@ -47,6 +47,7 @@ def maximal_config(lamp_driver: str = "modbus-tcp") -> dict:
     helios[0]["link"] = {"kind": "serial", "device": "/dev/ttyUSB0", "address": 1, "baud": 115200}
     helios[1]["link"] = {"kind": "modbus-tcp", "host": "127.0.0.1", "port": 1502, "unit": 1}
     helios[2]["link"] = {"kind": "modbus-rtu", "device": "/dev/ttyUSB1", "unit": 1, "baud": 19200}
+    helios[0]["concentrator_translation_m"] = [0.0, 0.175, 0.0]
     doc["heliostats"] = helios
     cam = doc["camera"]
     cam["driver"] = "gige"

@@ -103,6 +103,14 @@ class FieldWatch(CampaignObserver):
             self.alarms.clear_alarm(NO_BEAM_REPEATED, self.target)
 
 
+def night_ended(plant, name: str, status: str, cause: str | None, predicted: Mapping[str, float],
+                heliostats: Iterable[str]) -> None:
+    """The end of night ``name`` on ``plant`` (a :class:`controller.calibration.field.Field`):
+    audited, and its alarms (:func:`night_alarms`)."""
+    plant.audit.record("night.end", name, status + (f": {cause}" if cause else ""))
+    night_alarms(plant.alarms, plant.cfg.alarms, name, status, cause, predicted, heliostats)
+
+
 def night_alarms(alarms: AlarmSink, limits: AlarmLimits, name: str, status: str, cause: str | None,
                  predicted: Mapping[str, float], heliostats: Iterable[str]) -> None:
     """At the end of night ``name``: a partial night raises :data:`NIGHT_PARTIAL` (a finished one

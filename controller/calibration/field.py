@@ -31,7 +31,7 @@ from controller.alarms.sink import NO_ALARMS, NO_AUDIT, AlarmSink, AuditSink
 from controller.calibration.records import ModelRecord
 from controller.config import PlantConfig
 from controller.devices.drive import Drive, DriveLimits
-from controller.devices.lamp_panel import LampPanel, light_only, lights_out, open_lamp_panel
+from controller.devices.lamp_panel import LampPanel, LampState, light_only, lights_out, open_lamp_panel
 from controller.devices.plant_time import WALL, PlantTime
 from controller.errors import DeviceError
 
@@ -50,14 +50,41 @@ class LampLit:
         return {"lamp": self.lamp, "confirmed": self.confirmed, "by": self.by, "utc": self.utc}
 
 
+@dataclass(frozen=True)
+class LampEnd:
+    """One lamp channel as a night or campaign left it (the ``lamp_states`` table): ``state``
+    ``dark`` (confirmed dark by the panel), ``lit`` (still confirmed lit after it was switched
+    off), ``no_answer`` (the panel could not tell) or ``operator`` (no panel: the operator was
+    asked to switch it off); ``commanded``: what the panel was last told (None: unknown);
+    ``detail``: why it is not dark."""
+
+    channel: str
+    state: str
+    commanded: bool | None = None
+    detail: str | None = None
+
+    @property
+    def dark(self) -> bool:
+        return self.state == "dark"
+
+    def to_json(self) -> dict:
+        return {"channel": self.channel, "state": self.state, "commanded": self.commanded,
+                "detail": self.detail}
+
+
 class Lamps(Protocol):
     """The field's lamps. ``light_only`` switches every other lamp off and ``lamp`` on and
     returns once the plant confirms it (or raises naming the lamp); ``lights_out`` switches
-    every lamp off (confirmed dark). The targets' fiducial lamps are the camera registration's
+    every lamp off (confirmed dark); ``states`` reads every channel (``channels``) as it is now.
+    The targets' fiducial lamps are the camera registration's
     (:func:`controller.devices.lamp_panel.fiducial_switch`)."""
+
+    channels: tuple[str, ...]
+    timeout_s: float
 
     def light_only(self, lamp: str) -> LampLit: ...
     def lights_out(self) -> None: ...
+    def states(self) -> list[LampState]: ...
 
 
 @dataclass
@@ -156,6 +183,13 @@ class PanelLamps:
 
     def lights_out(self) -> None:
         lights_out(self.panel, time=self.time, timeout_s=self.timeout_s)
+
+    @property
+    def channels(self) -> tuple[str, ...]:
+        return self.panel.channels
+
+    def states(self) -> list[LampState]:
+        return self.panel.states()
 
     def close(self) -> None:
         self.panel.close()

@@ -1,10 +1,9 @@
 """The model update after a run: the tracking-model fit over every measurement of a heliostat
-(earlier nights included), each weighted by its age and referred to its night's drift epoch."""
+(earlier nights included), each weighted by its age, its joint references drifting from night
+to night as a random walk (:mod:`controller.geometry.model_drift`)."""
 
 from __future__ import annotations
 
-import bisect
-import math
 from datetime import datetime
 
 import numpy as np
@@ -12,6 +11,7 @@ import numpy as np
 from controller.calibration.records import MeasurementRecord, ModelRecord
 from controller.config import ModelSettings
 from controller.geometry.kinematics import HeliostatKinematics
+from controller.geometry.model_drift import RandomWalk
 from controller.geometry.model_fit import NotIdentifiable, Sample, fit_model
 from controller.geometry.tracking_model import drift_sigma, prior_sigma
 
@@ -26,17 +26,15 @@ def fit_measurements(kin: HeliostatKinematics, measurements: list[MeasurementRec
         return None
     stamps = [m.measured_utc for m in used]
     weights = age_weights(stamps, settings.age_halflife_days)
-    epochs, days = night_epochs(stamps)
     samples = [Sample(np.asarray(m.source_dir, float), m.az_steps, m.el_steps,
                       np.asarray(m.centroid_enu, float), float(w),
-                      None if m.source_pos_enu is None else np.asarray(m.source_pos_enu, float), int(e))
-               for m, w, e in zip(used, weights, epochs, strict=True)]
-    drift = drift_sigma(settings.prior_sigma)
-    # A random walk: the references of a night d days before the newest are off by σ √d.
-    epoch_sigma = {e: drift * math.sqrt(d) for e, d in days.items() if e > 0} if drift > 0 else None
+                      None if m.source_pos_enu is None else np.asarray(m.source_pos_enu, float), days_utc(s))
+               for m, w, s in zip(used, weights, stamps, strict=True)]
+    # The references walk by σ per √day; a night is a session (no gap of NIGHT_GAP_S within it).
+    walk = RandomWalk(drift_sigma(settings.prior_sigma), gap_days=NIGHT_GAP_S / 86400.0)
     try:
         fit = fit_model(kin, samples, noise_mrad=settings.noise_mrad, prior_sigma=model_prior(settings),
-                        epoch_sigma=epoch_sigma)
+                        drift=walk)
     except NotIdentifiable:
         return None
     detail = {"covariance_si": fit.covariance.tolist(), "identified": fit.identified_terms(),
@@ -55,28 +53,17 @@ def model_prior(settings: ModelSettings, source: str = "") -> np.ndarray:
 NIGHT_GAP_S = 6 * 3600.0  # measurements further apart than this were taken on different nights
 
 
-def night_epochs(stamps: list[str]) -> tuple[list[int], dict[int, float]]:
-    """The night of each measurement (ISO 8601 UTC ``stamps``), counted back from the newest
-    (0), nights being runs of measurements without a gap of :data:`NIGHT_GAP_S`; and per night
-    its distance in days from the newest (at least 1 for an earlier night). An unreadable
-    stamp belongs to the newest night."""
-    t = [_timestamp(s) for s in stamps]
-    known = sorted({v for v in t if v is not None})
-    if not known:
-        return [0] * len(stamps), {0: 0.0}
-    starts = [known[0]] + [b for a, b in zip(known, known[1:], strict=False) if b - a > NIGHT_GAP_S]
-    last = len(starts) - 1
-    days = {last - i: 0.0 if i == last else max(1.0, round((starts[-1] - st) / 86400.0))
-            for i, st in enumerate(starts)}
-    epoch = [0 if v is None else last - (bisect.bisect_right(starts, v) - 1) for v in t]
-    return epoch, days
-
-
 def _timestamp(s: str) -> float | None:
     try:
         return datetime.fromisoformat(s.replace("Z", "+00:00")).timestamp()
     except (AttributeError, ValueError):
         return None
+
+
+def days_utc(stamp: str) -> float | None:
+    """Days since 1970-01-01 UTC of an ISO 8601 stamp; None when it cannot be read."""
+    t = _timestamp(stamp)
+    return None if t is None else t / 86400.0
 
 
 def age_weights(stamps: list[str], halflife_days: float) -> np.ndarray:

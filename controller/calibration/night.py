@@ -27,14 +27,17 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
-from controller.alarms.watch import night_alarms
+from controller.alarms.watch import night_ended
 from controller.calibration.daytime import DaytimeTally, predicted_daytime, sun_path
-from controller.calibration.field import Field
+from controller.calibration.field import Field, LampEnd
 from controller.calibration.lamp_change import LampChange, LampChangeError, LampChanger, Standby
-from controller.calibration.nights import Pass, run_night
+from controller.calibration.lights_out import lights_out_at_end, not_dark_message, require_dark
+from controller.calibration.nights import Pass, failed_geometries, flagged_keys, run_night
+from controller.calibration.observers import Observers
 from controller.calibration.planner import PlanItem, plan_field
 from controller.calibration.records import NightRecord
 from controller.calibration.runner import Campaign, CampaignObserver, CampaignOptions, CampaignResult
+from controller.config import PlantConfig
 from controller.errors import HeliocalError
 
 STRATEGIES = ("design", "round-robin")
@@ -51,28 +54,58 @@ class NightStore(Protocol):
     def record_plan(self, items: list[PlanItem]) -> None: ...
     def add_to_summary(self, name: str, extra: dict) -> None: ...
     def record_heliostats(self, night_id: int, rows: list[dict]) -> None: ...
+    def record_lamp_states(self, session: str, ended: str, lamps: list[LampEnd]) -> None: ...
+    def record_field(self, cfg: PlantConfig, ids: list[str], config_path: str, sha256: str) -> None: ...
+    def measured(self, night: str) -> dict[str, int]: ...
+    def record_geometry_failures(self, night: str, failures: list[dict]) -> None: ...
+    def flagged(self, ids: list[str] | None = None) -> list[dict]: ...
 
 
 def calibration_night(book: NightStore, campaign: Campaign) -> CampaignResult:
     """Run ``campaign`` (a closed-loop calibration campaign) as a night of its own: night 0 of a
-    new field, the next index otherwise; its record says how it ended."""
-    rec, resumed = book.open_night(campaign.opt.name, "calibration")
-    audit = campaign.field.audit
-    audit.record("night.resume" if resumed else "night.start", campaign.opt.name, "calibration campaign")
+    new field, the next index otherwise; its record says how it ended. However it ends, every
+    lamp is switched off and confirmed dark, and recorded (:mod:`controller.calibration.lights_out`)."""
+    name = campaign.opt.name
+    rec, resumed = book.open_night(name, "calibration")
+    plant = campaign.field
+    plant.audit.record("night.resume" if resumed else "night.start", name, "calibration campaign")
+    book.record_field(plant.cfg, campaign.ids, plant.config_path, plant.config_sha256)
+
+    def lights_out(ended: str) -> list[LampEnd]:
+        lit = [campaign.lamp.lamp] if campaign.lamp else []
+        return lights_out_at_end(plant, book, name, ended, campaign.observer, lit=lit)
+
     try:
         r = campaign.run()
-    except KeyboardInterrupt:
-        book.finish_night(rec.id, "interrupted", "interrupted by the operator; rerun to resume", {})
-        audit.record("night.end", campaign.opt.name, "interrupted")
-        raise
     except BaseException as exc:
-        book.finish_night(rec.id, "aborted", f"{type(exc).__name__}: {exc}", {})
-        audit.record("night.end", campaign.opt.name, f"aborted: {type(exc).__name__}: {exc}")
+        status, cause = _ended_by(exc)
+        ends = lights_out(status)
+        book.finish_night(rec.id, status, _with_lamps(cause, name, ends),
+                          {"lights_out": [e.to_json() for e in ends]})
+        plant.audit.record("night.end", name, status + (f": {cause}" if cause else ""))
+        require_dark(name, ends, after=exc)
         raise
+    ends = lights_out(r.status)
     lamps = [campaign.lamp.to_json()] if campaign.lamp else []
-    book.finish_night(rec.id, r.status, r.cause, {"campaign": r.name, "status": r.status, "lamps": lamps})
-    audit.record("night.end", campaign.opt.name, r.status + (f": {r.cause}" if r.cause else ""))
+    book.finish_night(rec.id, r.status, _with_lamps(r.cause, name, ends),
+                      {"campaign": r.name, "status": r.status, "lamps": lamps,
+                       "lights_out": [e.to_json() for e in ends]})
+    plant.audit.record("night.end", name, r.status + (f": {r.cause}" if r.cause else ""))
+    require_dark(name, ends)
     return r
+
+
+def _ended_by(exc: BaseException) -> tuple[str, str]:
+    """The status and cause a night records when ``exc`` stopped it: Ctrl-C (SIGTERM) or another."""
+    if isinstance(exc, KeyboardInterrupt):
+        return "interrupted", "interrupted by the operator; rerun to resume"
+    return "aborted", f"{type(exc).__name__}: {exc}"
+
+
+def _with_lamps(cause: str | None, session: str, ends: list[LampEnd]) -> str | None:
+    """A night's cause with the lamps it left not confirmed dark, if any."""
+    line = not_dark_message(session, ends)
+    return "; ".join(x for x in (cause, line) if x) or None
 
 
 def tonight(book: NightStore, base: str) -> tuple[str, int]:
@@ -108,6 +141,8 @@ class NightSummary:
     passes: list[dict] = field(default_factory=list)
     lamp_changes: list[dict] = field(default_factory=list)
     unmeasurable: list[dict] = field(default_factory=list)
+    lights_out: list[dict] = field(default_factory=list)  # every lamp as the night left it (LampEnd)
+    flagged: list[dict] = field(default_factory=list)  # geometries that failed on two nights, not planned
 
     @property
     def exit_code(self) -> int:
@@ -119,7 +154,8 @@ class NightSummary:
                 "measured": self.measured, "failed": self.failed, "lamps": self.lamps,
                 "daytime_error_predicted_mrad": self.daytime_error_predicted_mrad, "status": self.status,
                 "cause": self.cause, "first_calibrated": self.first_calibrated, "passes": self.passes,
-                "lamp_changes": self.lamp_changes, "unmeasurable": self.unmeasurable}
+                "lamp_changes": self.lamp_changes, "unmeasurable": self.unmeasurable,
+                "lights_out": self.lights_out, "flagged": self.flagged}
 
 
 class PlannedNight:
@@ -145,6 +181,7 @@ class PlannedNight:
         self.progress = progress or (lambda text: None)
         self._watched = progress is not None  # someone follows the night: tell them the field's state
         self.changer = LampChanger(plant, lights_out=None if plant.lamps is not None else ask_operator)
+        self.ask_operator = ask_operator
         self.path = sun_path(plant.cfg.site)
         self._lock = threading.Lock()
         self._live: set[Campaign] = set()
@@ -179,8 +216,10 @@ class PlannedNight:
     # -- the night -------------------------------------------------------------------------------
     def run(self) -> NightSummary:
         rec, resumed = self.book.open_night(self.name, "planned")
-        self.field.audit.record("night.resume" if resumed else "night.start", self.name,
-                                f"{len(self.ids)} heliostat(s)")
+        f = self.field
+        f.audit.record("night.resume" if resumed else "night.start", self.name,
+                       f"{len(self.ids)} heliostat(s)")
+        self.book.record_field(f.cfg, self.ids, f.config_path, f.config_sha256)  # what the models rest on
         results: list[CampaignResult] = []
         first: list[str] = []
         try:
@@ -197,11 +236,11 @@ class PlannedNight:
                               f"{len({i.heliostat_id for i in self.plan})} heliostats")
                 results += run_night(self.plan, self.name, self._run_pass, self.request_stop,
                                      self._change_lamp)
-        except KeyboardInterrupt:
-            self._end(rec, results, first, "interrupted", "interrupted by the operator; rerun to resume")
-            raise
         except LampChangeError as exc:
             return self._end(rec, results, first, "aborted", str(exc))
+        except BaseException as exc:  # Ctrl-C, or whatever else stopped it: recorded, lights out
+            self._end(rec, results, first, *_ended_by(exc), exc)
+            raise
         status, cause = _status(results, self._stopped.is_set())
         return self._end(rec, results, first, status, cause)
 
@@ -221,9 +260,14 @@ class PlannedNight:
     def _plan(self) -> list[PlanItem]:
         plan = self.book.plan(self.name)
         if not plan:
+            flags = self.book.flagged(self.ids)  # failed on two nights: not planned until cleared
+            if flags:
+                self.progress(f"{self.name}: {len(flags)} flagged geometr{'y' if len(flags) == 1 else 'ies'} "
+                              "not planned (each failed on two nights; heliocal campaign flags)")
             with self.field.time.computing():
                 done = plan_field(self.field.cfg, self.field.models(self.ids), self.name,
-                                  strategy=self.strategy, night_index=self.index, workers=self.workers)
+                                  strategy=self.strategy, night_index=self.index, workers=self.workers,
+                                  flagged=flagged_keys(flags))
             plan = done.items
             self.unmeasurable = [u.to_json() for u in done.unmeasurable]
             self.book.record_plan(plan)
@@ -255,6 +299,8 @@ class PlannedNight:
                                            target=p.target, queue_last=last), list(p.aims))
         with self._lock:
             self.measured |= {f"{p.name}/{run.heliostat_id}" for run in r.runs if run.status == "measured"}
+        self.book.record_geometry_failures(self.name, failed_geometries(self.plan, p, r,
+                                                                        self.field.cfg.calibration.target))
         if self._watched:
             # The operator's view of the field as the night goes: the controller's own computing,
             # for the heliostats whose models changed (the whole field the first time).
@@ -291,16 +337,20 @@ class PlannedNight:
         return r
 
     def _end(self, rec: NightRecord, results: list[CampaignResult], first: list[str], status: str,
-             cause: str | None) -> NightSummary:
-        if self.field.lamps is not None and status in ("interrupted", "aborted"):
-            self.field.lights_out()  # nothing further is measured tonight: every lamp off
-        measured = sum(1 for r in results if not r.name.endswith("/calibration") for run in r.runs
-                       if run.status == "measured")
+             cause: str | None, after: BaseException | None = None) -> NightSummary:
+        """Lights out (every end: :mod:`controller.calibration.lights_out`), then the night's
+        record; :class:`LampNotDark` after it when a lamp is not confirmed dark."""
+        ends = lights_out_at_end(self.field, self.book, self.name, status, Observers(self.observers),
+                                 lit=self.lamps, ask_operator=self.ask_operator)
+        cause = _with_lamps(cause, self.name, ends)
+        # From the store: a pass stopped by Ctrl-C returned no result, but its runs are recorded.
+        per = self.book.measured(self.name)
+        measured = sum(per.values())
         with self.field.time.computing():
             now = predicted_daytime(self.field.cfg, self.field.models(self.ids), self.path,
                                     workers=self.workers)
         predicted = now.to_json()
-        self.book.record_heliostats(rec.id, self._heliostat_rows(results, now.per_heliostat))
+        self.book.record_heliostats(rec.id, self._heliostat_rows(per, now.per_heliostat))
         s = NightSummary(self.index, self.name, len(self.ids), len(self.plan), measured,
                          len(self.plan) - measured,
                          list(self.lamps.values()), predicted,
@@ -308,29 +358,23 @@ class PlannedNight:
                          [{"name": r.name, "status": r.status, "cause": r.cause,
                            "measured": sum(run.status in ("measured", "calibrated") for run in r.runs),
                            "heliostats": len(r.runs)} for r in results],
-                         [c.to_json() for c in self.changes], self.unmeasurable)
+                         [c.to_json() for c in self.changes], self.unmeasurable, [e.to_json() for e in ends],
+                         self.book.flagged(self.ids))
         self.book.finish_night(rec.id, status, cause, s.to_json())
-        self.field.audit.record("night.end", self.name, status + (f": {cause}" if cause else ""))
-        night_alarms(self.field.alarms, self.field.cfg.alarms, self.name, status, cause, now.per_heliostat,
-                     self.ids)
+        night_ended(self.field, self.name, status, cause, now.per_heliostat, self.ids)
         self.progress(f"{self.name}: {status}; {measured}/{len(self.plan)} geometries measured; "
                       "field predicted "
                       f"daytime RMS {s.daytime_error_predicted_mrad['rms']:.2f} mrad")
+        require_dark(self.name, ends, after)
         return s
 
-
-    def _heliostat_rows(self, results: list[CampaignResult], predicted: dict[str, float]) -> list[dict]:
+    def _heliostat_rows(self, measured: dict[str, int], predicted: dict[str, float]) -> list[dict]:
         """What each heliostat of the night ended with (the ``night_heliostats`` table): where
         it stands, its geometries planned and measured tonight, its predicted daytime RMS and,
         when it had none measurable, why."""
         planned: dict[str, int] = {}
         for it in self.plan:
             planned[it.heliostat_id] = planned.get(it.heliostat_id, 0) + 1
-        measured: dict[str, int] = {}
-        for r in results:
-            for run in r.runs:
-                if run.status == "measured":
-                    measured[run.heliostat_id] = measured.get(run.heliostat_id, 0) + 1
         why = {u["heliostat"]: u["why"] for u in self.unmeasurable}
         out = []
         for hid in self.ids:

@@ -23,8 +23,9 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from controller.calibration.lamp_change import LampChange, Standby
+from controller.calibration.outcome import looked_and_failed
 from controller.calibration.parallel import run_per_target
-from controller.calibration.planner import PlanItem
+from controller.calibration.planner import PlanItem, geometry_key
 from controller.calibration.runner import CampaignResult
 
 
@@ -119,3 +120,25 @@ def run_night(plan: list[PlanItem], night: str, run_pass: Callable[[Pass], Campa
         if halted.is_set():
             break
     return results
+
+
+def failed_geometries(plan: list[PlanItem], p: Pass, r: CampaignResult,
+                      calibration_target: str) -> list[dict]:
+    """The geometries of pass ``p`` (its result ``r``) whose look failed
+    (:func:`controller.calibration.outcome.looked_and_failed`), as the ``geometry_failures``
+    table records them: heliostat, lamp, target, aim grid cell, status, cause."""
+    key = {it.heliostat_id: geometry_key(it.geometry, calibration_target) for it in plan
+           if it.geometry.lamp == p.lamp and it.geometry.aim_enu == p.aims.get(it.heliostat_id)
+           and (it.geometry.target or calibration_target) == (p.target or calibration_target)}
+    return [{"heliostat": run.heliostat_id, "lamp": p.lamp, "target": key[run.heliostat_id][1],
+             "cell": list(key[run.heliostat_id][2]), "status": run.status, "cause": run.fault_cause}
+            for run in r.runs if run.heliostat_id in key and looked_and_failed(run)]
+
+
+def flagged_keys(flags: list[dict]) -> dict[str, frozenset]:
+    """The flagged geometries (``geometry_failures``' flags) per heliostat, as the planner skips
+    them (:func:`controller.calibration.planner.geometry_key`)."""
+    out: dict[str, set] = {}
+    for g in flags:
+        out.setdefault(g["heliostat"], set()).add((g["lamp"], g["target"], tuple(g["cell"])))
+    return {hid: frozenset(keys) for hid, keys in out.items()}

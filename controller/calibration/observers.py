@@ -7,6 +7,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 from controller.calibration.context import CycleObserver
+from controller.calibration.field import LampEnd
 from controller.calibration.records import MeasurementRecord, RunRecord
 
 
@@ -30,6 +31,11 @@ class CampaignObserver(CycleObserver):
     def fiducial_lamps(self, on: bool) -> None:
         """The target's fiducial lamps must be on (``on``) or off now, for the camera
         registration's fiducial frame (docs/camera.md, "Registration")."""
+
+    def lamp_not_dark(self, session: str, lamp: LampEnd) -> None:
+        """At the end of night or campaign ``session`` a lamp was not confirmed dark
+        (``lamp.state`` ``lit`` or ``no_answer``; docs/lamps.md, "Lights out"): already recorded
+        in the ``lamp_states`` table; an alarm list raises it from here."""
 
 
 class Observers(CampaignObserver):
@@ -65,3 +71,7 @@ class Observers(CampaignObserver):
     def fiducial_lamps(self, on: bool) -> None:
         for o in self._all:
             o.fiducial_lamps(on)
+
+    def lamp_not_dark(self, session: str, lamp: LampEnd) -> None:
+        for o in self._all:
+            o.lamp_not_dark(session, lamp)

@@ -1,5 +1,6 @@
-"""How a campaign session ended: its :class:`CampaignResult` and the status and cause of a
-session that ran to its end (``records.CAMPAIGN_STATUSES``, docs/campaigns.md)."""
+"""How a campaign session ended: its :class:`CampaignResult`, the status and cause of a
+session that ran to its end (``records.CAMPAIGN_STATUSES``, docs/campaigns.md), and whether a
+heliostat's run failed at the look itself (:func:`looked_and_failed`)."""
 
 from __future__ import annotations
 
@@ -43,3 +44,16 @@ def outcome(runs: list[RunRecord], queue: list[str], target_blocked: bool,
         parts.append(f"{missing} not recorded")
     detail = "; ".join(f"{r.heliostat_id}: {r.fault_cause or r.status.replace('_', ' ')}" for r in failed[:3])
     return "partial", ", ".join(parts) + (f" ({detail}{'; …' if len(failed) > 3 else ''})" if detail else "")
+
+
+# The states of a cycle that look at the beam on the target: capture merged, analysed, matched, verified.
+LOOK_STATES = ("merging", "analysing", "matching", "verifying")
+
+
+def looked_and_failed(run: RunRecord) -> bool:
+    """Whether ``run`` put its beam on the target, captured, and got no measurement from the look
+    (no beam; a spot clipped at the view's edge; a frame that could not be analysed) — not a
+    drive, camera or operator stop. Its frames are archived (``run_frames``) and, in a planned
+    night, its geometry counts as failed (docs/nights.md, "Flagged geometries")."""
+    return (run.status in ("failed", "no_beam") and run.on_target_s is not None
+            and run.fault_state in LOOK_STATES)

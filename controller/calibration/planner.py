@@ -58,8 +58,8 @@ from controller.geometry.target_frame import TargetFrame
 from controller.geometry.tracking_model import TrackingModel
 
 __all__ = ["MAX_INCIDENCE_DEG", "Geometry", "NightPlan", "PlanItem", "Unmeasurable", "aim_points", "assess",
-           "assess_many", "candidates", "plan_field", "plan_heliostat", "plan_night", "planner_sun",
-           "round_robin"]
+           "assess_many", "candidates", "geometry_key", "plan_field", "plan_heliostat", "plan_night",
+           "planner_sun", "round_robin"]
 
 
 @dataclass(frozen=True)
@@ -170,48 +170,60 @@ def assess(geo: FieldGeometry, heliostat_id: str, record: ModelRecord | None, ni
            offset: int, targets: tuple[str, ...] | None) -> tuple[list[PlanItem], Unmeasurable | None]:
     """One planning decision: the items of :func:`plan_heliostat` and, when the heliostat has no
     measurable geometry tonight, why."""
-    return assess_many(geo, [(heliostat_id, record, night, strategy, offset, targets)])[0]
+    return assess_many(geo, [(heliostat_id, record, night, strategy, offset, targets, frozenset())])[0]
 
 
 BATCH = 64  # heliostats whose candidates are evaluated together
 
 
 def assess_many(geo: FieldGeometry, tasks: list[tuple]) -> list[tuple[list[PlanItem], Unmeasurable | None]]:
-    """:func:`assess` for each ``(heliostat id, record, night, strategy, offset, targets)`` of
-    ``tasks``: the candidates of :data:`BATCH` heliostats at a time
+    """:func:`assess` for each ``(heliostat id, record, night, strategy, offset, targets,
+    flagged)`` of ``tasks`` (``flagged``: the heliostat's geometries not to plan, as
+    :func:`geometry_key` s): the candidates of :data:`BATCH` heliostats at a time
     (:func:`controller.calibration.candidates.evaluate_many`), then each heliostat's picks."""
     cal = geo.cfg.calibration
     out = []
     for start in range(0, len(tasks), BATCH):
         part = tasks[start:start + BATCH]
-        for _, _, _, strategy, _, _ in part:
+        for _, _, _, strategy, *_ in part:
             if strategy not in ("design", "round-robin"):
                 raise ValueError(f"unknown planning strategy {strategy!r}")
         mc = {hid: model_covariance(rec, cal.model.prior_sigma) for hid, rec, *_ in part}
-        jobs = [(hid, *mc[hid], tid) for hid, _, _, _, _, targets in part
+        jobs = [(hid, *mc[hid], tid) for hid, _, _, _, _, targets, _ in part
                 for tid in targets or cal.parallel_targets()]
         found = iter(evaluate_many(geo, jobs))
-        for hid, _, night, strategy, offset, targets in part:
+        for hid, _, night, strategy, offset, targets, flagged in part:
             tids = targets or cal.parallel_targets()
             out.append(_decide(geo, hid, mc[hid][1], [(tid, next(found)) for tid in tids], night, strategy,
-                               offset))
+                               offset, flagged))
     return out
 
 
+def geometry_key(g: Geometry, calibration_target: str) -> tuple[str, str, tuple[int, int]]:
+    """A geometry as the failures of nights name it: (lamp, target, aim grid cell)."""
+    return g.lamp, g.target or calibration_target, tuple(g.cell)
+
+
 def _decide(geo: FieldGeometry, heliostat_id: str, cov: np.ndarray, found: list[tuple[str, Candidates]],
-            night: str, strategy: str, offset: int) -> tuple[list[PlanItem], Unmeasurable | None]:
-    """The picks of one heliostat among its measurable candidates (module docstring, steps 2-3)."""
+            night: str, strategy: str, offset: int,
+            flagged: frozenset = frozenset()) -> tuple[list[PlanItem], Unmeasurable | None]:
+    """The picks of one heliostat among its measurable candidates that are not ``flagged``
+    (module docstring, steps 2-3)."""
     cal = geo.cfg.calibration
     m = found[0][1].m
     v = float(np.sum(cov * m))
     predicted = 1e3 * math.sqrt(v) if math.isfinite(v) else float("inf")
     n = cal.planner.check_geometries if predicted <= cal.tolerance_mrad else cal.planner.geometries_per_night
     geos = [g for tid, c in found for g in _geometries(c, tid)]
+    keep = [i for i, g in enumerate(geos) if geometry_key(g, cal.target) not in flagged]
     if n == 0:
         return [], None
-    if not geos:
-        return [], Unmeasurable(heliostat_id, "; ".join(c.why for _, c in found if c.why), predicted)
-    hs = np.concatenate([c.h for _, c in found])
+    if not keep:
+        why = "; ".join(c.why for _, c in found if c.why) if not geos else \
+            f"its {len(geos)} measurable geometries are flagged (each failed on two nights)"
+        return [], Unmeasurable(heliostat_id, why, predicted)
+    hs = np.concatenate([c.h for _, c in found])[keep]
+    geos = [geos[i] for i in keep]
     noise = cal.model.noise_mrad * 1e-3
     if strategy == "round-robin":
         picks, _ = fixed_design(cov, hs, np.empty(0), noise, round_robin(len(geos), n, offset), weight=m)
@@ -235,17 +247,21 @@ def plan_night(cfg: PlantConfig, models: dict[str, ModelRecord | None], night: s
 
 
 def plan_field(cfg: PlantConfig, models: dict[str, ModelRecord | None], night: str, *,
-               strategy: str = "design", night_index: int = 0, workers: int | None = None) -> NightPlan:
+               strategy: str = "design", night_index: int = 0, workers: int | None = None,
+               flagged: dict[str, frozenset] | None = None) -> NightPlan:
     """Tonight's plan for the heliostats in ``models`` (id -> latest model or None). The queue
     is distributed over ``calibration.targets`` (which run in parallel): heliostat i takes
     tonight target (i + night_index) mod n, so each target gets its share and each heliostat
     another target the next night. Only target time couples the heliostats, so each is
     planned on its own: in ``workers`` processes (:mod:`controller.calibration.workers`;
-    default one per core for a large field), with the same result as one at a time."""
+    default one per core for a large field), with the same result as one at a time.
+    ``flagged``: per heliostat, the geometries (:func:`geometry_key`) not to plan again (each
+    failed on two nights, docs/nights.md)."""
     targets = cfg.calibration.parallel_targets()
     per = cfg.calibration.planner.geometries_per_night
-    tasks = [(hid, rec, night, strategy, night_index * per, (targets[(i + night_index) % len(targets)],))
-             for i, (hid, rec) in enumerate(models.items())]
+    flagged = flagged or {}
+    tasks = [(hid, rec, night, strategy, night_index * per, (targets[(i + night_index) % len(targets)],),
+              flagged.get(hid, frozenset())) for i, (hid, rec) in enumerate(models.items())]
     t0 = time.perf_counter()
     done = map_chunks(_plan_chunk, tasks, workers=workers, setup=_setup, setup_args=(cfg,))
     items = [it for its, _ in done for it in its]

@@ -108,6 +108,7 @@ class RunRecord:
     model: ModelRecord | None = None
     id: int | None = None
     finished_utc: str | None = None
+    frames: list[ImageRecord] = field(default_factory=list)  # the look that gave no measurement
 
     @property
     def target_occupancy_s(self) -> float | None:

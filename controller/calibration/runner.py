@@ -47,7 +47,7 @@ from controller.calibration.lamp_change import clear_targets
 from controller.calibration.machine import STATES, CalibrationCycle
 from controller.calibration.no_beam import NoBeamWatch, RefusalObserver
 from controller.calibration.observers import CampaignObserver, Observers
-from controller.calibration.outcome import CampaignResult, outcome
+from controller.calibration.outcome import CampaignResult, looked_and_failed, outcome
 from controller.calibration.planning import order_queue
 from controller.calibration.pointing import GeometryPointing
 from controller.calibration.records import (
@@ -306,6 +306,9 @@ class Campaign:
                     and rec.status == "failed":
                 return None  # never reached the target because another beam blocked it: not recorded
             watch.ended(rec)
+            if looked_and_failed(rec) and cyc.frame is not None and self.field.images is not None:
+                # What the camera saw when it mattered most: kept with the run (run_frames).
+                rec.frames = self.field.images.save(self.opt.name, hid, cyc.iteration + 1, cyc.frame)
             rec.id = self.store.record_run(cid, rec)
             self.observer.run_recorded(cid, rec)
             return rec

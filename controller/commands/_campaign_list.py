@@ -34,7 +34,8 @@ def list_campaigns(args: argparse.Namespace) -> int:
     from controller.storage.nights import NightBook
 
     with open_existing(args.db) as store:
-        rows = [_row(store, c) for c in store.campaigns()]
+        passes = NightBook(store).passes()
+        rows = [{**_row(store, c), "pass": c.id in passes} for c in store.campaigns()]
         nights = []
         recorded = NightBook(store).nights()
         owner = {r["id"]: _night_of(r["name"], [n.name for n in recorded]) for r in rows}
@@ -87,7 +88,7 @@ def _night_line(n: dict) -> str:
 
 
 def _campaign_line(r: dict, indent: str = "", name: str | None = None) -> str:
-    measuring = r["measured"] and not r["calibrated"]
+    measuring = r["pass"]  # a pass measures: "measured 0/2", never "0/2 calibrated"
     done = f"{r['measured'] if measuring else r['calibrated']}/{r['heliostats']}"
     what = "measured" if measuring else "calibrated"
     name = r["name"] if name is None else name

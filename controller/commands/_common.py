@@ -42,6 +42,7 @@ def resolve_config(args: argparse.Namespace) -> None:
         return
     env = os.environ.get(CONFIG_ENV)
     args.config = env or PACKAGED_CONFIG
+    args.config_defaulted = True  # a database made with another configuration refuses it (field_prints)
     origin = f"${CONFIG_ENV}" if env else "the packaged demo plant"
     print(f"heliocal: using configuration {args.config} ({origin}; --config FILE to choose)", file=sys.stderr)
 
@@ -137,3 +138,51 @@ def output_file(path: str | Path, option: str = "--out") -> Path:
     if not os.access(parent, os.W_OK | os.X_OK) or (p.exists() and not os.access(p, os.W_OK)):
         raise InputError(f"{option} {p}: not writable")
     return p
+
+
+def check_camera(cfg, args: argparse.Namespace, command: str, needed: bool = True) -> None:
+    """Before any work: a command that captures (``needed``) has a camera — ``--simulate`` (the
+    simulated plant's), ``--camera-manifest`` (recorded pairs) or the configuration's
+    ``camera.driver`` (:func:`controller.devices.factory.open_camera` opens it); InputError
+    saying what to give."""
+    simulate, manifest = getattr(args, "simulate", False), getattr(args, "camera_manifest", None)
+    if simulate and manifest:
+        raise InputError("--simulate uses the simulated plant's camera; --camera-manifest cannot be given "
+                         "with it")
+    if needed and not simulate and not manifest and cfg.camera.driver is None:
+        raise InputError(f"{command}: no camera; set camera.driver in the configuration (gige or file, "
+                         "docs/camera.md), pass --camera-manifest FILE (recorded pairs) or --simulate "
+                         "(the embedded simulated plant)")
+
+
+def add_field_change_option(parser: argparse.ArgumentParser) -> None:
+    """``--accept-field-change`` (:func:`controller.storage.field_prints.check_field`)."""
+    parser.add_argument("--accept-field-change", action="store_true",
+                        help="use the database's models although the configuration's heliostats or targets "
+                             "differ from those they were fitted on (docs/campaigns.md)")
+
+
+def check_db_field(db: str | Path, cfg, ids: list[str], args: argparse.Namespace) -> None:
+    """Before any work, on an existing database: the configuration's field is the one the
+    models of ``ids`` were fitted on (:func:`controller.storage.field_prints.check_field`: exit 2
+    naming the heliostat and key, unless ``--accept-field-change``, then said on stderr)."""
+    from controller.storage.db import open_existing
+
+    p = Path(db)
+    if not p.is_file() or p.stat().st_size == 0:
+        return  # a new database: no model to apply
+    with open_existing(p) as store:
+        check_store_field(store, cfg, ids, args)
+
+
+def check_store_field(store, cfg, ids: list[str], args: argparse.Namespace) -> None:
+    """:func:`check_db_field` on an open store; the differences accepted are said on stderr."""
+    import sys
+
+    from controller.storage.field_prints import ACCEPT, check_field
+
+    changes = check_field(store, cfg, ids, args.config, accept=args.accept_field_change,
+                          defaulted=getattr(args, "config_defaulted", False))
+    if changes:
+        print(f"heliocal: {ACCEPT}: {len(changes)} difference(s) accepted, e.g. {changes[0]}",
+              file=sys.stderr)

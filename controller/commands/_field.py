@@ -20,6 +20,7 @@ from controller.commands._plant import cli_user
 from controller.config import PlantConfig, config_sha256
 from controller.devices.factory import LinkPool, open_camera
 from controller.devices.plant_time import PlantTime
+from controller.errors import InputError
 from controller.storage.alarms import AlarmBook
 from controller.storage.audit import AuditTrail
 from controller.storage.db import CampaignStore
@@ -63,7 +64,7 @@ def real_field(cfg: PlantConfig, config_path: str, store: CampaignStore, *,
             cameras = {cfg.calibration.target: stack.enter_context(closing(open_camera(cfg.camera,
                                                                                        camera_manifest)))}
         else:
-            cameras = {t: stack.enter_context(closing(open_camera(cfg.camera_of(t))))
+            cameras = {t: stack.enter_context(closing(_target_camera(cfg, t)))
                        for t in cfg.calibration.parallel_targets()}
         pool = stack.enter_context(LinkPool())
         time = PlantTime()
@@ -74,6 +75,15 @@ def real_field(cfg: PlantConfig, config_path: str, store: CampaignStore, *,
         images = ImageArchive(Path(store.path).parent / "images")
         yield FieldSession(plant_records(Field(cfg, str(config_path), config_sha256(config_path), store, pool,
                                                cameras, time, lamps, images, lib)), NightBook(store))
+
+
+def _target_camera(cfg: PlantConfig, target: str):
+    """The configured camera of ``target`` (:func:`controller.devices.factory.open_camera`);
+    InputError naming the target when it has none."""
+    try:
+        return open_camera(cfg.camera_of(target))
+    except InputError as exc:
+        raise InputError(f"target {target}: {exc}") from None
 
 
 @contextmanager

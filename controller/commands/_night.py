@@ -13,7 +13,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from controller.commands._common import print_json
+from controller.commands._common import check_db_field, print_json
 from controller.errors import InputError
 
 
@@ -28,6 +28,7 @@ def run_night_cli(args: argparse.Namespace) -> int:
     if not args.simulate and cfg.lamps is None:
         raise InputError(f"{args.config}: lamps: a planned night switches lamps in the dark and confirms "
                          "each one lit; configure the lamp panel (lamps:, docs/lamps.md)")
+    check_db_field(args.db, cfg, ids, args)  # tonight's plan starts from models fitted on this field
     db = Path(args.db)
     quiet = args.json or not sys.stderr.isatty()
     progress = None if quiet else (lambda text: print(text, file=sys.stderr))
@@ -39,7 +40,7 @@ def run_night_cli(args: argparse.Namespace) -> int:
             summary, code = (_simulated(args, cfg, store, ids, base, progress) if args.simulate
                              else _field(args, cfg, store, book, ids, base, progress))
         except KeyboardInterrupt:
-            lamps = "every lamp off, " if args.simulate or cfg.lamps is not None else ""
+            lamps = "every lamp confirmed dark, " if args.simulate or cfg.lamps is not None else ""
             print(f"heliocal campaign night: interrupted; {lamps}heliostats in motion parked. Rerun the same "
                   "command to resume the night.", file=sys.stderr)
             return 130

@@ -73,6 +73,13 @@ class SimulatedRun:
     nights: list[NightReport]
     on_target: dict[str, list[tuple[float, float, str]]] = field(default_factory=dict)
 
+    @property
+    def exit_code(self) -> int:
+        """The worst outcome of the calibration campaign and every planned night (docs/cli.md):
+        1 one aborted, 130 one interrupted, 3 one partial, 0 all finished."""
+        codes = {self.result.exit_code, *(r.summary.exit_code for r in self.nights)}
+        return next((c for c in (1, 130, 3) if c in codes), 0)
+
 
 def _merge_safety(plant, into: dict | None, on_target: dict | None) -> None:
     """Add a plant session's beam-safety monitor (counts; spans with a beam on each target) to

@@ -8,23 +8,37 @@ Contract (scripts depend on it)::
         "target": id}
 
 ``model`` is the heliostat's latest fitted tracking-error model from the database (its
-parameters, 1-σ, residual and number of measurements), or null when it has none (nominal
-kinematics). ``--time`` is ISO 8601 with its UTC offset (or ``now``); ``--sun-az`` is clockwise
-from north, degrees. Exit 2 when the pose is outside the soft limits or the sun is down.
+parameters, 1-σ, residual and number of measurements), or null when it has none: the steps are
+then those of the nominal kinematics, and the exit status is 5 (:data:`NO_MODEL`, said on
+stderr too). ``--time`` is ISO 8601 with its UTC offset (or ``now``); ``--sun-az`` is clockwise
+from north, degrees. Exit 2 when the pose is outside the soft limits or the sun is down, and
+when the configuration's field is not the one the model was fitted on (the heliostat's position
+or kinematics, a target; one line naming the heliostat or target and the key) unless
+``--accept-field-change``, or when ``--config`` is left out and the database was made with
+another configuration (docs/campaigns.md, "A model and its field").
 """
 
 from __future__ import annotations
 
 import argparse
 import math
+import sys
 from dataclasses import asdict
 from datetime import UTC, datetime
 
 import numpy as np
 
-from controller.commands._common import add_config_option, add_json_option, print_json
+from controller.commands._common import (
+    add_config_option,
+    add_field_change_option,
+    add_json_option,
+    check_store_field,
+    print_json,
+)
 from controller.commands._numbers import Number
 from controller.errors import InputError
+
+NO_MODEL = 5  # exit status: no fitted model, the steps printed are the nominal kinematics
 
 
 def register(subparsers) -> None:
@@ -38,6 +52,7 @@ def register(subparsers) -> None:
     p.add_argument("--sun-az", type=Number(-360, 360), metavar="DEG",
                    help="sun azimuth, clockwise from north, degrees")
     p.add_argument("--sun-el", type=Number(-90, 90), metavar="DEG", help="sun elevation, degrees")
+    add_field_change_option(p)
     add_json_option(p)
     p.set_defaults(func=run)
 
@@ -70,6 +85,7 @@ def run(args: argparse.Namespace) -> int:
         if el <= 0:
             raise InputError(f"--time {args.time}: the sun is down at the site (elevation {el:.2f}°)")
     with open_existing(args.db) as store:
+        check_store_field(store, cfg, [h.id], args)  # never a model on another field
         model = store.latest_model(h.id)
     target = cfg.target()
     a, e = steps_to_aim(HeliostatKinematics.from_config(h), model, azel_to_vector(az % 360.0, el),
@@ -84,4 +100,8 @@ def run(args: argparse.Namespace) -> int:
         source = "fitted model" if model else "nominal kinematics (no fitted model yet)"
         print(f"{h.id}: az {a} el {e} steps for the sun at azimuth {az % 360.0:.3f}°, elevation {el:.3f}° "
               f"on {target.id} ({source})")
+    if model is None:
+        print(f"heliocal aim: {h.id} has no fitted model in {args.db}: nominal kinematics (exit {NO_MODEL})",
+              file=sys.stderr)
+        return NO_MODEL
     return 0

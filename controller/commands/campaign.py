@@ -1,7 +1,8 @@
 """``heliocal campaign run --config C --db DB [--json]``: the calibration campaign (night 0);
 ``heliocal campaign night --config C --db DB [--simulate] [--seed S] [--json]``: tonight's
 planned night (docs/nights.md); ``heliocal campaign list --db DB [--json]``: the nights and
-campaigns recorded in a database.
+campaigns recorded in a database; ``heliocal campaign flags --db DB [--clear IDS|all]``: the
+geometries flagged after failing on two nights.
 
 Rerunning the same command after an interruption (even ``kill -9``) resumes the campaign in
 the database: heliostats already recorded are skipped, the others are calibrated. The
@@ -22,7 +23,16 @@ from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
 from controller.commands._campaign_list import list_campaigns
-from controller.commands._common import add_config_option, add_json_option, output_dir, print_json
+from controller.commands._common import (
+    add_config_option,
+    add_field_change_option,
+    add_json_option,
+    check_camera,
+    check_db_field,
+    output_dir,
+    print_json,
+)
+from controller.commands._flags import flags_command
 from controller.commands._numbers import SEED, Number
 from controller.errors import InputError
 
@@ -47,6 +57,7 @@ def register(subparsers) -> None:
     r.add_argument("--report", default=None, metavar="DIR", help="also write the morning report into DIR")
     r.add_argument("--notify", default=None, metavar="CMD",
                    help="run CMD (a shell command) at the end with the summary JSON on its standard input")
+    add_field_change_option(r)
     add_json_option(r)
     r.set_defaults(func=run)
     n = sub.add_parser("night", help="run or resume tonight's planned night",
@@ -65,6 +76,7 @@ def register(subparsers) -> None:
                    help="simulated plant seconds per wall second (with --simulate; default 20)")
     n.add_argument("--strategy", default="design", choices=("design", "round-robin"),
                    help="planner strategy (default design: the daytime variance reduction)")
+    add_field_change_option(n)
     add_json_option(n)
     n.set_defaults(func=run_night_command)
     ls = sub.add_parser("list", help="the nights and campaigns recorded in a database",
@@ -73,6 +85,15 @@ def register(subparsers) -> None:
     ls.add_argument("--db", required=True, metavar="DB", help="campaign database (SQLite)")
     add_json_option(ls)
     ls.set_defaults(func=list_campaigns)
+    fl = sub.add_parser("flags", help="geometries flagged after failing on two nights; clear them",
+                        description="The planned geometries that failed on two nights: not planned again "
+                                    "until cleared (--clear IDS or all, optionally only under --lamp).")
+    fl.add_argument("--db", required=True, metavar="DB", help="campaign database (SQLite)")
+    fl.add_argument("--clear", default=None, metavar="IDS|all",
+                    help="clear the flags of these heliostats (comma-separated ids, or all)")
+    fl.add_argument("--lamp", default=None, metavar="LAMP", help="with --clear: only the flags under LAMP")
+    add_json_option(fl)
+    fl.set_defaults(func=flags_command)
     p.set_defaults(func=lambda args: p.print_help() or 2)
 
 
@@ -109,14 +130,7 @@ def _ids(args, cfg) -> list[str]:
             raise InputError(f"--heliostats: an id is given twice in {args.heliostats!r}")
         for hid in ids:
             cfg.heliostat(hid)
-    if args.simulate and args.camera_manifest:
-        raise InputError("--simulate uses the simulated plant's camera; --camera-manifest cannot be given "
-                         "with it")
-    if not args.simulate and not args.camera_manifest and cfg.camera.driver is None:
-        raise InputError(
-            f"campaign {args.campaign_command}: no camera; pass --camera-manifest FILE (recorded pairs), "
-            "set camera.driver in the configuration (docs/camera.md) or pass --simulate (embedded "
-            "simulated plant)")
+    check_camera(cfg, args, f"campaign {args.campaign_command}")
     return ids
 
 
@@ -125,6 +139,7 @@ def run(args: argparse.Namespace) -> int:
 
     cfg = load_config(args.config)
     ids = _ids(args, cfg)
+    check_db_field(args.db, cfg, ids, args)  # the models in DB were fitted on this field
     name = args.name or default_name(args.config)
     quiet = args.json or not sys.stderr.isatty()
     db = Path(args.db)
@@ -133,7 +148,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         summary, result = _run(args, cfg, ids, name, quiet, db)
     except KeyboardInterrupt:
-        _interrupted(args, db, name)
+        _interrupted(args, db, name, cfg.lamps is not None)
         return 130
     summary["campaign"] = name
     summary["resumed"] = result.resumed
@@ -156,7 +171,7 @@ def run(args: argparse.Namespace) -> int:
     return result.exit_code
 
 
-def _interrupted(args: argparse.Namespace, db: Path, name: str) -> None:
+def _interrupted(args: argparse.Namespace, db: Path, name: str, cfg_lamps: bool) -> None:
     """Ctrl-C / SIGTERM: the runner parked what moved and recorded the campaign as interrupted;
     say how far it got and how to go on."""
     from controller.reports.summary import summarize
@@ -170,8 +185,9 @@ def _interrupted(args: argparse.Namespace, db: Path, name: str) -> None:
                 summary.update(summarize(store, camp.id), campaign=name, recorded=len(store.runs(camp.id)))
     if args.json:
         print_json(summary)
+    lamps = "every lamp confirmed dark, " if args.simulate or cfg_lamps else ""  # else LampNotDark, exit 1
     print(f"heliocal campaign run: interrupted; {summary['recorded']} heliostat(s) recorded in {db}; "
-          "heliostats in motion were parked. Rerun the same command to resume.", file=sys.stderr)
+          f"{lamps}heliostats in motion were parked. Rerun the same command to resume.", file=sys.stderr)
     if args.notify:
         notify(args.notify, summary)
 

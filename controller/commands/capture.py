@@ -1,11 +1,13 @@
-"""``heliocal capture --camera gige|file --config C --out DIR [--json]``: take one frame pair.
+"""``heliocal capture [--camera gige|file] --config C --out DIR [--json]``: take one frame pair.
 
 Writes ``low.png`` and ``high.png`` (16-bit grey PNG when the pixels have more than 8 bits)
 and ``metadata.json`` into DIR: device ids, exposures (s), device timestamps (ns), their
-skew (ms), pixel format and ROI. ``--camera gige`` opens the GigE Vision imagers of the
-configuration's ``camera.gige`` section (docs/camera.md); ``--camera file --manifest M``
-takes the first pair of a recorded manifest. ``--json`` prints the metadata as one object.
-A camera failure exits 1 with one line naming the imager; nothing is written then.
+skew (ms), pixel format and ROI. Without ``--camera`` it opens the configuration's
+``camera.driver`` as every command does (:func:`controller.devices.factory.open_camera`);
+``--camera gige`` opens the GigE Vision imagers of the configuration's ``camera.gige``
+section (docs/camera.md); ``--camera file --manifest M`` takes the first pair of a recorded
+manifest. ``--json`` prints the metadata as one object. A camera failure exits 1 with one line
+naming the imager; nothing is written then.
 """
 
 from __future__ import annotations
@@ -28,8 +30,9 @@ from controller.errors import InputError
 def register(subparsers) -> None:
     p = subparsers.add_parser("capture", help="take one frame pair from the camera into a folder",
                               description=__doc__)
-    p.add_argument("--camera", choices=("gige", "file"), default="gige",
-                   help="gige: the configuration's GigE Vision imagers (default); file: --manifest")
+    p.add_argument("--camera", choices=("gige", "file"), default=None,
+                   help="gige: the configuration's GigE Vision imagers; file: --manifest (default: the "
+                        "configuration's camera.driver)")
     p.add_argument("--manifest", metavar="FILE", help="recorded pairs to take the first one from "
                    "(with --camera file)")
     add_config_option(p)
@@ -57,8 +60,9 @@ def run(args: argparse.Namespace) -> int:
         pair = camera.capture()
     finally:
         camera.close()
-    meta = _plain({"camera": args.camera, "exposures_s": list(pair.exposures), "timestamp_s": pair.timestamp,
-                   "shape": list(pair.low.shape), "dtype": str(pair.low.dtype), **pair.metadata})
+    meta = _plain({"camera": args.camera or cfg.camera.driver, "exposures_s": list(pair.exposures),
+                   "timestamp_s": pair.timestamp, "shape": list(pair.low.shape), "dtype": str(pair.low.dtype),
+                   **pair.metadata})
     _write(out, pair, meta)
     if args.json:
         print_json(meta)
@@ -70,13 +74,11 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _open(args: argparse.Namespace, cfg):
-    if args.camera == "file":
-        from controller.devices.file_camera import FileCamera
+    from controller.devices.factory import open_camera
 
-        return FileCamera(args.manifest)
-    from controller.devices.gige import GigeCamera
-
-    return GigeCamera(cfg.camera)
+    if args.camera == "gige":
+        return open_camera(cfg.camera.model_copy(update={"driver": "gige"}))
+    return open_camera(cfg.camera, args.manifest if args.camera == "file" else None)
 
 
 def _write(out: Path, pair, meta: dict) -> None:

@@ -3,8 +3,10 @@
 Without step flags it asks for steps interactively. Each step also has a flag, so scripts can
 drive it; flags run in this order: ``--status``, ``--move AZ EL``, ``--aim``, ``--jog-az/--jog-el``,
 ``--capture PNG``, ``--store-reference LABEL --library LIB``, ``--verify``, ``--park``.
-The camera is ``--camera-manifest M`` (recorded pairs) or ``--simulate`` (embedded simulated
-plant, one heliostat; its firmware starts at stow). See docs/commissioning.md.
+The camera is the configuration's ``camera.driver`` (gige, file; opened as ``campaign run``
+opens it, only for the steps that look: capture, reference, verify, and the prompt),
+``--camera-manifest M`` (recorded pairs) or ``--simulate`` (embedded simulated plant, one
+heliostat; its firmware starts at stow). See docs/commissioning.md.
 """
 
 from __future__ import annotations
@@ -14,7 +16,7 @@ import shlex
 import sys
 from pathlib import Path
 
-from controller.commands._common import add_config_option, add_json_option, print_json
+from controller.commands._common import add_config_option, add_json_option, check_camera, print_json
 from controller.commands._numbers import SEED, STEPS
 from controller.errors import HeliocalError, InputError
 
@@ -28,6 +30,7 @@ HELP = """steps:
   v | verify                 capture and score the pointing error
   p | park                   move to the standby point
   q | quit"""
+LOOKS = ("capture", "reference", "verify")  # the steps that use the camera
 
 
 def register(subparsers) -> None:
@@ -90,21 +93,27 @@ def run(args: argparse.Namespace) -> int:
     cfg = load_config(args.config)
     cfg.heliostat(args.heliostat)
     steps = _steps(args)
-    if not args.simulate and not args.camera_manifest:
-        raise InputError("commission: no camera; pass --camera-manifest FILE or --simulate")
+    # Steps that only move or read the drive need no camera; the others open the configured one.
+    looks = not steps or any(name in LOOKS for name, _ in steps)
+    check_camera(cfg, args, "commission", needed=looks)
     from controller.recognition.library_io import load_library_if_present
 
     library = load_library_if_present(args.library)
     if args.simulate:
         return _with_simulated(cfg, args, steps, library)
+    from contextlib import ExitStack, closing
+
     from controller.devices.drive import DriveLimits
-    from controller.devices.factory import LinkPool
-    from controller.devices.file_camera import FileCamera
+    from controller.devices.factory import LinkPool, open_camera
+    from controller.devices.lamp_panel import fiducial_hook
 
     h = cfg.heliostat(args.heliostat)
-    with LinkPool() as pool:
+    with LinkPool() as pool, ExitStack() as stack:
+        camera = None
+        if looks:
+            camera = stack.enter_context(closing(open_camera(cfg.camera, args.camera_manifest)))
         drive = pool.drive(h.link, DriveLimits.from_axes(h.axes))
-        return _session(cfg, args, steps, drive, FileCamera(args.camera_manifest), library)
+        return _session(cfg, args, steps, drive, camera, library, fiducial_hook(cfg) if looks else None)
 
 
 def _with_simulated(cfg, args, steps, library) -> int:

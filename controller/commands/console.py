@@ -5,7 +5,9 @@ park, stow), guided commissioning, the campaign (start, pause, abort, live queue
 reports, updated live by server-sent events. Listens on 127.0.0.1:8080 by default; another
 address needs ``--token`` or ``--token-file``, and then every state-changing request must carry
 the header ``X-Heliocal-Token``. Every move takes the CLI's validated path; while a campaign
-runs only its state machine drives. See docs/console.md.
+runs only its state machine drives. The camera is the configuration's ``camera.driver`` (gige,
+file), opened as ``campaign run`` opens it, or ``--camera-manifest`` / ``--simulate``. See
+docs/console.md.
 """
 
 from __future__ import annotations
@@ -18,7 +20,12 @@ import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 
-from controller.commands._common import add_config_option
+from controller.commands._common import (
+    add_config_option,
+    add_field_change_option,
+    check_camera,
+    check_db_field,
+)
 from controller.commands._numbers import SEED, Number
 from controller.errors import InputError
 from controller.io.yaml_files import read_text
@@ -52,6 +59,7 @@ def register(subparsers) -> None:
     tok.add_argument("--token-file", default=None, metavar="F", help="read the token from file F")
     p.add_argument("--run-dir", default=None, metavar="DIR",
                    help="simulation run directory (ptys; with --simulate; default a temporary folder)")
+    add_field_change_option(p)
     p.set_defaults(func=run)
 
 
@@ -111,11 +119,8 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(f"--heliostats: no heliostat id in {args.heliostats!r}")
         for hid in ids:
             cfg.heliostat(hid)
-    if args.simulate and args.camera_manifest:
-        raise InputError("--simulate uses the simulated plant's camera; --camera-manifest cannot be given "
-                         "with it")
-    if not args.simulate and not args.camera_manifest:
-        raise InputError("console: no camera; pass --camera-manifest FILE or --simulate")
+    check_camera(cfg, args, "console")
+    check_db_field(args.db, cfg, ids, args)  # the models it aims with were fitted on this field
     if args.reports and not Path(args.reports).is_dir():
         raise InputError(f"--reports {args.reports}: not a folder")
     from controller.recognition.library_io import load_library_if_present

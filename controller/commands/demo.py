@@ -96,7 +96,7 @@ def run(args: argparse.Namespace) -> int:
         print_json({k: v for k, v in summary.items() if k not in ("status", "cause")})
     else:
         _print_summary(summary, sim)
-    return sim.result.exit_code
+    return sim.exit_code  # a partial night is not a finished demo (3), however the campaign ended
 
 
 def simulated_campaign(cfg, config_path: str, out: Path, db: Path, ids: list[str], settings, name: str, *,
@@ -154,11 +154,11 @@ def _print_summary(s: dict, sim) -> None:
               f"uncalibrated: RMS {u.rms:.2f}, p95 {u.p95:.2f})")
     if sim.nights:
         nt = Table(title="daytime error after each night (open loop, mrad)")
-        for col in ("night", "measured", "true RMS", "true p95", "predicted RMS", "predicted p95"):
+        for col in ("night", "status", "measured", "true RMS", "true p95", "predicted RMS", "predicted p95"):
             nt.add_column(col)
         for r in sim.nights:
-            nt.add_row(str(r.night), f"{r.measured}/{r.planned}", _f(r.daytime.rms, 2), _f(r.daytime.p95, 2),
-                       _f(r.predicted.rms, 2), _f(r.predicted.p95, 2))
+            nt.add_row(str(r.night), r.summary.status, f"{r.measured}/{r.planned}", _f(r.daytime.rms, 2),
+                       _f(r.daytime.p95, 2), _f(r.predicted.rms, 2), _f(r.predicted.p95, 2))
         con.print(nt)
     t = Table(title=f"campaign {result.name}" + (" (resumed)" if result.resumed else ""))
     failures = any(r.fault_cause for r in result.runs)

@@ -5,7 +5,7 @@ Contracts (scripts depend on them; docs/plant-integration.md)::
 
     heliocal export --db DB --format paint --out DIR [--campaign NAME|ID] [--config C]
     heliocal export tracking-table --config C --db DB --day YYYY-MM-DD [--step MINUTES]
-                                   [--heliostats IDS] --out FILE.csv
+                                   [--heliostats IDS] --out FILE.csv [--accept-field-change]
     heliocal export models --db DB --format json|csv [--heliostats IDS] [--out FILE]
 
 The tracking table's columns are ``heliostat,time_utc,sun_azimuth_deg,sun_elevation_deg,
@@ -21,7 +21,14 @@ from __future__ import annotations
 import argparse
 import sys
 
-from controller.commands._common import add_json_option, output_file, print_json, staged_output_dir
+from controller.commands._common import (
+    add_field_change_option,
+    add_json_option,
+    check_store_field,
+    output_file,
+    print_json,
+    staged_output_dir,
+)
 from controller.commands._numbers import Number
 from controller.commands._plant import heliostat_ids
 from controller.errors import InputError
@@ -50,12 +57,14 @@ def register(subparsers) -> None:
         "--config",
         default=None,
         metavar="FILE",
-        help="plant config (tracking-table; paint: the site origin, default stored with the campaign)",
+        help="plant config (tracking-table; paint: the site origin, default stored with the campaign); "
+             "checked against the field the models were fitted on",
     )
     p.add_argument("--day", default=None, metavar="YYYY-MM-DD", help="the day of the tracking table")
     p.add_argument("--step", type=Number(1, 720), default=10.0, metavar="MINUTES",
                    help="minutes between two instants of the tracking table (default 10)")
     p.add_argument("--heliostats", default=None, metavar="IDS", help="comma-separated heliostat ids")
+    add_field_change_option(p)
     add_json_option(p)
     p.set_defaults(func=run)
 
@@ -91,6 +100,7 @@ def _tracking_table(args: argparse.Namespace) -> int:
     cfg = load_config(args.config)
     ids = heliostat_ids(args.heliostats, cfg)
     with open_existing(args.db) as store:
+        check_store_field(store, cfg, ids or [h.id for h in cfg.heliostats], args)  # never another field's
         models = store.latest_models(ids or [h.id for h in cfg.heliostats])
     missing = [hid for hid in (ids or [h.id for h in cfg.heliostats]) if hid not in models]
     if ids and missing:
@@ -116,8 +126,9 @@ def _models(args: argparse.Namespace, fmt: str) -> int:
     from controller.io.images import write_atomic
     from controller.storage.db import open_existing
 
-    if args.config is not None or args.day is not None:
-        raise InputError("export models: --config and --day go with the tracking table")
+    if args.config is not None or args.day is not None or args.accept_field_change:
+        raise InputError("export models: --config, --day and --accept-field-change go with the tracking "
+                         "table")
     out = output_file(args.out) if args.out else None
     with open_existing(args.db) as store:
         models = model_versions(store, heliostat_ids(args.heliostats))
@@ -138,13 +149,16 @@ def _paint(args: argparse.Namespace) -> int:
         raise InputError("export: --out DIR is required")
     if args.day is not None or args.heliostats is not None:
         raise InputError("export: --day and --heliostats go with the tracking table")
-    site = None
+    site, cfg = None, None
     if args.config:
         from controller.config import load_config
 
-        s = load_config(args.config).site
+        cfg = load_config(args.config)
+        s = cfg.site
         site = (s.latitude_deg, s.longitude_deg, s.elevation_m)
     with staged_output_dir(args.out) as stage, open_existing(args.db) as store:
+        if cfg is not None:  # a model is never exported against another field
+            check_store_field(store, cfg, [h.id for h in cfg.heliostats], args)
         cid = None if args.campaign is None else store.find_campaign(args.campaign).id
         paths = export_paint(store, stage, site, cid)
     if args.json:

@@ -29,16 +29,11 @@ from controller.calibration.commissioning import Commissioning
 from controller.calibration.field import Field
 from controller.console.events import EventBus
 from controller.devices.drive import Drive, DriveError, DriveLimits, DriveStatus
-from controller.devices.lamp_panel import fiducials_wired
+from controller.devices.lamp_panel import fiducial_hook
 from controller.errors import HeliocalError, InputError
 from controller.storage.alarms import AlarmBook
 
 STATUS_POLL_S = 0.1  # wall seconds between two status readings of every drive
-
-
-def _plant_switches_them(on: bool) -> None:
-    """The commissioning's fiducial hook where the plant switches the fiducials itself (its lamp
-    panel or lamp command, :func:`controller.devices.lamp_panel.fiducial_switch`): register."""
 
 
 class Conflict(HeliocalError):
@@ -138,8 +133,7 @@ class Console:
             self.sessions[hid] = Commissioning(self.cfg, hid, self.drive(hid), self.camera,
                                                library=self.library, model=model,
                                                move_timeout_s=self.move_timeout_s,
-                                               fiducial_lamps=_plant_switches_them
-                                               if fiducials_wired(self.cfg) else None)
+                                               fiducial_lamps=fiducial_hook(self.cfg))
         self.sessions[hid].model = model
         return self.sessions[hid]
 

@@ -4,7 +4,8 @@ a background thread, followed through its progress and published as ``night`` ev
 
 What the page shows: tonight's night (index and name), the pass running and the lamp lit,
 geometries measured of those planned, the field's predicted daytime error as it improves, the
-night's log and its outcome. Start takes the database's campaign lock like the CLI; stop parks
+night's log, its outcome and the geometries flagged after failing on two nights (not planned
+until cleared). Start takes the database's campaign lock like the CLI; stop parks
 every beam (each pass's campaign parks its own), leaves every lamp off (a lamp panel) and
 records the night ``interrupted`` (start it again to resume).
 """
@@ -33,6 +34,8 @@ class NightControl:
         self.log: list[str] = []
         self.outcome: dict | None = None
         self.started: float | None = None
+        # Geometries that failed on two nights: not planned until cleared (heliocal campaign flags).
+        self.flagged: list[dict] = NightBook(console.store).flagged(console.ids)
 
     @property
     def running(self) -> bool:
@@ -58,6 +61,7 @@ class NightControl:
     def _run(self, night: PlannedNight) -> None:
         try:
             self.outcome = night.run().to_json()
+            self.flagged = self.outcome["flagged"]
         except HeliocalError as exc:
             self.outcome = {"status": "error", "cause": str(exc)}
         except Exception as exc:  # the night recorded what it could; the page must say why
@@ -90,7 +94,7 @@ class NightControl:
         n = self._night
         return {"running": self.running, **(n.snapshot() if n is not None else {"name": None}),
                 "elapsed_s": None if self.started is None else time.monotonic() - self.started,
-                "log": list(self.log), "outcome": self.outcome}
+                "log": list(self.log), "outcome": self.outcome, "flagged": self.flagged}
 
     def _publish(self, what: str) -> None:
         self.c.bus.publish("night", {"what": what, "snapshot": self.snapshot()})

@@ -163,12 +163,20 @@ def overlay_png(c: Console, hid: str) -> bytes:
 
 # -- reports --------------------------------------------------------------------------------------
 def campaigns_json(c: Console) -> list[dict]:
+    """Every campaign with what it was for: a night's pass counts its heliostats measured, a
+    calibration campaign those calibrated (``done`` of ``heliostats``, ``what``)."""
+    from controller.storage.nights import NightBook
+
+    passes = NightBook(c.store).passes()
     out = []
     for camp in c.store.campaigns():
         runs = c.store.runs(camp.id)
+        what = "measured" if camp.id in passes else "calibrated"
         out.append({"id": camp.id, "name": camp.name, "status": camp.status, "cause": camp.cause,
                     "started_utc": camp.started_utc, "heliostats": len(camp.queue), "recorded": len(runs),
-                    "calibrated": sum(r.status == "calibrated" for r in runs)})
+                    "calibrated": sum(r.status == "calibrated" for r in runs),
+                    "measured": sum(r.status == "measured" for r in runs), "what": what,
+                    "done": sum(r.status == what for r in runs)})
     return out
 
 

@@ -11,24 +11,28 @@ from __future__ import annotations
 from controller.config import Camera
 from controller.devices.camera import DoubleCcdCamera
 from controller.devices.drive import Drive, DriveLimits
-from controller.link_config import Link, ModbusRtuLink, ModbusTcpLink, SerialLink
+from controller.link_config import Link, ModbusRtuLink, ModbusTcpLink, NoLink, SerialLink
 
 
 def open_camera(cfg: Camera, manifest: str | None = None) -> DoubleCcdCamera:
-    """The field camera: recorded pairs from ``manifest`` when given, else the driver the
-    configuration names (``camera.driver: gige``, docs/camera.md). InputError when neither."""
-    if manifest is not None:
+    """The field camera, the one way every command opens it (``campaign run|night``, the
+    console, ``commission``, ``capture``): recorded pairs from ``manifest`` when given (a
+    command's ``--camera-manifest``), else the driver the configuration names
+    (``camera.driver``: ``gige``, the GigE Vision imagers of ``camera.gige``; ``file``, the
+    recorded pairs of ``camera.manifest``; docs/camera.md). The simulated plant's cameras are
+    the simulator's (``--simulate``). InputError when there is none."""
+    if manifest is not None or cfg.driver == "file":
         from controller.devices.file_camera import FileCamera
 
-        return FileCamera(manifest)
+        return FileCamera(manifest if manifest is not None else cfg.manifest)
     if cfg.driver == "gige":
         from controller.devices.gige import GigeCamera
 
         return GigeCamera(cfg)
     from controller.errors import InputError
 
-    raise InputError("no camera: the configuration sets no camera.driver (e.g. gige, docs/camera.md) "
-                     "and no recorded pairs were given")
+    raise InputError("no camera: the configuration sets no camera.driver (gige: GigE Vision imagers, file: "
+                     "recorded pairs; docs/camera.md) and no recorded pairs were given")
 
 
 class LinkPool:
@@ -48,7 +52,13 @@ class LinkPool:
         return opts
 
     def drive(self, link: Link, limits: DriveLimits) -> Drive:
-        """A drive for ``link``; opens the underlying bus/connection on first use."""
+        """A drive for ``link``; opens the underlying bus/connection on first use. ConfigError
+        for ``link: none`` (a heliostat known by its records only: nothing is sent to it)."""
+        if isinstance(link, NoLink):
+            from controller.errors import ConfigError
+
+            raise ConfigError("link: none: this heliostat has no link to its drive (records only, e.g. "
+                              "imported from PAINT); write its link into the configuration to drive it")
         key = link.bus_key
         if isinstance(link, SerialLink):
             from controller.devices.serial_drive import SerialBus, SerialDrive

@@ -145,6 +145,18 @@ def fiducials_wired(cfg) -> bool:
         or (reg is not None and bool(reg.lamp_command))
 
 
+def _plant_switches_them(on: bool) -> None:
+    """The registration's fiducial hook where the plant switches the fiducials itself."""
+
+
+def fiducial_hook(cfg) -> Callable[[bool], None] | None:
+    """What a live camera's registration is handed for the fiducial lamps of ``cfg``'s
+    calibration target: a hook that leaves the switching to the plant
+    (:func:`fiducial_switch` uses its panel channel or lamp command) when :func:`fiducials_wired`,
+    else None (nobody can switch them: the camera is not registered)."""
+    return _plant_switches_them if fiducials_wired(cfg) else None
+
+
 @contextmanager
 def fiducial_switch(cfg, hook: Callable[[bool], None],
                     time: PlantTime = WALL) -> Iterator[Callable[[bool], None]]:

@@ -92,12 +92,13 @@ class HeliostatKinematics:
     concentrator_translation: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
     @classmethod
-    def from_config(cls, heliostat, concentrator_translation=(0.0, 0.0, 0.0)) -> HeliostatKinematics:
-        """From a :class:`controller.config.Heliostat` (soft limits from its axes)."""
+    def from_config(cls, heliostat) -> HeliostatKinematics:
+        """From a :class:`controller.config.Heliostat` (soft limits from its axes, c from its
+        ``concentrator_translation_m``)."""
         return cls(heliostat.id, np.asarray(heliostat.position_enu_m, dtype=float),
                    LinearActuator.from_config("azimuth", heliostat.axes.azimuth),
                    LinearActuator.from_config("elevation", heliostat.axes.elevation),
-                   np.asarray(concentrator_translation, dtype=float))
+                   np.asarray(heliostat.concentrator_translation_m, dtype=float))
 
     @classmethod
     def from_aa39(cls, properties: dict, origin_wgs84=None,

@@ -8,30 +8,37 @@ normal (rad) and w_k a weight (robust or age), minimise
 
     Σ_k w_k [(t₁·(n_k − m_k))² + (t₂·(n_k − m_k))²] / σ_n²  +  Σ_i ((p_i − p₀,i) / σ₀,i)²   (1)
 
-— a Gaussian prior N(p₀, σ₀²) on every term, so the fit is defined for any data and the
-data move only the combinations they observe. At the optimum, with J the Jacobian of the
-whitened residuals of (1),
+— a Gaussian prior N(p₀, σ₀²) on every term (the documented defaults, or a field's prior
+learned from its heliostats, :mod:`controller.geometry.field_prior`), so the fit is defined
+for any data and the data move only the combinations they observe. At the optimum, with J
+the Jacobian of the whitened residuals of (1),
 
-    Σ = s² (JᵀJ)⁻¹,   s² = χ²_data / (2m − p_eff),   p_eff = Σ_i (1 − Σ_ii/σ₀,i²)      (2)
+    Σ = s² (JᵀJ + P)⁻¹,   s² = χ²_data / (2m − p_eff),   p_eff = Σ_i (1 − Σ_ii/σ₀,i²)    (2)
 
-(the posterior covariance; s² = max(1, χ²/dof) once the residuals have at least 10 degrees of
+(P the prior precision; s² = max(1, χ²/dof) once the residuals have at least 10 degrees of
 freedom, else 1: the stated noise is a floor, and residuals larger than it — noise or effects
-the model lacks — widen the uncertainty). A term is
-*identified* when the data shrink its σ below half its prior σ; the others stay at the
-prior and are reported as such. The fit refuses when no term is identified.
+the model lacks — widen the uncertainty). A term is *identified* when the data's information
+alone (Eq. 2 with s = 1) shrinks its σ below half its prior σ; the others stay at the prior
+and are reported as such. The fit refuses when no term is identified.
 
-Drift: the joint references of a heliostat wander from night to night (thermal drift). A
-sample taken on an earlier night e (``Sample.epoch``, 0 = the newest night) sees the model
-with its two reference offsets moved by d_e ~ N(0, σ_e² I₂), σ_e from ``epoch_sigma``:
+Drift: the joint references of a heliostat wander in time. Given a
+:class:`~controller.geometry.model_drift.RandomWalk` and measurement times, a measurement of
+session e sees the model with its two reference offsets moved by d_e, the sessions' d_e a
+random walk ending at 0 in the newest session (:mod:`controller.geometry.model_drift`, Eq. 1):
 
     n_k(p, d) = n(p + D d_e(k)),   D: the rows of ``az_offset`` and ``el_offset``            (3)
 
-and every earlier night's d_e is fitted beside p with that Gaussian prior (nuisance terms):
-the data of all nights still determine the other terms, while the reference offsets are those
-of the newest night. Σ and the identified terms of (2) are those of p alone (the marginal).
+Every earlier session's d_e is fitted beside p (nuisance terms): all sessions' data still
+determine the other terms, while the reference offsets — and every prediction — are those of
+the newest session. Σ and the identified terms of (2) are those of p alone (the marginal).
 
-Outliers: iteratively reweighted least squares with Huber weights on each measurement's
-whitened residual norm r_k, w_k = min(1, c / r_k), c = 3.
+Outliers: iteratively reweighted least squares on each measurement's whitened residual norm
+r_k: Huber weights w_k = min(1, c / r_k) for the first :data:`WARMUP` steps, then the
+redescending weight w_k = min(1, (c / r_k)²) (loss r²/2 inside c, c²(½ + ln(r/c)) beyond: a
+record whose motor position was not where the heliostat was — real records 30–50 mrad off —
+stops pulling at all), c = 3. The steps start from :mod:`controller.geometry.model_start`
+(the joint references moved by the median miss; an actuator whose properties leave its
+triangle re-seated), and a step that would leave an actuator's triangle is halved.
 
 Predicted pointing error: for a set of aims (sun direction, aim point), the reflected beam
 r = 2(s·n)n − s at the model's steps moves by δr ≈ J_r δp for a parameter error δp ~ N(0, Σ);
@@ -41,7 +48,8 @@ References
 ----------
 .. [1] A. Tarantola, "Inverse Problem Theory", SIAM 2005, Sec. 3.2: least squares with a
    Gaussian prior; posterior covariance (GᵀC_d⁻¹G + C_p⁻¹)⁻¹.
-.. [2] P. J. Huber, "Robust Statistics", Wiley 1981: Huber weights, IRLS.
+.. [2] P. J. Huber, "Robust Statistics", Wiley 1981: Huber weights, IRLS; Sec. 4.8:
+   redescending M-estimators.
 .. [3] M. Pargmann et al., ARTIST, Nature Communications 15, 6997, 2024: actuator initial
    stroke and angle as calibration parameters.
 """
@@ -55,8 +63,10 @@ import numpy as np
 
 from controller.errors import InputError
 from controller.geometry.aiming import angle_mrad
-from controller.geometry.design import beam_jacobians, tangents
+from controller.geometry.design import beam_jacobians, tangents_batch
 from controller.geometry.kinematics import HeliostatKinematics
+from controller.geometry.model_drift import DRIFTING, RandomWalk, Sessions, chain_precision, sessions
+from controller.geometry.model_start import implied_normals, start
 from controller.geometry.pose_batch import normal_and_center
 from controller.geometry.tracking_model import (
     NAMES,
@@ -66,13 +76,14 @@ from controller.geometry.tracking_model import (
     implied_normal,
     model_normal,
 )
-from controller.geometry.vectors import unit
 
-_OFFSETS = np.array([NAMES.index("az_offset"), NAMES.index("el_offset")])
+_OFFSETS = np.array([NAMES.index(n) for n in DRIFTING])
 HUBER_C = 3.0
-MAX_STEPS = 12
+WARMUP = 3
+MAX_STEPS = 20
 IDENTIFIED_RATIO = 0.5
 MIN_DOF_FOR_NOISE = 10.0
+_JAC_STEP = 1e-4  # whitened units: far inside the linear range of every term
 
 
 class NotIdentifiable(InputError):
@@ -82,28 +93,33 @@ class NotIdentifiable(InputError):
 @dataclass(frozen=True, eq=False)  # numpy fields
 class Sample:
     """One pointing measurement: unit ENU ``source_dir`` (towards the source), commanded
-    motor steps, measured beam centroid ``spot_enu`` (m ENU), and a ``weight`` (1: full; less
-    for an old measurement after drift)."""
+    motor steps, measured beam centroid ``spot_enu`` (m ENU), a ``weight`` (1: full; less
+    for an old measurement), a lamp's position ``source_pos`` (m ENU; None: the sun, at
+    infinity) and its time ``time_days`` (days, UTC; None: unknown, the newest session)."""
 
     source_dir: np.ndarray
     az_steps: float
     el_steps: float
     spot_enu: np.ndarray
     weight: float = 1.0
-    source_pos: np.ndarray | None = None  # a lamp's position, m ENU (None: the sun, at infinity)
-    epoch: int = 0  # the night it was taken, counted back from the newest (Eq. 3 of the module)
+    source_pos: np.ndarray | None = None
+    time_days: float | None = None
 
 
 @dataclass(frozen=True, eq=False)  # numpy fields
 class ModelFit:
     """Result of :func:`fit_model`.
 
-    ``model``: fitted values; ``sigma``: 1-σ per term (SI); ``covariance`` (SI²);
-    ``identified``: per term, whether the data determined it (σ < ½ prior σ); ``residual_mrad``
-    per sample (angle between model and measured normals) and its RMS before/after;
-    ``weights``: final robust weights; ``noise_scale`` s of Eq. (2); ``condition``: condition
-    number of the data Jacobian over the identified terms (prior-whitened); ``converged``:
-    whether the Gauss-Newton steps and robust weights settled within :data:`MAX_STEPS`."""
+    ``model``: fitted values (the newest session's); ``sigma``: 1-σ per term (SI);
+    ``covariance`` (SI²); ``identified``: per term, whether the data determined it (σ < ½
+    prior σ); ``residual_mrad`` per sample (angle between model and measured normals, at the
+    sample's session) and its RMS before/after (before: the prior's model, NaN where its
+    kinematics cannot be evaluated); ``weights``: final robust weights; ``noise_scale`` s of
+    Eq. (2); ``condition``: condition number of the data Jacobian over the identified terms
+    (prior-whitened); ``converged``: whether the steps and robust weights settled within
+    :data:`MAX_STEPS`; ``drift_mrad`` (E, 2): each session's reference offsets (az, el) from
+    the newest session's, with ``session_times`` (E,) days (the last measurement of each);
+    ``notes``: what the fit did that its caller should say (a re-seated actuator)."""
 
     model: TrackingModel
     sigma: np.ndarray
@@ -116,6 +132,9 @@ class ModelFit:
     noise_scale: float
     condition: float
     converged: bool = True
+    drift_mrad: np.ndarray | None = None
+    session_times: np.ndarray | None = None
+    notes: tuple[str, ...] = ()
 
     def sigma_dict(self) -> dict[str, float]:
         return {t.key: 1e3 * float(s) for t, s in zip(TERMS, self.sigma, strict=True)}
@@ -137,16 +156,7 @@ def normal_residual_mrad(kin: HeliostatKinematics, model: TrackingModel, s: Samp
     return float(angle_mrad(model_normal(kin, model, s.az_steps, s.el_steps), measured_normal(kin, model, s)))
 
 
-def fit_model(kin: HeliostatKinematics, samples: Sequence[Sample], *, noise_mrad: float = 0.3,
-              prior: TrackingModel | None = None, prior_sigma: np.ndarray | None = None,
-              robust: bool = True, epoch_sigma: dict[int, float] | None = None) -> ModelFit:
-    """MAP fit of Eq. (1); Σ of Eq. (2). ``prior`` (default zero) is p₀; ``prior_sigma`` (SI,
-    default :data:`TERMS`' σ) may be narrowed (e.g. the posterior of a previous night).
-    ``epoch_sigma``: σ_e (rad) of the reference drift of each earlier night e (Eq. 3); samples
-    of a night not in it share the newest night's references.
-
-    Raises InputError when there are no samples, a sample is not finite, or the samples
-    identify no term (they cannot support a fit)."""
+def _check(samples: Sequence[Sample], noise_mrad: float) -> None:
     if not samples:
         raise InputError("model fit: no measurements")
     if not (np.isfinite(noise_mrad) and noise_mrad > 0):
@@ -156,98 +166,186 @@ def fit_model(kin: HeliostatKinematics, samples: Sequence[Sample], *, noise_mrad
                                np.ravel(s.spot_enu)])
         if not np.all(np.isfinite(vals)) or s.weight <= 0:
             raise InputError(f"model fit: measurement {i + 1} has a non-finite value or weight <= 0")
+        if s.time_days is not None and not np.isfinite(s.time_days):
+            raise InputError(f"model fit: measurement {i + 1} has a non-finite time")
+
+
+def _robust(norms: np.ndarray, redescending: bool) -> np.ndarray:
+    """Weights of the module docstring for whitened residual norms ``norms``."""
+    ratio = HUBER_C / np.maximum(norms, 1e-12)
+    return np.minimum(1.0, ratio**2 if redescending else ratio)
+
+
+@dataclass(frozen=True, eq=False)  # numpy fields
+class _Data:
+    """The samples as arrays: ``steps`` (S, 2), ``spots`` (S, 3), ``lamps`` (S, 3; NaN rows:
+    the sun), unit ``src`` (S, 3), age weights ``age_w`` (S,)."""
+
+    steps: np.ndarray
+    spots: np.ndarray
+    lamps: np.ndarray
+    src: np.ndarray
+    age_w: np.ndarray
+
+    @classmethod
+    def of(cls, samples: Sequence[Sample]) -> _Data:
+        src = np.array([np.ravel(s.source_dir) for s in samples], float)
+        return cls(np.array([[s.az_steps, s.el_steps] for s in samples], float),
+                   np.array([np.ravel(s.spot_enu) for s in samples], float),
+                   np.array([np.ravel(s.source_pos) if s.source_pos is not None else np.full(3, np.nan)
+                             for s in samples], float),
+                   src / np.linalg.norm(src, axis=1, keepdims=True), np.array([s.weight for s in samples]))
+
+
+class _Problem:
+    """Eq. (1) and (3) for one set of samples, in whitened coordinates x = (terms, sessions):
+    p = p₀ + σ₀ x_terms, d_e = u_e y_e (model_drift)."""
+
+    def __init__(self, kin: HeliostatKinematics, data: _Data, p0: np.ndarray, s0: np.ndarray,
+                 sess: Sessions | None, noise_rad: float):
+        self.kin, self.p0, self.s0, self.sess, self.noise = kin, p0, s0, sess, noise_rad
+        self.npar = len(p0)
+        self.steps, self.spots, self.lamps = data.steps, data.spots, data.lamps
+        self.src, self.age_w = data.src, data.age_w
+        m = 0 if sess is None else sess.count - 1
+        self.ndrift = len(DRIFTING) * m
+        # Session of each sample as a column block of y (the newest session has none).
+        self.member = np.zeros((len(self.steps), max(m, 1)))
+        if m:
+            newest = sess.index == m
+            self.member[np.flatnonzero(~newest), sess.index[~newest]] = 1.0
+        precision = np.zeros((self.npar + self.ndrift,) * 2)
+        precision[:self.npar, :self.npar] = np.eye(self.npar)
+        if m:
+            precision[self.npar:, self.npar:] = chain_precision(sess)
+        self.precision = precision
+
+    def values(self, x: np.ndarray) -> np.ndarray:
+        return self.p0 + self.s0 * x[:self.npar]
+
+    def sample_values(self, terms: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """Per-sample model values (B, S, n) for term rows ``terms`` (B, n) and the sessions of x."""
+        out = np.repeat(terms[:, None, :], len(self.steps), axis=1)
+        if self.ndrift:
+            y = x[self.npar:].reshape(-1, len(DRIFTING)) * self.sess.scale[:, None]
+            out[:, :, _OFFSETS] += (self.member @ y)[None]
+        return out
+
+    def set_bases(self, x: np.ndarray) -> None:
+        # The tangent bases stay those at the start: the measured normals move only through
+        # the mirror centre (position terms), by far less than the bases' validity.
+        vals = self.sample_values(self.values(x)[None], x)[0]
+        _, c = normal_and_center(self.kin, vals, self.steps)
+        self.bases = tangents_batch(implied_normals(c, self.src, self.spots, self.lamps))
+
+    def residuals(self, terms: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """Whitened data residuals (B, 2S) at each row of ``terms`` (B, n), sessions of x."""
+        n, c = normal_and_center(self.kin, self.sample_values(terms, x), self.steps)
+        implied = implied_normals(c, self.src, self.spots, self.lamps)
+        return np.einsum("sij,bsj->bsi", self.bases, n - implied).reshape(len(terms), -1) / self.noise
+
+    def linearise(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(residuals at x, their Jacobian (2S, L)): forward differences over the terms; a
+        session's columns are its samples' reference-offset columns times u_e (Eq. 3)."""
+        base = self.values(x)
+        rows = np.vstack([base, base + np.diag(self.s0 * _JAC_STEP)])
+        r = self.residuals(rows, x)
+        jt = ((r[1:] - r[0]) / _JAC_STEP).T
+        if not self.ndrift:
+            return r[0], jt
+        k = len(DRIFTING)
+        off = jt[:, _OFFSETS] / self.s0[_OFFSETS]  # per rad of offset
+        member2 = np.repeat(self.member, 2, axis=0)  # rows are (sample, tangent) pairs
+        jd = (member2[:, :, None] * off[:, None, :] * self.sess.scale[None, :, None]).reshape(len(r[0]), -1)
+        return r[0], np.hstack([jt, jd[:, :k * (self.sess.count - 1)]])
+
+    def data_res(self, x: np.ndarray) -> np.ndarray:
+        return self.residuals(self.values(x)[None], x)[0]
+
+
+def fit_model(kin: HeliostatKinematics, samples: Sequence[Sample], *, noise_mrad: float = 0.3,
+              prior: TrackingModel | None = None, prior_sigma: np.ndarray | None = None,
+              robust: bool = True, drift: RandomWalk | None = None) -> ModelFit:
+    """MAP fit of Eq. (1); Σ of Eq. (2). ``prior`` (default zero) is p₀; ``prior_sigma`` (SI,
+    default :data:`TERMS`' σ) may be narrowed (e.g. the posterior of a previous night) or be a
+    field's. ``drift``: the references' random walk over the samples' times (Eq. 3); None or
+    inactive: one set of references for all samples.
+
+    Raises InputError when there are no samples, a sample is not finite, or the samples
+    identify no term (they cannot support a fit)."""
+    _check(samples, noise_mrad)
     p0 = (prior or TrackingModel.zero()).values
-    npar = len(p0)
-    drifting = sorted({s.epoch for s in samples if s.epoch != 0 and s.epoch in (epoch_sigma or {})})
-    slot = {e: npar + 2 * i for i, e in enumerate(drifting)}
     s0 = PRIOR_SIGMA_SI if prior_sigma is None else np.asarray(prior_sigma, float)
-    s0 = np.concatenate([s0, np.repeat([float(epoch_sigma[e]) for e in drifting], 2)]) if drifting else s0
-    sig_n = noise_mrad * 1e-3
-    # The measured normals move with the mirror centre (position terms, Eq. 4 of the model):
-    # they are re-evaluated with the model; the tangent bases stay those at the prior.
-    bases = np.stack([tangents(measured_normal(kin, TrackingModel(p0), s)) for s in samples])  # (S, 2, 3)
-    age_w = np.array([s.weight for s in samples])
-    steps = np.array([[s.az_steps, s.el_steps] for s in samples], float)
-    spots = np.array([np.ravel(s.spot_enu) for s in samples], float)
-    lamps = np.array([np.ravel(s.source_pos) if s.source_pos is not None else np.zeros(3) for s in samples],
-                     float)
-    has_lamp = np.array([s.source_pos is not None for s in samples])[:, None]
-    src_dir = unit(np.array([np.ravel(s.source_dir) for s in samples], float))
-    # Each sample's terms from the whitened x: p₀ + G_s (x σ₀), G_s adding its night's
-    # reference offsets (Eq. 3) to the newest night's.
-    g = np.zeros((len(samples), npar, len(s0)))
-    g[:, np.arange(npar), np.arange(npar)] = 1.0
-    for i, sm in enumerate(samples):
-        if sm.epoch in slot:
-            g[i, _OFFSETS, slot[sm.epoch] + np.arange(2)] = 1.0
-
-    def epoch_model(x: np.ndarray, epoch: int | None) -> TrackingModel:
-        """The model of Eq. (3) on night ``epoch`` (None: the newest night's references)."""
-        p = p0 + x[:npar] * s0[:npar]
-        if epoch is not None:
-            j = slot[epoch]
-            p = p.copy()
-            p[_OFFSETS] += x[j:j + 2] * s0[j:j + 2]
-        return TrackingModel(p)
-
-    def residuals(xs: np.ndarray) -> np.ndarray:
-        """The whitened data residuals (B, 2S) at each row of ``xs`` (B, L), all at once."""
-        params = p0 + np.einsum("snl,bl->bsn", g, xs * s0)
-        n, center = normal_and_center(kin, params, steps)
-        src = np.where(has_lamp, unit(lamps - center), src_dir)
-        implied = unit(src + unit(spots - center))
-        return np.einsum("sij,bsj->bsi", bases, n - implied).reshape(len(xs), -1) / sig_n
-
-    def data_res(x: np.ndarray) -> np.ndarray:
-        return residuals(x[None])[0]
-
-    def data_jac(x: np.ndarray, step: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(residuals at x, their forward-difference Jacobian (2S, L) with per-term ``step``)."""
-        r = residuals(np.vstack([x, x + np.diag(step)]))
-        return r[0], ((r[1:] - r[0]) / step[:, None]).T
-
-    # Gauss-Newton on the prior-whitened terms x (p = p₀ + x σ₀) with iteratively reweighted
-    # (Huber) samples: the problem is nearly linear, so a few steps converge.
+    sess = sessions([s.time_days for s in samples], drift) if drift is not None and drift.active() else None
+    if sess is not None and sess.count < 2:
+        sess = None
+    data = _Data.of(samples)
+    st = start(kin, p0, s0, data.steps, data.src, data.spots, data.lamps)
+    pb = _Problem(kin, data, st.prior, st.sigma, sess, noise_mrad * 1e-3)
+    x = np.zeros(pb.npar + pb.ndrift)
+    x[:pb.npar] = (st.values - st.prior) / st.sigma
+    pb.set_bases(x)
     weights = np.ones(len(samples))
-    x = np.zeros(len(s0))
-    step = np.full(len(x), 1e-4)
     converged = False
-    for _ in range(MAX_STEPS):
-        w = np.repeat(np.sqrt(weights * age_w), 2)
-        r, jac = data_jac(x, step)
+    for it in range(MAX_STEPS):
+        w = np.repeat(np.sqrt(weights * pb.age_w), 2)
+        r, jac = pb.linearise(x)
         jd = w[:, None] * jac
-        dx = -np.linalg.solve(jd.T @ jd + np.eye(len(x)), jd.T @ (w * r) + x)
+        dx = -np.linalg.solve(jd.T @ jd + pb.precision, jd.T @ (w * r) + pb.precision @ x)
+        for _ in range(20):  # a step that leaves an actuator's triangle is halved
+            res = pb.data_res(x + dx)
+            if np.all(np.isfinite(res)):
+                break
+            dx = dx / 2.0
         x = x + dx
-        norms = np.sqrt(age_w) * np.linalg.norm(data_res(x).reshape(-1, 2), axis=1)
-        new = np.minimum(1.0, HUBER_C / np.maximum(norms, 1e-12)) if robust else weights
-        if np.max(np.abs(dx)) < 1e-6 and np.allclose(new, weights, atol=1e-3):
+        norms = np.sqrt(pb.age_w) * np.linalg.norm(res.reshape(-1, 2), axis=1)
+        new = _robust(norms, redescending=it >= WARMUP) if robust else weights
+        settled = np.max(np.abs(dx)) < 1e-6 and np.allclose(new, weights, atol=1e-3)
+        if settled and (it >= WARMUP or not robust):
             converged = True
             break
         weights = new
-    w = np.repeat(np.sqrt(weights * age_w), 2)
-    jd = w[:, None] * data_jac(x, step)[1]
-    post_x = np.linalg.inv(jd.T @ jd + np.eye(len(x)))  # covariance of x (prior-whitened)
-    ratio2 = np.clip(np.diag(post_x), 0.0, 1.0)
+    return _result(pb, samples, x, weights, converged, st.notes, p0)
+
+
+def _result(pb: _Problem, samples: Sequence[Sample], x: np.ndarray, weights: np.ndarray, converged: bool,
+            notes: tuple[str, ...], p0: np.ndarray) -> ModelFit:
+    """ModelFit at the optimum x: Σ and identification of Eq. (2), residuals per sample."""
+    npar = pb.npar
+    w = np.repeat(np.sqrt(weights * pb.age_w), 2)
+    r, jac = pb.linearise(x)
+    jd = w[:, None] * jac
+    post_x = np.linalg.inv(jd.T @ jd + pb.precision)
+    ratio2 = np.clip(np.diag(post_x)[:npar], 0.0, 1.0)
     p_eff = float(np.sum(1.0 - ratio2))
-    chi2 = float(np.sum((w * data_res(x)) ** 2))
+    chi2 = float(np.sum((w * r) ** 2))
     dof = 2 * len(samples) - p_eff
     # The stated noise is a floor: residuals larger than it (noise or effects the model lacks)
     # widen the uncertainty once there are enough of them to tell; smaller ones never narrow it.
     s2 = max(1.0, chi2 / dof) if dof >= MIN_DOF_FOR_NOISE else 1.0
-    cov = (s2 * post_x * np.outer(s0, s0))[:npar, :npar]  # the terms' marginal (drift offsets out)
-    sigma = np.sqrt(np.diag(cov))
-    identified = np.sqrt(ratio2[:npar]) * np.sqrt(s2) < IDENTIFIED_RATIO
+    cov = s2 * post_x[:npar, :npar] * np.outer(pb.s0, pb.s0)  # the terms' marginal (drift out)
+    # Identified by the information the data carry (σ without s): a model that misfits real
+    # records widens every σ, but the terms the data determine are still determined.
+    identified = np.sqrt(ratio2) < IDENTIFIED_RATIO
     if not identified.any():
         raise NotIdentifiable(f"model fit: {len(samples)} measurement(s) identify no term of the model "
-                         f"(every σ stays above {IDENTIFIED_RATIO:g}× its prior); measure more geometries")
+                              f"(every σ stays above {IDENTIFIED_RATIO:g}× its prior); "
+                              "measure more geometries")
     sv = np.linalg.svd(jd[:, :npar][:, identified], compute_uv=False)
-    model = epoch_model(x, None)
-    res = np.array([normal_residual_mrad(kin, epoch_model(x, s.epoch if s.epoch in slot else None), s)
-                    for s in samples])
-    res0 = np.array([normal_residual_mrad(kin, TrackingModel(p0), s) for s in samples])
-    return ModelFit(model, sigma, cov, identified, res, float(np.sqrt(np.mean(res**2))),
-                    float(np.sqrt(np.mean(res0**2))), weights, float(np.sqrt(s2)), float(sv[0] / sv[-1]),
-                    converged)
+    values = pb.values(x)
+    n, c = normal_and_center(pb.kin, pb.sample_values(values[None], x)[0], pb.steps)
+    res = angle_mrad(n, implied_normals(c, pb.src, pb.spots, pb.lamps))
+    n0, c0 = normal_and_center(pb.kin, np.repeat(p0[None], len(samples), axis=0), pb.steps)
+    res0 = angle_mrad(n0, implied_normals(c0, pb.src, pb.spots, pb.lamps))
+    drift, times = None, None
+    if pb.ndrift:
+        y = x[npar:].reshape(-1, len(DRIFTING)) * pb.sess.scale[:, None]
+        drift = 1e3 * np.vstack([y, np.zeros((1, len(DRIFTING)))])
+        times = pb.sess.times
+    rms0 = float(np.sqrt(np.mean(res0[np.isfinite(res0)] ** 2))) if np.isfinite(res0).any() else float("nan")
+    return ModelFit(TrackingModel(values), np.sqrt(np.diag(cov)), cov, identified, res,
+                    float(np.sqrt(np.mean(res**2))), rms0, weights, float(np.sqrt(s2)), float(sv[0] / sv[-1]),
+                    converged, drift, times, notes)
 
 
 @dataclass(frozen=True, eq=False)  # numpy field

@@ -11,7 +11,8 @@ Formats (those of the PAINT database of the Jülich solar tower and of ARTIST's 
 * tower measurements: per target ``normal_vector`` (ENU) and ``coordinates.center`` (WGS84);
 * a calibration record: ``motor_position.axis_1_motor_position`` (elevation steps) and
   ``axis_2_motor_position`` (azimuth), ``target_name``, ``sun_azimuth`` (degrees from **south**,
-  positive towards east) and ``sun_elevation``, ``focal_spot.{UTIS,HeliOS}`` [lat, lon, alt].
+  positive towards east) and ``sun_elevation``, ``focal_spot.{UTIS,HeliOS}`` [lat, lon, alt];
+* timestamps: ``{"<heliostat>_<record id>": UTC time}`` (PAINT's ``timestamps.json``).
 
 Every file goes through the bounded reader (size, UTF-8, nesting); a missing or wrong key
 raises InputError naming the file and key.
@@ -20,7 +21,9 @@ raises InputError naming the file and key.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+import re
+from dataclasses import dataclass, replace
+from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
@@ -69,23 +72,29 @@ def _number(value, key: str, source: str) -> float:
 
 @dataclass(frozen=True, eq=False)  # numpy fields
 class TargetPlane:
-    """A tower target: ``name``, centre (m ENU) and unit plane normal (ENU)."""
+    """A tower target: ``name``, centre (m ENU), unit plane normal (ENU) and, when the file
+    surveys more points than the centre (its corners), ``size_m``: (width, height) in m."""
 
     name: str
     center_enu: np.ndarray
     normal: np.ndarray
+    size_m: tuple[float, float] | None = None
 
 
 @dataclass(frozen=True)
 class Towers:
-    """Targets of a tower-measurements file and the WGS84 origin of the plant frame."""
+    """Targets of a tower-measurements file, the WGS84 origin of the plant frame and the
+    plant's ``power_plant_properties.ID`` ("" when absent); ``described_by`` names the file
+    the targets came from in messages."""
 
     origin_wgs84: tuple[float, float, float]
     targets: dict[str, TargetPlane]
+    plant_id: str = ""
+    described_by: str = "the towers file"
 
     def target(self, name: str, source: str = "record") -> TargetPlane:
         if name not in self.targets:
-            raise InputError(f"{source}: target {name!r} is not in the towers file "
+            raise InputError(f"{source}: target {name!r} is not in {self.described_by} "
                              f"(known: {', '.join(sorted(self.targets))})")
         return self.targets[name]
 
@@ -105,10 +114,28 @@ def read_towers(path: str | Path) -> Towers:
         normal = _numbers(_get(t, "normal_vector", f"{src}: {name}"), 3, f"{name}.normal_vector", src)
         if np.linalg.norm(normal) == 0:
             raise InputError(f"{src}: {name}.normal_vector is zero")
-        targets[name] = TargetPlane(name, wgs84_to_enu(*center, *origin), normal / np.linalg.norm(normal))
+        normal = normal / np.linalg.norm(normal)
+        center_enu = wgs84_to_enu(*center, *origin)
+        points = [wgs84_to_enu(*_numbers(v, 3, f"{name}.coordinates.{key}", src), *origin)
+                  for key, v in t["coordinates"].items() if key != "center"]
+        targets[name] = TargetPlane(name, center_enu, normal, plane_extent(center_enu, normal, points))
     if not targets:
         raise InputError(f"{src}: no targets")
-    return Towers(origin, targets)  # type: ignore[arg-type]
+    plant_id = data["power_plant_properties"].get("ID")
+    return Towers(origin, targets, plant_id if isinstance(plant_id, str) else "")  # type: ignore[arg-type]
+
+
+def plane_extent(center, normal, points) -> tuple[float, float] | None:
+    """(width, height), m, of ``points`` and ``center`` (m ENU) on a plane of unit ``normal``:
+    their spread along the plane's level axis h = (ẑ × n)/|ẑ × n| (east for a level plane) and
+    along v = n × h. None without points."""
+    if not points:
+        return None
+    n = np.asarray(normal, float)
+    h = np.cross([0.0, 0.0, 1.0], n)
+    h = h / np.linalg.norm(h) if np.linalg.norm(h) > 1e-9 else np.array([1.0, 0.0, 0.0])
+    rel = np.asarray([*points, center], float) - np.asarray(center, float)
+    return float(np.ptp(rel @ h)), float(np.ptp(rel @ np.cross(n, h)))
 
 
 def read_heliostat_properties(path: str | Path) -> dict:
@@ -141,9 +168,9 @@ def kinematics_from_properties(properties: dict, origin_wgs84,
 
 @dataclass(frozen=True, eq=False)  # numpy fields
 class PaintRecord:
-    """One calibration record in the plant frame: the fit's :class:`Sample` (UTIS spot), the
-    target plane, the sun angles (azimuth clockwise from north, degrees) and every method's
-    focal spot (m ENU)."""
+    """One calibration record in the plant frame: the fit's :class:`Sample` (the spot of
+    ``method``, UTIS unless asked otherwise), the target plane, the sun angles (azimuth
+    clockwise from north, degrees) and every method's focal spot (m ENU)."""
 
     source: str
     sample: Sample
@@ -151,11 +178,14 @@ class PaintRecord:
     sun_azimuth_deg: float
     sun_elevation_deg: float
     focal_spots: dict[str, np.ndarray]
+    method: str | None = "UTIS"
 
 
-def read_record(path: str | Path, towers: Towers, *, with_spot: bool = True) -> PaintRecord:
+def read_record(path: str | Path, towers: Towers, *, with_spot: bool = True,
+                methods: tuple[str, ...] = ("UTIS",)) -> PaintRecord:
     """A calibration record. ``with_spot=False`` reads no focal spot (for a prediction, which
-    must not see the measurement): ``sample.spot_enu`` is then NaN."""
+    must not see the measurement): ``sample.spot_enu`` is then NaN. ``methods``: the focal-spot
+    methods the sample may take, in order of preference (the first the record has is used)."""
     src = str(path)
     data = _load_json(path, "calibration record")
     el_steps = _number(_get(data, "motor_position.axis_1_motor_position", src), "axis_1_motor_position", src)
@@ -176,30 +206,99 @@ def read_record(path: str | Path, towers: Towers, *, with_spot: bool = True) -> 
             if isinstance(fs, dict) and method in fs:
                 spots[method] = wgs84_to_enu(*_numbers(fs[method], 3, f"focal_spot.{method}", src),
                                              *towers.origin_wgs84)
-        if "UTIS" not in spots:
-            raise InputError(f"{src}: missing key 'focal_spot.UTIS'")
-    spot = spots.get("UTIS", np.full(3, np.nan))
+    method = next((m for m in methods if m in spots), None)
+    if with_spot and method is None:
+        raise InputError(f"{src}: missing key 'focal_spot.{methods[0]}'"
+                         + (f" (nor {', '.join(methods[1:])})" if len(methods) > 1 else ""))
+    spot = spots[method] if method else np.full(3, np.nan)
     sample = Sample(azel_to_vector(sun_az, sun_el), az_steps, el_steps, spot)
-    return PaintRecord(src, sample, target, sun_az, sun_el, spots)
+    return PaintRecord(src, sample, target, sun_az, sun_el, spots, method)
+
+
+def read_timestamps(path: str | Path) -> dict[str, str]:
+    """A PAINT ``timestamps.json``: ``{"<heliostat>_<record id>": UTC time}``, each time ISO 8601
+    with its offset (``Z``), returned as ISO 8601 UTC with milliseconds (the store's stamps)."""
+    src = str(path)
+    data = _load_json(path, "timestamps file")
+    out = {}
+    for key, value in data.items():
+        try:
+            t = datetime.fromisoformat(value.replace("Z", "+00:00")) if isinstance(value, str) else None
+        except ValueError:
+            t = None
+        if t is None or t.tzinfo is None:
+            raise InputError(f"{src}: {key}: expected an ISO 8601 time with its UTC offset, "
+                             f"got {str(value)[:40]!r}")
+        out[key] = t.astimezone(UTC).isoformat(timespec="milliseconds")
+    return out
 
 
 @dataclass(frozen=True)
 class PaintSet:
     """The inputs of a fit on PAINT/ARTIST files: towers, the heliostat's id (from the
-    properties file's name, ``<id>-heliostat-properties.json``), properties, nominal
-    kinematics and the records."""
+    properties file's name, ``<id>-heliostat-properties.json`` or ``<id>_properties.json``),
+    properties, nominal kinematics, the records (each sample with its time when timestamps
+    were given) and ``notes``: what the reading had to decide (a record measured by one
+    method only, a record without a time)."""
 
     towers: Towers
     heliostat_id: str
     properties: dict
     kinematics: HeliostatKinematics
     records: list[PaintRecord]
+    notes: tuple[str, ...] = ()
 
 
-def read_paint_set(records: list[str], properties: str | Path, towers: str | Path) -> PaintSet:
-    """Read and check every file of a fit (InputError naming the file and key)."""
+def heliostat_id_of(properties: str | Path) -> str:
+    """The heliostat's id from its properties file's name: the part before the first - or _."""
+    return re.split(r"[-_]", Path(properties).stem)[0]
+
+
+def record_id_of(record: str | Path) -> str:
+    """A PAINT record's id from its file name ``<id>_calibration_properties.json``."""
+    return Path(record).name.split("_")[0]
+
+
+def record_times(heliostat_id: str, records: list[str],
+                 timestamps: dict[str, str]) -> tuple[list[float | None], list[str]]:
+    """Each record's time, days since 1970 UTC, from PAINT ``timestamps`` (``"<heliostat>_<id>"``),
+    and notes. A record missing from them is placed by its id between the records that have a
+    time (PAINT ids rise with time), or has none when its id is not a number or no record
+    around it has one."""
+    days: list[float | None] = []
+    for r in records:
+        stamp = timestamps.get(f"{heliostat_id}_{record_id_of(r)}")
+        days.append(None if stamp is None else datetime.fromisoformat(stamp).timestamp() / 86400.0)
+    ids = [record_id_of(r) for r in records]
+    known = [(int(i), d) for i, d in zip(ids, days, strict=True) if d is not None and i.isdigit()]
+    notes = []
+    for k, (rid, d) in enumerate(zip(ids, days, strict=True)):
+        if d is not None:
+            continue
+        if rid.isdigit() and known:
+            xs, ys = zip(*sorted(known), strict=True)
+            days[k] = float(np.interp(int(rid), xs, ys))
+            notes.append(f"{records[k]}: no time in the timestamps; placed by its id at "
+                         f"{datetime.fromtimestamp(days[k] * 86400.0, UTC).isoformat(timespec='seconds')}")
+        else:
+            notes.append(f"{records[k]}: no time in the timestamps; counted with the newest records")
+    return days, notes
+
+
+def read_paint_set(records: list[str], properties: str | Path, towers: str | Path, *,
+                   timestamps: dict[str, str] | None = None,
+                   methods: tuple[str, ...] = ("UTIS",)) -> PaintSet:
+    """Read and check every file of a fit (InputError naming the file and key); ``timestamps``
+    (:func:`read_timestamps`) give each sample its time, ``methods`` the focal-spot methods a
+    record may be measured by, in order of preference."""
     tw = read_towers(towers)
     props = read_heliostat_properties(properties)
-    hid = Path(properties).stem.split("-")[0]
+    hid = heliostat_id_of(properties)
     kin = kinematics_from_properties(props, tw.origin_wgs84, hid)
-    return PaintSet(tw, hid, props, kin, [read_record(r, tw) for r in records])
+    recs = [read_record(r, tw, methods=methods) for r in records]
+    notes = [f"{r.source}: no {methods[0]} spot; {r.method}'s used" for r in recs if r.method != methods[0]]
+    if timestamps is not None:
+        days, time_notes = record_times(hid, records, timestamps)
+        recs = [replace(r, sample=replace(r.sample, time_days=d)) for r, d in zip(recs, days, strict=True)]
+        notes += time_notes
+    return PaintSet(tw, hid, props, kin, recs, tuple(notes))

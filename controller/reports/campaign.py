@@ -33,6 +33,7 @@ from controller.calibration.records import CampaignRecord, RunRecord
 from controller.errors import InputError
 from controller.io.images import pyplot, read_image, save_figure, write_atomic
 from controller.reports.confusion_plot import plot_confusion
+from controller.reports.failures import failed_captures
 from controller.reports.model_section import model_section
 from controller.reports.summary import ReferenceTruth, summarize
 from controller.storage.db import CampaignStore
@@ -158,10 +159,13 @@ def _confusion(runs: list[RunRecord], truth: Mapping[str, ReferenceTruth],
 
 
 def write_report(store: CampaignStore, out_dir: str | Path, campaign_id: int | None = None, *,
-                 truth: Mapping[str, ReferenceTruth] | None = None) -> Path:
+                 truth: Mapping[str, ReferenceTruth] | None = None,
+                 accept_field_change: bool = False) -> Path:
     """Write the report of ``campaign_id`` (default: the latest) into ``out_dir``; returns the
     path of ``report.md``. ``truth`` (heliostat id -> :class:`ReferenceTruth`, e.g. a simulated
-    plant's) adds the reference's case and errors and the confusion matrix against it."""
+    plant's) adds the reference's case and errors and the confusion matrix against it.
+    ``accept_field_change``: predict with the models although the campaign's configuration file
+    now describes another field (:func:`controller.storage.field_prints.check_field`)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     camp = store.campaign(campaign_id)
@@ -234,7 +238,7 @@ def write_report(store: CampaignStore, out_dir: str | Path, campaign_id: int | N
             lines.append(f"| {lab} | " + " | ".join(str(v) for v in row) + f" | {c['unknown'][lab]} |")
         lines += ["", f"Recognition rate {c['recognition_rate']:.1f} % of {c['n']} heliostats "
                       "(first measurement; unknown counts as a miss).", "", f"![confusion]({png})"]
-    model_lines, model_figs = model_section(store, camp, out) if runs else ([], [])
+    model_lines, model_figs = model_section(store, camp, out, accept_field_change) if runs else ([], [])
     lines += model_lines
     for title, png in model_figs:
         lines += ["", f"### {title}", "", f"![{title}]({png})"]
@@ -243,9 +247,12 @@ def write_report(store: CampaignStore, out_dir: str | Path, campaign_id: int | N
         lines += ["", "## Beam before / after (first and last measurement, HIGH sensor)", ""]
         lines += [f"- {hid}: " + " → ".join(f"[![{k}]({t})]({src})" for k, t, src in pics)
                   for hid, pics in thumbs.items()]
+    failed, failed_html = failed_captures(store, [cid], out, write_thumbnail)  # what the camera saw
+    lines += failed
     md = "\n".join(lines) + "\n"
     write_atomic(out / "report.md", lambda t: t.write_text(md, encoding="utf-8"))
-    page = _html(camp, lines, cols, rows, figs + model_figs, conf, thumbs, _table_html(model_lines))
+    page = _html(camp, lines, cols, rows, figs + model_figs, conf, thumbs,
+                 _table_html(model_lines) + failed_html)
     write_atomic(out / "report.html", lambda t: t.write_text(page, encoding="utf-8"))
     write_atomic(out / "heliostats.csv", lambda t: _write_csv(t, cols, rows))
     return out / "report.md"

@@ -31,6 +31,7 @@ from controller.geometry.tracking_model import TERMS
 from controller.geometry.vectors import vector_to_azel
 from controller.io.images import pyplot, save_figure, write_atomic
 from controller.storage.db import CampaignStore
+from controller.storage.field_prints import check_field
 
 
 def _config(camp: CampaignRecord) -> PlantConfig | None:
@@ -40,17 +41,26 @@ def _config(camp: CampaignRecord) -> PlantConfig | None:
         return None  # moved or changed since: the section says what it can without it
 
 
+def _configured(cfg: PlantConfig, hid: str) -> bool:
+    return any(h.id == hid for h in cfg.heliostats)
+
+
 def _normal_deg(m: MeasurementRecord, position: np.ndarray) -> tuple[float, float]:
     """Azimuth and elevation (deg) of the normal a measurement with a centroid implies."""
     n = aim_normal(np.asarray(m.source_dir, float), position, np.asarray(m.centroid_enu, float))
     return vector_to_azel(n)
 
 
-def model_section(store: CampaignStore, camp: CampaignRecord,
-                  out: Path) -> tuple[list[str], list[tuple[str, str]]]:
-    """Markdown lines and (title, png) figures of the section (module docstring)."""
+def model_section(store: CampaignStore, camp: CampaignRecord, out: Path,
+                  accept_field_change: bool = False) -> tuple[list[str], list[tuple[str, str]]]:
+    """Markdown lines and (title, png) figures of the section (module docstring). The models are
+    applied to the campaign's configuration only if it still describes the field they were
+    fitted on (FieldChanged, exit 2, unless ``accept_field_change``)."""
     ids = list(camp.queue)
     cfg = _config(camp)
+    if cfg is not None:
+        check_field(store, cfg, [h for h in ids if _configured(cfg, h)], camp.config_path,
+                    accept=accept_field_change)
     models: dict[str, ModelRecord | None] = {hid: store.latest_model(hid) for hid in ids}
     meas = {hid: store.measurements(heliostat_id=hid) for hid in ids}
     predicted = predicted_daytime(cfg, models) if cfg is not None else None

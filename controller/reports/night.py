@@ -9,8 +9,9 @@ field's models stand — readable at any field size.
   passes grouped by lamp (lamp, target, measured / heliostats, status), the field map and
   distributions, the :data:`WORST` heliostats of the field by predicted daytime error with a
   thumbnail of their latest frame, the heliostats that had no measurable geometry
-  tonight and why, and — for a field of at most :data:`TABLE_MAX` heliostats — every
-  heliostat's row;
+  tonight and why, the geometries flagged after failing on two nights, the captures that gave
+  no measurement with their HIGH frame, and — for a field of at most :data:`TABLE_MAX`
+  heliostats — every heliostat's row;
 * ``passes.png``: measured and planned geometries per lamp and target (bars);
 * ``field_map.png``: every heliostat at its position, coloured by predicted daytime RMS;
 * ``distributions.png``: predicted daytime RMS and geometries measured per heliostat;
@@ -30,7 +31,8 @@ from pathlib import Path
 
 from controller.calibration.records import NightRecord
 from controller.io.images import pyplot, save_figure, write_atomic
-from controller.reports.campaign import _inline, _write_csv
+from controller.reports.campaign import _inline, _write_csv, write_thumbnail
+from controller.reports.failures import failed_captures, flagged_lines
 from controller.reports.field_figures import distributions, field_map, thumbnails
 from controller.storage.db import CampaignStore
 from controller.storage.nights import NightBook
@@ -101,7 +103,8 @@ def write_night_report(store: CampaignStore, out_dir: str | Path, night: NightRe
                  ("Distributions", distributions(field, out))]
     for title, png in figs:
         lines += ["", f"## {title}", "", f"![{title}]({png})"]
-    models = store.latest_models([r["heliostat"] for r in field] if field else list(per_helio))
+    ids = [r["heliostat"] for r in field] if field else list(per_helio)
+    models = store.latest_models(ids)
     hcols = ["heliostat", "predicted daytime RMS mrad", "planned tonight", "measured tonight",
              "not measured", "model measurements", "model residual mrad", "why not measured"]
 
@@ -125,6 +128,9 @@ def write_night_report(store: CampaignStore, out_dir: str | Path, night: NightRe
                   *_table(["heliostat", "predicted daytime RMS mrad", "why"],
                           [[u["heliostat"], _num(u.get("predicted_mrad"), 2), u["why"]]
                            for u in lost[:UNMEASURABLE_SHOWN]])]
+    lines += flagged_lines(NightBook(store).flagged(ids))
+    lines += failed_captures(store, [c.id for c in night_campaigns(store, night)], out, write_thumbnail,
+                             night.name + "/")[0]
     if len(hrows) <= TABLE_MAX:
         lines += ["", "## Heliostats", "", *_table(hcols, hrows)]
     else:

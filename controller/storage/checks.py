@@ -163,3 +163,9 @@ def resolved_image_path(db_path: Path, stored: str) -> str:
         if candidate.is_file():
             return str(candidate)
     return stored
+
+
+def has_table(store, table: str) -> bool:
+    """Whether ``store``'s database has ``table`` (a read-only store of an older schema may not:
+    its readers then have nothing to read, rather than an error)."""
+    return bool(store.query("SELECT 1 FROM sqlite_master WHERE type='table' AND name=?", (table,)))

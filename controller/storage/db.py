@@ -46,8 +46,8 @@ from controller.storage.checks import (
     enum_column,
     json_column,
     resolved_image_path,
-    stored_image_path,
 )
+from controller.storage.images import insert_images
 from controller.storage.lock import CampaignLock
 from controller.storage.rows import campaign_from_row, measurement_from_row, model_from_row, run_from_row
 from controller.storage.schema import MIGRATIONS, SCHEMA_VERSION
@@ -292,11 +292,8 @@ class CampaignStore:
                      m.matched_label, m.match_distance, m.runner_up_label, m.runner_up_distance,
                      m.plant_time_s, m.measured_utc, *(m.source_pos_enu or (None, None, None)),
                      campaign_id))
-                for im in m.images:
-                    db.execute("INSERT INTO images (measurement_id, kind, path, sha256, exposure_low_s, "
-                               "exposure_high_s) VALUES (?,?,?,?,?,?)",
-                               (mcur.lastrowid, im.kind, stored_image_path(self.path, im.path), im.sha256,
-                                *im.exposures))
+                insert_images(db, self.path, "images", "measurement_id", mcur.lastrowid, m.images)
+            insert_images(db, self.path, "run_frames", "run_id", run_id, run.frames)  # gave no measurement
             for k in run.corrections:
                 db.execute("INSERT INTO corrections (run_id, iteration, kind, daz_deg, del_deg, daz_steps, "
                            "del_steps) VALUES (?,?,?,?,?,?,?)",

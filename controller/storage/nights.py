@@ -10,10 +10,15 @@ from __future__ import annotations
 
 import json
 
+from controller.calibration.field import LampEnd
 from controller.calibration.planner import PlanItem
 from controller.calibration.records import CAMPAIGN_STATUSES, NIGHT_KINDS, NightRecord, utc_now
+from controller.config import PlantConfig
 from controller.storage.checks import enum_column, json_column
 from controller.storage.db import CampaignStore
+from controller.storage.field_prints import record_field
+from controller.storage.geometry_flags import flagged, record_failures
+from controller.storage.lamp_states import record_lamp_states
 from controller.storage.plans import load_plan, record_plan
 
 NIGHTS_SCHEMA = 8  # the schema version that added the nights table
@@ -62,6 +67,17 @@ class NightBook:
             return []
         return [_night(r, self.store.path) for r in self.store.query("SELECT * FROM nights ORDER BY idx")]
 
+    def passes(self) -> set[int]:
+        """The ids of the campaigns that are passes of a planned night (``<night>/...``, not its
+        first ``/calibration``): they *measure* their heliostats, the others *calibrate* them —
+        what each counts everywhere (``campaign list``, the console)."""
+        if self.store.schema_version < NIGHTS_SCHEMA:
+            return set()
+        rows = self.store.query("SELECT c.id FROM campaigns c JOIN nights n ON n.kind='planned' "
+                                "AND substr(c.name, 1, length(n.name) + 1) = n.name || '/' "
+                                "WHERE c.name NOT LIKE '%/calibration'")
+        return {int(r["id"]) for r in rows}
+
     def unfinished(self, kind: str = "planned") -> NightRecord | None:
         """The latest night of ``kind`` when it did not finish (to be resumed), else None."""
         rows = self.store.query("SELECT * FROM nights ORDER BY idx DESC LIMIT 1")
@@ -89,6 +105,15 @@ class NightBook:
                                 (night, len(night) + 1, night + "/"))
         return None if rows[0]["t"] is None else float(rows[0]["t"])
 
+    def measured(self, night: str) -> dict[str, int]:
+        """Per heliostat, the geometries night ``night``'s passes measured, over every session
+        (an interrupted pass's runs too: they are recorded as they end)."""
+        rows = self.store.query("SELECT r.heliostat_id AS h, COUNT(*) AS n FROM heliostat_runs r "
+                                "JOIN campaigns c ON r.campaign_id=c.id WHERE substr(c.name, 1, ?)=? "
+                                "AND r.status='measured' GROUP BY r.heliostat_id",
+                                (len(night) + 1, night + "/"))
+        return {r["h"]: int(r["n"]) for r in rows}
+
     def record_heliostats(self, night_id: int, rows: list[dict]) -> None:
         """What each heliostat of night ``night_id`` ended with (``night_heliostats``, schema v9:
         position, geometries planned and measured, predicted daytime RMS, why none was
@@ -110,6 +135,24 @@ class NightBook:
                  "planned": r["planned"], "measured": r["measured"],
                  "predicted_rms_mrad": r["predicted_rms_mrad"], "unmeasurable": r["unmeasurable"]}
                 for r in rows]
+
+    def record_field(self, cfg: PlantConfig, ids: list[str], config_path: str, sha256: str) -> None:
+        """What the models of ``ids`` are fitted on from now (``field_prints``,
+        :mod:`controller.storage.field_prints`)."""
+        record_field(self.store, cfg, ids, config_path, sha256)
+
+    def record_geometry_failures(self, night: str, failures: list[dict]) -> None:
+        """Geometries of night ``night`` tried without a measurement
+        (:mod:`controller.storage.geometry_flags`)."""
+        record_failures(self.store, night, failures)
+
+    def flagged(self, ids: list[str] | None = None) -> list[dict]:
+        """The geometries flagged (failed on two nights) of heliostats ``ids`` (None: all)."""
+        return flagged(self.store, ids)
+
+    def record_lamp_states(self, session: str, ended: str, lamps: list[LampEnd]) -> None:
+        """How ``session`` left each lamp (``lamp_states``, :mod:`controller.storage.lamp_states`)."""
+        record_lamp_states(self.store, session, ended, lamps)
 
     def plan(self, night: str) -> list[PlanItem]:
         return load_plan(self.store, night)

@@ -191,6 +191,74 @@ MIGRATIONS: tuple[str, ...] = (
         PRIMARY KEY (night_id, heliostat_id)
     );
     """,
+    # v10: records imported from another system's files (``heliocal import paint``): the file
+    # each measurement came from (its heliostat and record id, the bytes' SHA-256), so that a
+    # re-import adds only new records, and the focal-spot method it holds.
+    """
+    CREATE TABLE imported_records (
+        measurement_id INTEGER PRIMARY KEY REFERENCES measurements(id),
+        source TEXT NOT NULL,
+        heliostat_id TEXT NOT NULL,
+        record_id TEXT NOT NULL,
+        method TEXT NOT NULL,
+        sha256 TEXT NOT NULL,
+        UNIQUE (source, heliostat_id, record_id)
+    );
+    """,
+    # v11: operations (issue 40), one self-contained migration; its tables are found by name, not by
+    # this migration's number (storage modules check the table, never user_version):
+    # * lamp_states: every lamp as each night or campaign left it (lights out at every end),
+    #   what an alarm list reads; state dark (confirmed by the panel), lit (still confirmed lit),
+    #   no_answer (the panel could not tell), operator (no panel: the operator was asked);
+    # * field_prints: what each heliostat's model was fitted on (its position and kinematics, each
+    #   target's frame), so a model is never applied to another field;
+    # * geometry_failures: a planned geometry tried and not measured, per night; two nights flag
+    #   it (not planned again) until it is cleared;
+    # * run_frames: the frames of a capture that gave no measurement (no beam, a clipped spot).
+    """
+    CREATE TABLE lamp_states (
+        id INTEGER PRIMARY KEY,
+        session TEXT NOT NULL,
+        ended TEXT NOT NULL,
+        channel TEXT NOT NULL,
+        state TEXT NOT NULL CHECK (state IN ('dark', 'lit', 'no_answer', 'operator')),
+        commanded INTEGER,
+        detail TEXT,
+        checked_utc TEXT NOT NULL
+    );
+    CREATE INDEX lamp_states_state ON lamp_states(state, id);
+    CREATE TABLE field_prints (
+        subject TEXT PRIMARY KEY,
+        keys_json TEXT NOT NULL,
+        config_path TEXT NOT NULL,
+        config_sha256 TEXT NOT NULL,
+        recorded_utc TEXT NOT NULL
+    );
+    CREATE TABLE geometry_failures (
+        id INTEGER PRIMARY KEY,
+        night TEXT NOT NULL,
+        heliostat_id TEXT NOT NULL,
+        lamp TEXT NOT NULL,
+        target TEXT NOT NULL,
+        cell_row INTEGER NOT NULL,
+        cell_col INTEGER NOT NULL,
+        status TEXT NOT NULL,
+        cause TEXT,
+        recorded_utc TEXT NOT NULL,
+        cleared_utc TEXT,
+        UNIQUE (night, heliostat_id, lamp, target, cell_row, cell_col)
+    );
+    CREATE TABLE run_frames (
+        id INTEGER PRIMARY KEY,
+        run_id INTEGER NOT NULL REFERENCES heliostat_runs(id),
+        kind TEXT NOT NULL,
+        path TEXT NOT NULL,
+        sha256 TEXT NOT NULL,
+        exposure_low_s REAL NOT NULL,
+        exposure_high_s REAL NOT NULL
+    );
+    CREATE INDEX run_frames_run ON run_frames(run_id);
+    """,
     # Plant integration (docs/plant-integration.md): the alarm list (one row per condition and
     # source, its ISA-18.2 state) and its history (never rewritten), the operator accounts (scrypt
     # password hashes, roles) and the audit trail of who did what.

@@ -137,9 +137,16 @@ def test_ctrl_c_during_a_night_parks_and_the_rerun_resumes_it(small_config, tmp_
     assert _wait_for_rows(p, db, RUNS_OF.format(1), scaled_s(240)) and p.poll() is None
     p.send_signal(signal.SIGINT)
     code, _, err = _done(p, scaled_s(60))
-    assert code == 130 and "interrupted" in err and "every lamp off" in err
+    assert code == 130 and "interrupted" in err and "every lamp confirmed dark" in err
     with sqlite3.connect(db) as c:
-        assert c.execute("SELECT status FROM nights WHERE idx=1").fetchone()[0] == "interrupted"
+        name, status, summary = c.execute("SELECT name, status, summary_json FROM nights "
+                                          "WHERE idx=1").fetchone()
+        measured = c.execute("SELECT COUNT(*) FROM heliostat_runs r JOIN campaigns k ON r.campaign_id=k.id "
+                             "WHERE k.name LIKE ? AND r.status='measured'", (name + "/%",)).fetchone()[0]
+        lamps = c.execute("SELECT DISTINCT state FROM lamp_states WHERE session=?", (name,)).fetchall()
+    assert status == "interrupted"
+    assert json.loads(summary)["measured"] == measured  # what its passes measured before Ctrl-C
+    assert lamps == [("dark",)]  # lights out, read back and recorded
     code, again, err = _done(_heliocal("campaign", "night", *common), scaled_s(300))
     assert code in (0, 3), err
     assert again["night"] == 1 and again["status"] in ("finished", "partial")

@@ -102,16 +102,3 @@ def test_unknown_or_non_lamp_in_calibration_lamps_is_refused():
     data["calibration"]["lamps"] = ["lamp", "sun"]
     with pytest.raises(ConfigError, match=r"calibration.lamps\[1\]: 'sun' is not the id of a lamp"):
         parse_config(data, "x.yaml")
-
-
-def test_night_epochs_count_nights_back_from_the_newest():
-    """Measurements without a 6 h gap are one night; nights are counted back from the newest
-    (0) with their distance in days (at least 1); an unreadable stamp is of the newest night."""
-    from controller.calibration.model_update import night_epochs
-
-    stamps = ["2026-03-01T20:10:00+00:00", "2026-03-02T01:50:00+00:00",  # one night across midnight
-              "2026-03-02T21:00:00+00:00", "2026-03-04T20:30:00+00:00", "not a time"]
-    epochs, days = night_epochs(stamps)
-    assert epochs == [2, 2, 1, 0, 0]
-    assert days == {2: 3, 1: 2, 0: 0.0}
-    assert night_epochs([]) == ([], {0: 0.0})

@@ -43,6 +43,7 @@ def _gige(low: str = "Aravis-Fake-A", high: str = "Fake_1", **kw) -> dict:
     ({"gige": {"low": "A", "high": "B", "buffer": 4}},
      "camera.gige.buffer: unknown key (did you mean 'buffers'?)"),
     ({"driver": "gige"}, "camera: gige: required key is missing (driver is gige)"),
+    ({"driver": "file"}, "camera: manifest: required key is missing (driver is file)"),
     ({"gige": {"low": "A", "high": "B", "pixel_format": "Mono16"}},
      "gige.pixel_format: Mono16 delivers 16-bit pixels but bit_depth is 8"),
     ({"bit_depth": 10, "gige": {"low": "A", "high": "B"}}, "gige.pixel_format: required for bit_depth 10"),
@@ -105,3 +106,24 @@ def test_campaign_run_opens_the_configured_gige_camera(tmp_path, capsys):
     path = _plant(tmp_path, {**_gige("Aravis-Fake-NOSUCH"), "bit_depth": 16})
     assert main(["campaign", "run", "--config", str(path), "--db", str(tmp_path / "c.db"), "--json"]) == 1
     assert json.loads(capsys.readouterr().out)["error"].startswith("GigE camera: ")
+
+
+def test_capture_without_camera_opens_the_configured_file_driver(tmp_path, capsys):
+    """``camera.driver: file``: every command's camera is the recorded pairs of camera.manifest
+    (the same factory); ``capture`` without ``--camera`` takes the configured driver."""
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for name, value in (("low", 40), ("high", 90)):
+        assert cv2.imwrite(str(frames / f"{name}.png"), np.full((48, 64), value, np.uint8))
+    manifest = tmp_path / "pairs.yaml"
+    manifest.write_text(yaml.safe_dump({"pairs": [{"low": "frames/low.png", "high": "frames/high.png",
+                                                   "exposures": [0.003, 0.006]}]}))
+    path = _plant(tmp_path, {"driver": "file", "manifest": str(manifest), "width_px": 64, "height_px": 48})
+    out = tmp_path / "pair"
+    assert main(["capture", "--config", str(path), "--out", str(out), "--json"]) == 0
+    meta = json.loads(capsys.readouterr().out)
+    assert meta["camera"] == "file" and meta["exposures_s"] == [0.003, 0.006]
+    assert cv2.imread(str(out / "high.png"), cv2.IMREAD_UNCHANGED).max() == 90
+    path = _plant(tmp_path, {})
+    assert main(["capture", "--config", str(path), "--out", str(out)]) == 2
+    assert "sets no camera.driver" in capsys.readouterr().err

@@ -13,6 +13,7 @@ from controller.calibration.daytime import sun_path
 from controller.config import Site
 from controller.errors import InputError, LimitError
 from controller.geometry.aiming import angle_mrad, intersect_plane, reflected_beam
+from controller.geometry.model_drift import RandomWalk
 from controller.geometry.model_fit import NotIdentifiable, Sample, fit_model, predicted_error
 from controller.geometry.paint_io import kinematics_from_properties, read_heliostat_properties, read_towers
 from controller.geometry.tracking_model import (
@@ -279,9 +280,9 @@ def test_a_fit_that_runs_out_of_steps_says_so(aa39, monkeypatch):
 def test_nightly_drift_terms_give_the_newest_nights_references(aa39):
     """Three nights of 20 measurements; the joint references jump by 0.8 mrad between nights
     (a drift far above the noise). Without drift terms the fit averages the nights; with them
-    (Eq. 3, ``epoch_sigma``) the modelled normal is the newest night's, and the samples'
-    residuals fall to the noise."""
-    jumps = {2: (-1.6, 1.2), 1: (-0.8, 0.6), 0: (0.0, 0.0)}  # epoch -> (Δaz, Δel) mrad vs the newest
+    (Eq. 3, a random walk of 1 mrad per √day over nights a day apart) the modelled normal is
+    the newest night's, and the samples' residuals fall to the noise."""
+    jumps = {2: (-1.6, 1.2), 1: (-0.8, 0.6), 0: (0.0, 0.0)}  # nights back -> (Δaz, Δel) mrad vs the newest
     az_i, el_i = NAMES.index("az_offset"), NAMES.index("el_offset")
     rng = np.random.default_rng(11)
     samples = []
@@ -289,10 +290,10 @@ def test_nightly_drift_terms_give_the_newest_nights_references(aa39):
         night = TRUE.values.copy()
         night[az_i] += daz * D
         night[el_i] += d_el * D
-        samples += [Sample(s.source_dir, s.az_steps, s.el_steps, s.spot_enu, epoch=epoch)
+        samples += [Sample(s.source_dir, s.az_steps, s.el_steps, s.spot_enu, time_days=100.0 - epoch)
                     for s in synthetic(aa39, TrackingModel(night), 20, 0.1 * D, rng)]
     plain = fit_model(aa39, samples, noise_mrad=0.1, robust=False)
-    drift = fit_model(aa39, samples, noise_mrad=0.1, robust=False, epoch_sigma={1: 1.0 * D, 2: 1.4 * D})
+    drift = fit_model(aa39, samples, noise_mrad=0.1, robust=False, drift=RandomWalk(1.0 * D))
 
     def pointing_rms(fit) -> float:  # the normal against the newest night's over the working range
         poses = [(a, e) for a in (10000, 30000, 50000, 70000) for e in (8000, 20000, 35000)]
@@ -303,6 +304,6 @@ def test_nightly_drift_terms_give_the_newest_nights_references(aa39):
     assert pointing_rms(drift) < 0.2
     assert drift.residual_mrad_rms < 0.2 < plain.residual_mrad_rms
     assert drift.covariance.shape == (len(TERMS), len(TERMS))  # the terms' marginal only
-    # Nights without a σ share the newest night's references: the same fit as without drift.
-    same = fit_model(aa39, samples, noise_mrad=0.1, robust=False, epoch_sigma={})
+    # A walk of σ 0 is no drift: the same fit as without one.
+    same = fit_model(aa39, samples, noise_mrad=0.1, robust=False, drift=RandomWalk(0.0))
     assert np.allclose(same.model.values, plain.model.values)

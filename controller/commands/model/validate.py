@@ -1,12 +1,20 @@
-"""``heliocal model validate``: leave-one-out open-loop error of the tracking model on records.
+"""``heliocal model validate``: the open-loop error of the tracking model on records it was not
+fitted to, against the rigid-rotation peer and the two focal-spot methods' disagreement.
 
 ::
 
-    heliocal model validate RECORD.json... --heliostat-properties PROPS.json --towers TOWERS.json [--json]
+    heliocal model validate RECORD.json... --heliostat-properties PROPS.json --towers TOWERS.json
+                            [--split loo|time|first|azimuth|solstice|balanced|knn] [--train N] [--val N]
+                            [--timestamps TS.json] [--prior PRIOR.json] [--json] [--plot DIR]
+    heliocal model validate --paint-dir DIR [--heliostats IDS] [--split ...] ... [--plot DIR]
 
-For each record: fit on the others, predict it, and report the held-out error of the mirror
-normal beside the uncalibrated one (mrad), and where the record has two focal-spot methods
-their disagreement — the floor the data can show.
+``loo`` (one heliostat's records; the default there): fit on all but one, predict it, every
+way round. A split (docs/tracking-model.md, "Validation"; the default for a PAINT folder is
+``time``): fit on its training records, predict every other record it holds out; per heliostat
+the median held-out error of the model, of a rigid rotation of the nominal normals fitted to
+the same records, of the nominal kinematics, and the UTIS/HeliOS floor; over a field the median
+of the heliostats' medians. ``--plot DIR`` draws the per-heliostat errors, the spread of the
+terms across the field and each heliostat's drift over time.
 """
 
 from __future__ import annotations
@@ -15,59 +23,67 @@ import argparse
 
 from controller.commands._numbers import Number
 
+SPLIT_CHOICES = ("loo", "time", "first", "azimuth", "solstice", "balanced", "knn")
+
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("validate", help="leave-one-out open-loop error on calibration records",
+    p = subparsers.add_parser("validate", help="held-out open-loop error of the tracking model on records",
                               description=__doc__.split("\n\n")[0])
-    p.add_argument("records", nargs="+", metavar="RECORD.json",
-                   help="PAINT calibration-properties records (≥ 2)")
-    p.add_argument("--heliostat-properties", required=True, metavar="PROPS.json",
+    p.add_argument("records", nargs="*", metavar="RECORD.json", help="PAINT calibration-properties records")
+    p.add_argument("--heliostat-properties", metavar="PROPS.json",
                    help="PAINT/ARTIST heliostat-properties file")
-    p.add_argument("--towers", required=True, metavar="TOWERS.json", help="tower-measurements file (targets)")
+    p.add_argument("--towers", metavar="TOWERS.json", help="tower-measurements file (default: the folder's)")
+    p.add_argument("--paint-dir", metavar="DIR", help="a PAINT-layout folder: validate every heliostat in it")
+    p.add_argument("--heliostats", metavar="IDS", help="with --paint-dir: comma-separated ids (default: all)")
+    p.add_argument("--split", choices=SPLIT_CHOICES, default=None,
+                   help="loo (default for records), time (default for --paint-dir), first, azimuth, "
+                        "solstice, balanced, knn")
+    p.add_argument("--train", type=Number(1, 100000, integer=True), default=20, metavar="N",
+                   help="training records per heliostat (default 20)")
+    p.add_argument("--val", type=Number(1, 100000, integer=True), default=10, metavar="N",
+                   help="held-out records: the last N (time, first), validation records (azimuth, solstice), "
+                        "clusters (balanced) or the sparsest N twice (knn) (default 10)")
+    p.add_argument("--timestamps", metavar="TS.json", help="PAINT timestamps (default: the folder's)")
+    p.add_argument("--prior", metavar="PRIOR.json",
+                   help="a field's prior of the terms ('heliocal model prior')")
     p.add_argument("--noise-mrad", type=Number(0, 100, lo_open=True), default=0.8, metavar="S",
                    help="1-σ noise of a measured mirror normal, mrad (default 0.8)")
-    p.add_argument("--json", action="store_true", help="print the table as JSON")
+    p.add_argument("--plot", metavar="DIR", help="write the validation figures into DIR")
+    p.add_argument("--json", action="store_true", help="print the tables as JSON")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    from pathlib import Path
-
-    import numpy as np
-
     from controller.commands._common import print_json
+    from controller.commands.model._validation import (
+        field_report,
+        full_fits,
+        loo_report,
+        paint_sets,
+        print_field,
+    )
     from controller.errors import InputError
-    from controller.geometry.aiming import aim_normal, angle_mrad
-    from controller.geometry.paint_io import read_paint_set
-    from controller.geometry.validation import leave_one_out
 
-    if not (args.noise_mrad > 0 and args.noise_mrad < 1e3):
-        raise InputError(f"--noise-mrad must be a positive number of mrad, got {args.noise_mrad}")
-    ps = read_paint_set(args.records, args.heliostat_properties, args.towers)
-    kin, records = ps.kinematics, ps.records
-    folds = leave_one_out(kin, [r.sample for r in records], noise_mrad=args.noise_mrad)
-    rows = []
-    for f, r in zip(folds, records, strict=True):
-        floor = None
-        if "HeliOS" in r.focal_spots:
-            c = kin.mirror_center(r.sample.az_steps, r.sample.el_steps)
-            floor = float(angle_mrad(aim_normal(r.sample.source_dir, c, r.focal_spots["UTIS"]),
-                                     aim_normal(r.sample.source_dir, c, r.focal_spots["HeliOS"])))
-        rows.append({"record": Path(r.source).name, "held_out_mrad": f.held_out_mrad,
-                     "uncalibrated_mrad": f.uncalibrated_mrad, "methods_disagree_mrad": floor,
-                     "identified": f.fit.identified_terms()})
-    held = np.array([r["held_out_mrad"] for r in rows])
-    unc = np.array([r["uncalibrated_mrad"] for r in rows])
-    summary = {"held_out_rms_mrad": float(np.sqrt(np.mean(held**2))),
-               "uncalibrated_rms_mrad": float(np.sqrt(np.mean(unc**2))),
-               "worst_ratio": float(np.min(unc / np.maximum(held, 1e-9)))}
-    if args.json:
-        print_json({"folds": rows, **summary})
+    if args.paint_dir and args.records:
+        raise InputError("model validate: give records or --paint-dir, not both")
+    if not args.paint_dir and not args.records:
+        raise InputError("model validate: give records (with --heliostat-properties) or --paint-dir DIR")
+    split = args.split or ("time" if args.paint_dir else "loo")
+    if split == "loo":
+        if args.paint_dir:
+            raise InputError("model validate: leave-one-out takes one heliostat's records, not --paint-dir")
+        out = loo_report(args)
+        if args.json:
+            print_json(out)
         return 0
-    print(f"  {'held-out record':<40}{'held-out':>10}{'uncal.':>10}{'UTIS/HeliOS':>13}  (normal error, mrad)")
-    for r in rows:
-        fl = "-" if r["methods_disagree_mrad"] is None else f"{r['methods_disagree_mrad']:.2f}"
-        print(f"  {r['record']:<40}{r['held_out_mrad']:>10.2f}{r['uncalibrated_mrad']:>10.2f}{fl:>13}")
-    print(f"  RMS {summary['held_out_rms_mrad']:.2f} mrad held out vs {summary['uncalibrated_rms_mrad']:.2f} "
-          f"uncalibrated; every record at least {summary['worst_ratio']:.1f}x better")
+    sets = paint_sets(args)
+    report = field_report(sets, split, args)
+    if args.plot:
+        from controller.reports.model_figures import write_validation_figures
+
+        report["figures"] = write_validation_figures(args.plot, report, full_fits(sets, args))
+    if args.json:
+        print_json(report)
+    else:
+        print_field(report)
     return 0

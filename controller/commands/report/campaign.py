@@ -7,7 +7,12 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from controller.commands._common import add_json_option, print_json, staged_output_dir
+from controller.commands._common import (
+    add_field_change_option,
+    add_json_option,
+    print_json,
+    staged_output_dir,
+)
 from controller.errors import InputError
 
 
@@ -22,6 +27,7 @@ def register(subparsers) -> None:
     which.add_argument("--night", default=None, metavar="INDEX|NAME",
                        help="night index (0: the calibration night) or name (default: the latest "
                             "whole night)")
+    add_field_change_option(p)
     add_json_option(p)
     p.set_defaults(func=run)
 
@@ -37,7 +43,7 @@ def run(args: argparse.Namespace) -> int:
             written = write_night_report(store, stage, night)
         else:
             camp = store.find_campaign(night.name if night is not None else args.campaign)
-            written = write_report(store, stage, camp.id)
+            written = write_report(store, stage, camp.id, accept_field_change=args.accept_field_change)
         path = Path(args.out) / written.name
     if args.json:
         print_json({"report": str(path), "html": str(path.with_suffix(".html")),
