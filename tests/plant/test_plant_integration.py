@@ -401,3 +401,27 @@ def _any(events: _Events):
     async def check():
         return events.events[-1] if events.events else None
     return check()
+
+
+def test_the_lights_out_at_the_end_of_a_night_raises_a_lamp_left_lit_and_clears_it_once_dark(plant, console):
+    from controller.calibration.lights_out import lights_out_at_end
+    from controller.calibration.observers import Observers
+
+    sim, config, db, server = plant
+    c, client = console
+    lamp = sim.config.calibration.light_source
+    _light(config, lamp)
+    sim.lamp_panel.stuck_lit.add(lamp)
+    try:
+        ends = lights_out_at_end(c.field, NightBook(c.store), "field/night-9", "finished", Observers([]))
+    finally:
+        sim.lamp_panel.stuck_lit.clear()
+    assert [(e.channel, e.state) for e in ends if not e.dark] == [(lamp, "lit")]
+    code, out, err = run_cli(["alarms", "--db", str(db), "--json"])
+    (alarm,) = [a for a in json.loads(out) if a["condition"] == "lamp_not_dark"]
+    assert alarm["active"] and not alarm["acknowledged"] and "at the end of field/night-9" in alarm["message"]
+    ends = lights_out_at_end(c.field, NightBook(c.store), "field/night-9", "finished", Observers([]))
+    assert all(e.dark for e in ends)
+    code, out, err = run_cli(["alarms", "--db", str(db), "--all", "--json"])
+    (alarm,) = [a for a in json.loads(out) if a["condition"] == "lamp_not_dark"]
+    assert (alarm["state"], alarm["count"]) == ("unack_rtn", 2)  # back to normal, still to acknowledge
