@@ -16,7 +16,6 @@ rule broken.
 
 from __future__ import annotations
 
-import hashlib
 import math
 from pathlib import Path
 from typing import Annotated, Literal
@@ -28,11 +27,27 @@ from controller.axis_config import Axes, AxisConfig, SoftLimits  # noqa: F401 - 
 from controller.camera_config import Camera, Gige, Sensor  # noqa: F401 - the camera section
 from controller.config_rules import Direction, Position, PriorSigma, Section
 from controller.errors import ConfigError, InputError
+from controller.field_file import config_sha256, load_field  # noqa: F401 - config_sha256 re-exported
+from controller.heliostat_config import (  # noqa: F401 - the heliostats section
+    FieldFile,
+    Heliostat,
+    Kinematics,
+    Mirror,
+)
 from controller.io.config_keys import did_you_mean, key_path
-from controller.io.files import read_bytes
-from controller.io.yaml_files import parse_yaml, read_text
+from controller.io.yaml_files import MAX_BYTES, parse_yaml, read_text
 from controller.lamp_config import CommandLamps, Lamps, ModbusRtuLamps, ModbusTcpLamps, check_channels  # noqa: F401
-from controller.link_config import Link, ModbusRtuLink, ModbusTcpLink, NoLink, SerialLink  # noqa: F401 - links
+from controller.link_config import (  # noqa: F401 - the links section
+    Bus,
+    Link,
+    ModbusRtuBus,
+    ModbusRtuLink,
+    ModbusTcpBus,
+    ModbusTcpLink,
+    NoLink,
+    SerialBus,
+    SerialLink,
+)
 
 Vec3 = tuple[float, float, float]
 _Model = Section  # every section: unknown keys refused, only finite numbers (controller.config_rules)
@@ -100,28 +115,6 @@ class LampSource(_Model):
 
 
 LightSource = Annotated[SunSource | LampSource, Field(discriminator="kind")]
-
-
-class Mirror(_Model):
-    width_m: float = Field(gt=0, le=30)
-    height_m: float = Field(gt=0, le=30)
-    focal_length_m: float = Field(gt=0, le=10000, description="on-axis focal length, m")
-    slope_error_mrad: float = Field(default=1.5, ge=0, le=20)
-    reflectivity: float = Field(default=0.93, gt=0, le=1)
-
-
-Translation = Annotated[float, Field(ge=-10, le=10)]
-
-
-class Heliostat(_Model):
-    id: str
-    position_enu_m: Position
-    mirror: Mirror
-    axes: Axes
-    link: Link
-    concentrator_translation_m: tuple[Translation, Translation, Translation] = Field(
-        default=(0.0, 0.0, 0.0), description="mirror centre from the pivot in the body frame (facing "
-        "south: east, north, up), m; PAINT/ARTIST concentrator_translation_{e,n,u}")
 
 
 class ModelSettings(_Model):
@@ -213,6 +206,8 @@ class PlantConfig(_Model):
     targets: tuple[Target, ...] = Field(min_length=1)
     light_sources: tuple[LightSource, ...] = Field(min_length=1)
     heliostats: tuple[Heliostat, ...] = Field(min_length=1)
+    field: FieldFile | None = Field(default=None, description="the heliostats in a file of their own "
+                                    "(docs/configuration.md); None: heliostats inline")
     camera: Camera
     calibration: Calibration
     person_zones: tuple[PersonZone, ...] = ()
@@ -319,7 +314,8 @@ def _by_id(items, item_id: str, what: str):
 
 
 def parse_config(data: object, source: str = "<config>") -> PlantConfig:
-    """Validate an already-parsed YAML document; errors name ``source`` and the key path."""
+    """Validate an already-parsed YAML document; errors name ``source`` and the key path. A
+    ``field`` section's file is read relative to ``source``'s folder."""
     if data is None:
         raise ConfigError(f"{source}: the configuration is empty (see docs/configuration.md)")
     if not isinstance(data, dict):
@@ -327,27 +323,37 @@ def parse_config(data: object, source: str = "<config>") -> PlantConfig:
                           f"got {type(data).__name__}")
     # Top-level "x-" keys hold YAML anchors shared by several entries (as in compose files).
     data = {k: v for k, v in data.items() if not str(k).startswith("x-")}
+    if "field" in data and data["field"] is not None:
+        data = _with_field(data, source)
     try:
         return PlantConfig.model_validate(data)
     except ValidationError as exc:
-        err = exc.errors()[0]
-        rule = err["msg"].removeprefix("Value error, ")
-        if err["type"] == "extra_forbidden":
-            rule = "unknown key" + did_you_mean(str(err["loc"][-1]), PlantConfig)
-        elif err["type"] == "missing":
-            rule = "required key is missing"
-        more = f" (and {len(exc.errors()) - 1} more problems)" if len(exc.errors()) > 1 else ""
-        if not err["loc"] and err["type"] == "value_error":
-            raise ConfigError(f"{source}: {rule}{more}") from None  # the rule names its key path
-        raise ConfigError(f"{source}: {key_path(err['loc'])}: {rule}{more}") from None
+        raise _config_error(exc, source) from None
 
 
-def config_sha256(path: str | Path) -> str:
-    """SHA-256 of a configuration file's bytes: which configuration a campaign was started with."""
+def _with_field(data: dict, source: str) -> dict:
+    """``data`` with the heliostats of its ``field`` section's file."""
+    if "heliostats" in data:
+        raise ConfigError(f"{source}: heliostats: given both inline and in field.file; keep one")
     try:
-        return hashlib.sha256(read_bytes(path, "configuration")).hexdigest()
-    except InputError as exc:
-        raise ConfigError(str(exc)) from None
+        spec = FieldFile.model_validate(data["field"])
+    except ValidationError as exc:
+        raise _config_error(exc, source, ("field",)) from None
+    return {**data, "field": spec, "heliostats": load_field(spec, source)}
+
+
+def _config_error(exc: ValidationError, source: str, prefix: tuple = ()) -> ConfigError:
+    """The one line of pydantic's first error: file, key path (under ``prefix``), rule."""
+    err = exc.errors()[0]
+    rule = err["msg"].removeprefix("Value error, ")
+    if err["type"] == "extra_forbidden":
+        rule = "unknown key" + did_you_mean(str(err["loc"][-1]), PlantConfig)
+    elif err["type"] == "missing":
+        rule = "required key is missing"
+    more = f" (and {len(exc.errors()) - 1} more problems)" if len(exc.errors()) > 1 else ""
+    if not err["loc"] and err["type"] == "value_error" and not prefix:
+        return ConfigError(f"{source}: {rule}{more}")  # the rule names its key path
+    return ConfigError(f"{source}: {key_path(prefix + tuple(err['loc']))}: {rule}{more}")
 
 
 def load_config(path: str | Path) -> PlantConfig:
@@ -359,5 +365,7 @@ def load_config(path: str | Path) -> PlantConfig:
     try:
         data = parse_yaml(read_text(p, "configuration"), str(p))
     except InputError as exc:
-        raise ConfigError(str(exc)) from None
+        large = p.is_file() and p.stat().st_size > MAX_BYTES
+        hint = " (a large field's heliostats go in a field file: docs/configuration.md)" if large else ""
+        raise ConfigError(f"{exc}{hint}") from None
     return parse_config(data, str(p))

@@ -1,6 +1,7 @@
 """The links of the plant configuration (``heliostats[i].link``, docs/configuration.md): how
 the controller reaches each heliostat's drive — our serial frame protocol on an RS-485 bus,
-Modbus TCP through a gateway, Modbus RTU, or none (records only). Re-exported by
+Modbus TCP through a gateway, Modbus RTU, or none (records only) — and the buses of a field
+kept in its own file (``field.buses``: the same links without their station). Re-exported by
 :mod:`controller.config`, whose :func:`load_config` validates it.
 """
 
@@ -82,3 +83,38 @@ class NoLink(_Model):
 
 
 Link = Annotated[SerialLink | ModbusTcpLink | ModbusRtuLink | NoLink, Field(discriminator="kind")]
+
+
+# The buses and gateways of ``field.buses`` (docs/configuration.md, "The field in its own
+# file"): a link without its station; ``link(station)`` completes it with the field file's
+# ``station`` column (a bus address or unit id, 1 … 247).
+
+
+class SerialBus(_Model):
+    kind: Literal["serial"]
+    device: str
+    baud: Baud = 115200
+
+    def link(self, station: int) -> SerialLink:
+        return SerialLink(kind="serial", device=self.device, address=station, baud=self.baud)
+
+
+class ModbusTcpBus(_Model):
+    kind: Literal["modbus-tcp"]
+    host: str
+    port: int = Field(ge=1, le=65535)
+
+    def link(self, station: int) -> ModbusTcpLink:
+        return ModbusTcpLink(kind="modbus-tcp", host=self.host, port=self.port, unit=station)
+
+
+class ModbusRtuBus(_Model):
+    kind: Literal["modbus-rtu"]
+    device: str
+    baud: Baud = 115200
+
+    def link(self, station: int) -> ModbusRtuLink:
+        return ModbusRtuLink(kind="modbus-rtu", device=self.device, unit=station, baud=self.baud)
+
+
+Bus = Annotated[SerialBus | ModbusTcpBus | ModbusRtuBus, Field(discriminator="kind")]

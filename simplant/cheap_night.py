@@ -11,12 +11,15 @@ Used by ``benchmarks/bench_field.py`` and its tests.
 from __future__ import annotations
 
 import copy
+import csv
+import json
 import math
 from pathlib import Path
 
 import numpy as np
 import yaml
 
+from controller.config import load_config
 from controller.devices.plant_time import PlantTime
 from simplant.cheap_camera import BeamField, CheapCamera
 from simplant.inproc import InProcLampPanel, InProcPool
@@ -96,6 +99,36 @@ def field_data(base: dict, n: int, targets: int, geometries: int = 3, span_deg: 
     return data
 
 
+def write_config(data: dict, path: Path) -> None:
+    """Write config mapping ``data`` to ``path`` as a plant with a large field keeps it: its
+    heliostats in ``<stem>.csv`` beside it (the configuration's ``field`` section: a design per
+    distinct mirror and axes, the focal length per row, a bus per link without its station)."""
+    designs: dict[str, str] = {}
+    buses: dict[str, str] = {}
+    spec: dict = {"file": f"{path.stem}.csv", "kinematics": {}, "buses": {}}
+    rows = []
+    for h in data["heliostats"]:
+        mirror = {k: v for k, v in h["mirror"].items() if k != "focal_length_m"}
+        design = json.dumps([mirror, h["axes"]], sort_keys=True)
+        if design not in designs:
+            designs[design] = f"design{len(designs) + 1}"
+            spec["kinematics"][designs[design]] = {"mirror": {**h["mirror"]}, "axes": h["axes"]}
+        link = {k: v for k, v in h["link"].items() if k not in ("address", "unit")}
+        bus = json.dumps(link, sort_keys=True)
+        if bus not in buses:
+            buses[bus] = f"bus{len(buses) + 1}"
+            spec["buses"][buses[bus]] = link
+        station = h["link"].get("address", h["link"].get("unit"))
+        rows.append([h["id"], *h["position_enu_m"], designs[design], buses[bus], station,
+                     h["mirror"]["focal_length_m"]])
+    with open(path.with_suffix(".csv"), "w", newline="", encoding="utf-8") as f:
+        w = csv.writer(f)
+        w.writerow(["id", "east_m", "north_m", "up_m", "kinematics", "bus", "station", "focal_length_m"])
+        w.writerows(rows)
+    rest = {k: v for k, v in data.items() if k != "heliostats" and not str(k).startswith("x-")}
+    path.write_text(yaml.safe_dump({**rest, "field": spec}, sort_keys=False), encoding="utf-8")
+
+
 class CheapField:
     """The unstarted plant of ``data`` (a config mapping) in ``out``, its in-process drives and
     one cheap camera per target (:mod:`simplant.cheap_night`)."""
@@ -103,11 +136,12 @@ class CheapField:
     def __init__(self, data: dict, out: Path, *, speedup: float = 1000.0, seed: int = 0) -> None:
         out.mkdir(parents=True, exist_ok=True)
         self.config_path = out / "field.yaml"
-        self.config_path.write_text(yaml.safe_dump(data, sort_keys=False), encoding="utf-8")
+        write_config(data, self.config_path)
         self.plant = SimulatedPlant(data, out / "plant", settings=SimulationSettings(clock_speedup=speedup,
                                                                                      seed=seed),
                                     source=str(self.config_path))
-        self.cfg = self.plant.cfg
+        # The product reads the field as a plant keeps it: its configuration and field file.
+        self.cfg = load_config(self.config_path)
         self.beams = BeamField(self.plant)
         self.cameras = {t.id: CheapCamera(self.plant, self.beams, self.cfg.for_target(t.id), seed=seed + k)
                         for k, t in enumerate(self.cfg.targets)}

@@ -25,6 +25,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import threading
+from types import SimpleNamespace
 
 from pymodbus import FramerType
 from pymodbus.constants import ExcCodes
@@ -122,10 +123,10 @@ class SimLampPanel:
         regs = [SimData(0, count=1, datatype=DataType.REGISTERS)]
         return SimDevice(id=self.unit, simdata=(bits, list(bits), regs, list(regs)), action=self._action)
 
-    def start(self, rtu_framing: bool = False) -> int:
-        """Serve on 127.0.0.1, an ephemeral port (returned). ``rtu_framing``: Modbus RTU frames
-        over the TCP connection (a serial gateway; a ``modbus-rtu`` client reaches it through
-        pyserial's ``socket://127.0.0.1:PORT``)."""
+    def start(self, rtu_framing: bool = False, port: int = 0) -> int:
+        """Serve on 127.0.0.1, ``port`` (0: an ephemeral one); the port. ``rtu_framing``: Modbus
+        RTU frames over the TCP connection (a serial gateway; a ``modbus-rtu`` client reaches it
+        through pyserial's ``socket://127.0.0.1:PORT``). OSError when the port is taken."""
         if self._server is not None:
             return self.port
         self._loop = asyncio.new_event_loop()
@@ -133,12 +134,19 @@ class SimLampPanel:
         self._thread.start()
 
         async def make():  # pymodbus servers are built inside their running loop
-            server = ModbusTcpServer([self._device()], address=("127.0.0.1", 0),
+            server = ModbusTcpServer([self._device()], address=("127.0.0.1", port),
                                      framer=FramerType.RTU if rtu_framing else FramerType.SOCKET)
             await server.serve_forever(background=True)
             return server
 
-        self._server = asyncio.run_coroutine_threadsafe(make(), self._loop).result(5.0)
+        try:
+            self._server = asyncio.run_coroutine_threadsafe(make(), self._loop).result(5.0)
+        except RuntimeError as exc:  # pymodbus' "Could not start listen": the port is taken
+            self.stop()
+            raise OSError(f"cannot listen on 127.0.0.1:{port} ({exc})") from None
+        except BaseException:
+            self.stop()
+            raise
         self.port = self._server.transport.sockets[0].getsockname()[1]
         return self.port
 
@@ -152,3 +160,22 @@ class SimLampPanel:
             self._thread.join(timeout=5)
             self._loop.close()
             self._loop = None
+
+
+class PanelLamps:
+    """Lamps wired to a panel and nothing else (``heliocal sim lamp-panel``): each one lights
+    when its coil is written on — what :class:`SimLampPanel` asks of a plant."""
+
+    def __init__(self, channels: dict[str, int]) -> None:
+        self._lit: set[str] = set()
+        self.cameras = {name.removeprefix(FIDUCIALS): SimpleNamespace(fiducials_lit=False)
+                        for name in channels if name.startswith(FIDUCIALS)}
+
+    def lamp_lit(self, lamp_id: str) -> bool:
+        return lamp_id in self._lit
+
+    def switch_lamp(self, lamp_id: str, on: bool) -> None:
+        (self._lit.add if on else self._lit.discard)(lamp_id)
+
+    def set_fiducials(self, on: bool, target: str) -> None:
+        self.cameras[target].fiducials_lit = bool(on)

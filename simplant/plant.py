@@ -4,7 +4,8 @@ What it runs, all in this process but reachable only through the real wire proto
 
 * one :class:`simplant.firmware.physics.SimController` per heliostat, on a **plant clock**
   (:class:`PlantClock`) that may run ``SimulationSettings.clock_speedup`` times faster than real time;
-* per serial bus of the config, :class:`simplant.firmware.serial.SerialSimFirmware` on a pty,
+* its drives on their wires (:mod:`simplant.plant_drives`): per serial bus of the config,
+  :class:`simplant.firmware.serial.SerialSimFirmware` on a pty,
   symlinked inside the run directory (the config's device paths are rewritten to it);
 * the Modbus TCP heliostats behind :class:`simplant.firmware.modbus.ModbusSimServer` on
   127.0.0.1, an ephemeral port (written back into the links); Modbus RTU on a pty;
@@ -44,6 +45,7 @@ import yaml
 
 from controller.config import PlantConfig, parse_config
 from controller.errors import ConfigError
+from controller.field_file import field_path
 from controller.geometry.vectors import unit
 from simplant.clock import PlantClock
 from simplant.errorset import CASES
@@ -90,6 +92,8 @@ class SimulatedPlant:
                  source: str = "<config>", clock_start: float = 0.0) -> None:
         self.run_dir = Path(run_dir)
         self.data = copy.deepcopy(cfg_data)
+        if self.data.get("field"):  # the field file stays where it is when the config is rewritten
+            self.data["field"]["file"] = str(field_path(self.data["field"]["file"], source).absolute())
         cfg = parse_config(self.data, source)
         self.cfg = cfg
         self.ids = heliostat_ids or [h.id for h in cfg.heliostats]
@@ -117,8 +121,9 @@ class SimulatedPlant:
                                 az=axis_params_from_config(h.axes.azimuth),
                                 el=axis_params_from_config(h.axes.elevation), clock=self.clock)
             self.hidden[hid] = HiddenHeliostat(hid, truth, case, mirror, ctl, (self.seed, 13, index[hid]))
-        self.serial: dict[str, object] = {}
-        self.modbus = None
+        self._drives = None  # simplant.plant_drives.Drives, from start()
+        self.serial: dict[str, object] = {}  # its serial firmware by configured device
+        self.modbus = None  # its Modbus server
         self.safety = BeamSafetyMonitor(self)
         self.spot_truth = SpotTruth()  # whose spot is where in each render; the identity-swap fault
         self.camera: PlantCamera | None = None  # the calibration target's camera
@@ -128,46 +133,17 @@ class SimulatedPlant:
     # -- lifecycle -------------------------------------------------------------------------------
     def start(self) -> PlantConfig:
         """Start firmware and servers; return the config with links rewritten to them."""
-        from simplant.firmware.modbus import ModbusSimServer
-        from simplant.firmware.serial import SerialSimFirmware
+        from simplant.plant_drives import serve_drives
 
         self.run_dir.mkdir(parents=True, exist_ok=True)
         dev_dir = self.run_dir / "dev"
         dev_dir.mkdir(exist_ok=True)
-        serial_groups: dict[str, dict[int, SimController]] = {}
-        tcp_units: dict[int, SimController] = {}
-        rtu_groups: dict[str, dict[int, SimController]] = {}
-        for hid in self.ids:
-            link = self.cfg.heliostat(hid).link
-            ctl = self.hidden[hid].controller
-            if link.kind == "serial":
-                serial_groups.setdefault(link.device, {})[link.address] = ctl
-            elif link.kind == "modbus-tcp":
-                tcp_units[link.unit] = ctl
-            else:
-                rtu_groups.setdefault(link.device, {})[link.unit] = ctl
-        new_paths: dict[str, str] = {}
-        for device, ctls in serial_groups.items():
-            path = str(dev_dir / Path(device).name)
-            fw = SerialSimFirmware(ctls, link_path=path)
-            fw.start()
-            self.serial[device] = fw
-            new_paths[device] = path
-        port = None
-        if tcp_units or rtu_groups:
-            if len(rtu_groups) > 1:
-                raise ValueError("the simulated plant serves one Modbus RTU bus")
-            self.modbus = ModbusSimServer({**tcp_units, **next(iter(rtu_groups.values()), {})})
-            if tcp_units:
-                port = self.modbus.start_tcp("127.0.0.1", 0)
-            for device in rtu_groups:
-                new_paths[device] = self.modbus.start_rtu(str(dev_dir / Path(device).name))
-        for h in self.data["heliostats"]:
-            link = h["link"]
-            if link.get("device") in new_paths:
-                link["device"] = new_paths[link["device"]]
-            if link.get("kind") == "modbus-tcp" and port is not None:
-                link["host"], link["port"] = "127.0.0.1", port
+        links = [(self.cfg.heliostat(hid).link, self.hidden[hid].controller) for hid in self.ids]
+        drives = serve_drives(links, dev_dir)
+        self._drives, self.serial, self.modbus = drives, drives.serial, drives.modbus
+        # The field file's buses (field.buses), else each inline heliostat's link.
+        drives.rewrite(list(self.data["field"]["buses"].values()) if self.data.get("field")
+                       else [h["link"] for h in self.data["heliostats"]])
         self._start_lamp_panel()
         self.config = parse_config(self.data, str(self.run_dir / "plant.yaml"))
         self._start_cameras()
@@ -206,12 +182,9 @@ class SimulatedPlant:
 
     def stop(self) -> None:
         self.safety.stop()
-        for fw in self.serial.values():
-            fw.stop()
-        self.serial.clear()
-        if self.modbus is not None:
-            self.modbus.stop()
-            self.modbus = None
+        if self._drives is not None:
+            self._drives.stop()
+        self.serial, self.modbus = {}, None
         if self.lamp_panel is not None:
             self.lamp_panel.stop()
 
@@ -392,7 +365,12 @@ class SimulatedPlant:
 
 
 def load_config_data(path: str | Path) -> dict:
-    """The raw YAML mapping of a config file (validated by :func:`controller.config.load_config` first)."""
-    return yaml.safe_load(Path(path).read_text(encoding="utf-8"))
+    """The raw YAML mapping of a config file (validated by :func:`controller.config.load_config`
+    first), its field file's path (``field.file``) made absolute: the mapping goes to places that
+    do not know the file's folder."""
+    data = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
+    if data.get("field"):
+        data["field"]["file"] = str(field_path(data["field"]["file"], str(path)).absolute())
+    return data
 
 

@@ -21,7 +21,8 @@ PRODUCT = ("controller", "firmware_proto")
 # Imported by every layer: the error types and the validated plant configuration (data only).
 FOUNDATION = {"controller", "controller.errors", "controller.config", "controller.axis_config",
               "controller.camera_config", "controller.link_config", "controller.lamp_config",
-              "controller.config_rules", "controller.alarm_config"}
+              "controller.config_rules", "controller.heliostat_config", "controller.field_file",
+              "controller.alarm_config"}
 
 LAYERS: dict[str, set[str]] = {
     "wire": {"firmware_proto"},

@@ -62,7 +62,22 @@ def maximal_config(lamp_driver: str = "modbus-tcp") -> dict:
     return parse_config(doc, SOURCE).model_dump(mode="json")  # every default written out
 
 
-MAXIMALS = [maximal_config(driver) for driver in LAMP_DRIVERS]
+def maximal_field_config() -> dict:
+    """The maximal configuration with its heliostats in a field file (tests/data/field): one
+    design, a bus of each kind."""
+    doc = maximal_config()
+    helios = doc.pop("heliostats")
+    doc["field"] = {"file": str(REPO / "tests" / "data" / "field" / "three.csv"),
+                    "kinematics": {"aa39": {"mirror": helios[0]["mirror"], "axes": helios[0]["axes"]}},
+                    "buses": {"rs485": {"kind": "serial", "device": "/dev/ttyUSB0", "baud": 115200},
+                              "gateway": {"kind": "modbus-tcp", "host": "127.0.0.1", "port": 1502},
+                              "rtu": {"kind": "modbus-rtu", "device": "/dev/ttyUSB1", "baud": 19200}}}
+    out = parse_config(doc, SOURCE).model_dump(mode="json")
+    del out["heliostats"]  # they are the file's
+    return out
+
+
+MAXIMALS = [maximal_config(driver) for driver in LAMP_DRIVERS] + [maximal_field_config()]
 MAXIMAL = MAXIMALS[0]
 
 

@@ -1,6 +1,10 @@
-"""``heliocal campaign list --db DB [--json]``: the nights recorded in a database, each with
-its campaigns (a calibration night's campaign, a planned night's passes), then campaigns that
-belong to no night (recorded before nights were).
+"""``heliocal campaign list --db DB [--long] [--json]``: the nights recorded in a database, each
+with its campaigns (a calibration night's campaign, a planned night's passes), then campaigns
+that belong to no night (recorded before nights were).
+
+Each line fits :data:`WIDTH` columns (a terminal's, a log's): a night names how many lamps it
+lit and a line that would be longer is cut with ``…``; ``--long`` prints every detail in full
+(the lamps, each night's and campaign's cause), ``--json`` all of it as data.
 
 A pass measures (``measured``), a calibration campaign calibrates (``calibrated``): each row
 counts what its campaign was for, so a pass whose heliostats were all measured reads
@@ -13,6 +17,8 @@ import argparse
 
 from controller.commands._common import print_json
 
+WIDTH = 120
+
 
 def _row(store, c) -> dict:
     runs = store.runs(c.id)
@@ -22,23 +28,16 @@ def _row(store, c) -> dict:
             "measured": sum(r.status == "measured" for r in runs), "target": c.target, "lamp": c.light_source}
 
 
-def _night_of(name: str, nights: list[str]) -> str | None:
-    """The night a campaign belongs to: the longest night name it is, or starts with (a planned
-    night ``<base>/night-k`` is named after the calibration night ``<base>``)."""
-    mine = [n for n in nights if name == n or name.startswith(n + "/")]
-    return max(mine, key=len, default=None)
-
-
 def list_campaigns(args: argparse.Namespace) -> int:
     from controller.storage.db import open_existing
-    from controller.storage.nights import NightBook
+    from controller.storage.nights import NightBook, night_of
 
     with open_existing(args.db) as store:
         passes = NightBook(store).passes()
         rows = [{**_row(store, c), "pass": c.id in passes} for c in store.campaigns()]
         nights = []
         recorded = NightBook(store).nights()
-        owner = {r["id"]: _night_of(r["name"], [n.name for n in recorded]) for r in rows}
+        owner = {r["id"]: night_of(r["name"], [n.name for n in recorded]) for r in rows}
         for n in recorded:
             mine = [r for r in rows if owner[r["id"]] == n.name]
             s = n.summary
@@ -56,35 +55,44 @@ def list_campaigns(args: argparse.Namespace) -> int:
     if not rows:
         print(f"{args.db}: no campaign recorded")
         return 0
+    out = print if args.long else (lambda line: print(_fit(line)))
     shown: set[int] = set()
     for n in nights:
-        print(_night_line(n))
+        out(_night_line(n, args.long))
         for r in rows:
             if r["id"] in n["campaigns"]:
                 shown.add(r["id"])
-                print(_campaign_line(r, indent="    ", name=r["name"].removeprefix(n["name"] + "/")))
+                out(_campaign_line(r, indent="    ", name=r["name"].removeprefix(n["name"] + "/")))
     rest = [r for r in rows if r["id"] not in shown]
     if rest:
         if nights:
             print("campaigns outside any night:")
         print(f"{'id':>4}  {'name':40} {'night':10}  {'status':11} {'done':>10}  cause")
         for r in rest:
-            print(_campaign_line(r))
+            out(_campaign_line(r))
     return 0
 
 
-def _night_line(n: dict) -> str:
+def _fit(line: str) -> str:
+    """``line`` cut to :data:`WIDTH` columns, ``…`` marking the cut (``--long`` prints it whole)."""
+    return line if len(line) <= WIDTH else line[:WIDTH - 1] + "…"
+
+
+def _night_line(n: dict, long: bool = True) -> str:
+    """The night's line: with ``long`` every lamp by name and the night's cause (it names every
+    heliostat not measured), else the lamps counted and no cause (the passes' lines give it)."""
     head = f"night {n['index']}: {n['name']} ({n['kind']}), {n['status']}"
     if n["kind"] == "planned" and n["planned"] is not None:
-        head += f"; {n['measured']}/{n['planned']} geometries measured"
+        head += f"; {n['measured']}/{n['planned']} " + ("geometries measured" if long else "measured")
     if n["lamps"]:
-        head += f"; lamps {', '.join(n['lamps'])}"
+        head += f"; lamps {', '.join(n['lamps'])}" if long else \
+            f"; {len(n['lamps'])} lamp{'s' if len(n['lamps']) > 1 else ''}"
     p, t = n["daytime_error_predicted_mrad"], n["daytime_error_true_mrad"]
     if p and p.get("rms") is not None:
         head += f"; daytime RMS predicted {p['rms']:.2f} mrad"
         if t and t.get("rms") is not None:
-            head += f", true {t['rms']:.2f} (simulated plant)"
-    return head + (f" ({n['cause']})" if n["cause"] else "")
+            head += f", true {t['rms']:.2f}" + (" (simulated plant)" if long else "")
+    return head + (f" ({n['cause']})" if n["cause"] and long else "")
 
 
 def _campaign_line(r: dict, indent: str = "", name: str | None = None) -> str:

@@ -6,6 +6,9 @@ import argparse
 import json
 import math
 import os
+import signal
+import sys
+import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -186,3 +189,19 @@ def check_store_field(store, cfg, ids: list[str], args: argparse.Namespace) -> N
     if changes:
         print(f"heliocal: {ACCEPT}: {len(changes)} difference(s) accepted, e.g. {changes[0]}",
               file=sys.stderr)
+
+
+def stop_on_signals() -> threading.Event:
+    """An event that SIGINT and SIGTERM set: how a serving command (``sim …``) is told to stop,
+    so that it cleans up what it created rather than dying."""
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    return stop
+
+
+def serve_until(stop: threading.Event) -> None:
+    """Flush what the command printed (its ready line) and wait until ``stop`` is set."""
+    sys.stdout.flush()
+    while not stop.wait(0.2):
+        pass

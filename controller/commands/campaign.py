@@ -81,8 +81,10 @@ def register(subparsers) -> None:
     n.set_defaults(func=run_night_command)
     ls = sub.add_parser("list", help="the nights and campaigns recorded in a database",
                         description="One block per night (its passes grouped), then campaigns outside "
-                                    "any night: status and counts.")
+                                    "any night: status and counts, one line each within 120 columns.")
     ls.add_argument("--db", required=True, metavar="DB", help="campaign database (SQLite)")
+    ls.add_argument("--long", action="store_true",
+                    help="every detail, lines not cut: each night's lamps and cause, each campaign's cause")
     add_json_option(ls)
     ls.set_defaults(func=list_campaigns)
     fl = sub.add_parser("flags", help="geometries flagged after failing on two nights; clear them",

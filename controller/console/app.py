@@ -210,10 +210,15 @@ def create_app(console: Console, *, token: str | None = None) -> Starlette:
         raise InputError(f"unknown night action {action!r}; one of start, stop")
 
     def api_reports(request):
-        return {"campaigns": views.campaigns_json(c), "confusion": views.confusion_reports(c)}
+        return {"nights": views.nights_json(c), "campaigns": views.campaigns_json(c),
+                "confusion": views.confusion_reports(c)}
 
     def campaign_report(request):
         out = views.morning_report(c, int(request.path_params["cid"]))
+        return FileResponse(views.report_file(out, request.path_params.get("file") or "report.html"))
+
+    def night_report(request):
+        out = views.night_report(c, int(request.path_params["idx"]))
         return FileResponse(views.report_file(out, request.path_params.get("file") or "report.html"))
 
     def report_files(request):
@@ -248,6 +253,8 @@ def create_app(console: Console, *, token: str | None = None) -> Starlette:
         Route("/api/reports", get(api_reports)),
         Route("/reports/campaign/{cid:int}/", get(campaign_report)),
         Route("/reports/campaign/{cid:int}/{file:path}", get(campaign_report)),
+        Route("/reports/night/{idx:int}/", get(night_report)),
+        Route("/reports/night/{idx:int}/{file:path}", get(night_report)),
         Route("/reports/files/{file:path}", get(report_files)),
         Route("/api/events", events),
         *plant_routes(c, access, post, get, page),

@@ -7,8 +7,9 @@ from pydantic import BaseModel
 
 # The discriminator tags pydantic puts into error locations: right after the entry of a
 # discriminated union — a light source (after its list index), a heliostat's ``link``, the
-# ``lamps`` section. Elsewhere the same words are the user's keys ("lamp" is also a channel
-# name of lamps.channels, "command" a key of the command driver).
+# ``lamps`` section, a bus of ``field.buses`` (after its name). Elsewhere the same words are
+# the user's keys ("lamp" is also a channel name of lamps.channels, "command" a key of the
+# command driver).
 _TAGS = ("sun", "lamp", "serial", "modbus-tcp", "modbus-rtu", "command")
 
 
@@ -18,7 +19,8 @@ def key_path(loc: tuple) -> str:
     for k, part in enumerate(loc):
         if isinstance(part, int):
             out += f"[{part}]"
-        elif part in _TAGS and k > 0 and (isinstance(loc[k - 1], int) or loc[k - 1] in ("link", "lamps")):
+        elif part in _TAGS and k > 0 and (isinstance(loc[k - 1], int) or loc[k - 1] in ("link", "lamps")
+                                          or k > 1 and loc[k - 2] == "buses"):
             continue  # a discriminator tag pydantic inserts; not part of the user's key path
         else:
             out += ("." if out else "") + str(part)

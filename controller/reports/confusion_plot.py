@@ -33,4 +33,4 @@ def plot_confusion(matrix: np.ndarray, unknown: np.ndarray, labels: list[str], p
     ax.set_title(title)
     fig.colorbar(im, ax=ax, shrink=0.8, label="count")
     fig.tight_layout()
-    save_figure(fig, path, dpi=100)
+    save_figure(fig, path, dpi=100, bbox_inches="tight")

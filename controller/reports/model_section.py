@@ -155,11 +155,13 @@ def _geometry_plot(cfg: PlantConfig, ids: list[str], meas, models, out: Path) ->
                for key, c in colours.items()]
     fig.legend(handles=handles, loc="lower center", ncol=min(8, len(handles)), fontsize=8, frameon=False)
     fig.tight_layout(rect=(0, 0.05, 1, 1))
-    save_figure(fig, out / "geometries.png", dpi=90)
+    save_figure(fig, out / "geometries.png", dpi=90, bbox_inches="tight")
     return "Measured geometries", "geometries.png"
 
 
 def _daytime_plot(per: dict[str, float], nights: list[dict], out: Path) -> tuple[str, str]:
+    from matplotlib.ticker import MaxNLocator
+
     plt = pyplot()
 
     fig, axes = plt.subplots(1, 2 if nights else 1, figsize=(10 if nights else 5.5, 3.6), squeeze=False)
@@ -168,6 +170,7 @@ def _daytime_plot(per: dict[str, float], nights: list[dict], out: Path) -> tuple
     ax.hist(vals, bins=max(5, min(20, len(vals))), color="tab:blue", alpha=0.8)
     ax.set_xlabel("predicted daytime RMS per heliostat, mrad")
     ax.set_ylabel("heliostats")
+    ax.yaxis.set_major_locator(MaxNLocator(integer=True))  # counts of heliostats
     ax.set_title("Predicted open-loop daytime error", fontsize=10)
     if nights:
         ax = axes[0, 1]
@@ -181,5 +184,5 @@ def _daytime_plot(per: dict[str, float], nights: list[dict], out: Path) -> tuple
         ax.legend(loc="center left", bbox_to_anchor=(1.02, 0.5), fontsize=8)
         ax.set_title("Daytime error after each night", fontsize=10)
     fig.tight_layout()
-    save_figure(fig, out / "daytime.png", dpi=90)
+    save_figure(fig, out / "daytime.png", dpi=90, bbox_inches="tight")
     return "Daytime pointing", "daytime.png"

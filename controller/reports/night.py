@@ -13,8 +13,11 @@ field's models stand — readable at any field size.
   no measurement with their HIGH frame, and — for a field of at most :data:`TABLE_MAX`
   heliostats — every heliostat's row;
 * ``passes.png``: measured and planned geometries per lamp and target (bars);
-* ``field_map.png``: every heliostat at its position, coloured by predicted daytime RMS;
+* ``field_map.png``: every heliostat at its position, named, coloured by predicted daytime RMS;
 * ``distributions.png``: predicted daytime RMS and geometries measured per heliostat;
+* ``trend.png`` (from the second night on): night by night, the predicted daytime RMS and the
+  measured first-look error of the heliostats with the largest predicted error tonight (every
+  heliostat of a small field), with the field's predicted RMS;
 * ``thumbs/``: the worst heliostats' HIGH frames, scaled down;
 * ``heliostats.csv``: every heliostat's row.
 
@@ -33,7 +36,7 @@ from controller.calibration.records import NightRecord
 from controller.io.images import pyplot, save_figure, write_atomic
 from controller.reports.campaign import _inline, _write_csv, write_thumbnail
 from controller.reports.failures import failed_captures, flagged_lines
-from controller.reports.field_figures import distributions, field_map, thumbnails
+from controller.reports.field_figures import distributions, field_map, thumbnails, trend
 from controller.storage.db import CampaignStore
 from controller.storage.nights import NightBook
 
@@ -101,6 +104,9 @@ def write_night_report(store: CampaignStore, out_dir: str | Path, night: NightRe
     if field:
         figs += [("The field: predicted daytime error", field_map(field, out)),
                  ("Distributions", distributions(field, out))]
+        trend_png = trend(store, night.index, field, NightBook(store).nights(), out)
+        if trend_png:
+            figs.append(("Per-heliostat trend across nights", trend_png))
     for title, png in figs:
         lines += ["", f"## {title}", "", f"![{title}]({png})"]
     ids = [r["heliostat"] for r in field] if field else list(per_helio)
@@ -163,15 +169,25 @@ def _table(cols: list[str], rows: list[list[str]]) -> list[str]:
 
 
 def _bars(bars: dict[str, tuple[int, int]], out: Path) -> str:
+    """Measured over planned geometries per lamp and target, each bar labelled with its count.
+    Saved to the tight box of everything drawn, so no lamp or target name is cut."""
+    from matplotlib.ticker import MaxNLocator
+
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(7, 0.4 * len(bars) + 1.5))
     keys = list(bars)
-    ax.barh(keys, [bars[k][1] for k in keys], color="#dee2e6", label="planned")
+    planned = [bars[k][1] for k in keys]
+    ax.barh(keys, planned, color="#dee2e6", label="planned")
     ax.barh(keys, [bars[k][0] for k in keys], color="#2f9e44", label="measured")
+    for y, k in enumerate(keys):
+        ax.annotate(f"{bars[k][0]}/{bars[k][1]}", (planned[y], y), xytext=(4, 0), textcoords="offset points",
+                    va="center", fontsize=8)
+    ax.set_xlim(0, max(planned + [1]) * 1.15)  # room for the counts
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     ax.set_xlabel("geometries")
-    ax.legend(loc="lower right")
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)  # beside the bars, not on them
     ax.invert_yaxis()
-    save_figure(fig, out / "passes.png")
+    save_figure(fig, out / "passes.png", dpi=110, bbox_inches="tight")
     return "passes.png"
 
 

@@ -196,4 +196,4 @@ def _plot(path: Path, hel: list[dict]) -> None:
     b.set_xlabel("predicted daytime error, old model (mrad)")
     b.set_ylabel("new model (mrad)")
     fig.tight_layout()
-    save_figure(fig, path, dpi=100)
+    save_figure(fig, path, dpi=100, bbox_inches="tight")

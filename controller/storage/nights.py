@@ -164,6 +164,14 @@ class NightBook:
         return _night(db.execute("SELECT * FROM nights WHERE id=?", (night_id,)).fetchone(), self.store.path)
 
 
+def night_of(campaign: str, nights: list[str]) -> str | None:
+    """The night a campaign belongs to: the longest night name it is, or starts with followed by
+    ``/`` (a calibration night's campaign has the night's name; a planned night's passes are
+    ``<night>/<pass>``, and planned night ``<base>/night-k`` is named after night 0 ``<base>``)."""
+    mine = [n for n in nights if campaign == n or campaign.startswith(n + "/")]
+    return max(mine, key=len, default=None)
+
+
 def _night(row, path) -> NightRecord:
     """A ``nights`` row as its record; RecordError naming the database, table and row when a
     column was tampered with (an unknown kind or status, a summary that is not JSON)."""

@@ -93,6 +93,44 @@ def test_campaign_list_and_lookup_by_name(tmp_path):
     assert not (tmp_path / "rep").exists()
 
 
+def test_campaign_list_fits_120_columns_and_long_says_everything(tmp_path):
+    from controller.storage.nights import NightBook
+
+    db = tmp_path / "c.db"
+    lamps = [f"lamp-on-the-{k}th-mast-of-the-northern-field" for k in range(8)]
+    cause = "; ".join(f"H{k:03d}: BeamNotFound: beam spot clipped by the right edge of the camera view"
+                      for k in range(12))
+    with CampaignStore(db) as store:
+        book = NightBook(store)
+        night, _ = book.open_night("field-2026-11-28/night-1", "planned")
+        cid, _ = store.open_campaign("field-2026-11-28/night-1/lamp-on-the-0th-mast@tower-target",
+                                     queue=[f"H{k:03d}" for k in range(12)], **OPEN)
+        store.finish_campaign(cid, "partial", cause)
+        book.finish_night(night.id, "partial", cause, {
+            "planned": 24, "measured": 12, "lamps": [{"lamp": x, "confirmed": True} for x in lamps],
+            "daytime_error_predicted_mrad": {"rms": 0.61, "p95": 1.1}})
+
+    def listing(*extra):
+        r = subprocess.run([sys.executable, "-m", "controller.cli", "campaign", "list", "--db", str(db),
+                            *extra], cwd=REPO, capture_output=True, text=True)
+        assert r.returncode == 0, r.stderr
+        return r.stdout
+
+    short = listing().splitlines()
+    assert len(short) == 2 and max(len(line) for line in short) <= 120
+    assert short[0].startswith("night 0: field-2026-11-28/night-1 (planned), partial; 12/24 measured; "
+                               "8 lamps")
+    assert short[1].endswith("…") and "H000: BeamNotFound" in short[1]
+    full = listing("--long")
+    assert all(x in full for x in lamps) and cause in full and f"({cause})" in full.splitlines()[0]
+    data = json.loads(listing("--json"))
+    assert set(data) == {"nights", "campaigns"}
+    assert set(data["nights"][0]) == {"index", "name", "kind", "status", "cause", "started_utc",
+                                      "finished_utc", "planned", "measured", "lamps",
+                                      "daytime_error_predicted_mrad", "daytime_error_true_mrad", "campaigns"}
+    assert data["nights"][0]["lamps"] == lamps and data["campaigns"][0]["cause"] == cause
+
+
 @pytest.mark.parametrize("args, fragment", [
     (["--heliostats", ","], "--heliostats: no heliostat id"),
     (["--heliostats", "H01,H01"], "given twice"),

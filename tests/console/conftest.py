@@ -85,6 +85,7 @@ def console_server(tmp_path_factory):
     proc = ConsoleProcess(["--config", str(cfg), "--db", str(tmp / "c.db"), "--simulate", "--heliostats",
                            ",".join(IDS), "--port", "0", "--clock-speedup", SPEEDUP,
                            "--run-dir", str(tmp / "run")])
+    proc.db, proc.config = tmp / "c.db", cfg
     yield proc
     proc.stop()
 

@@ -3,7 +3,7 @@
 Run from the repository: ``python -m tests.console.make_screenshots [--out docs/img]``. Starts
 ``heliocal console --simulate`` on the demo plant (all its heliostats on the map, full-size
 camera), clicks through commissioning of one heliostat in headless Chromium, runs a 6-heliostat
-campaign from the campaign page and photographs each page.
+campaign and then a planned night of them from the campaign page and photographs each page.
 """
 
 from __future__ import annotations
@@ -86,6 +86,8 @@ def main() -> int:
             wait_text(d, "#camp-done", lambda t: t.startswith("2 /"), 120)
             shoot(d, out / "console-campaign.png", 0.0)
             wait_text(d, "#camp-status", lambda t: t not in ("running", ""), 240)
+            d.find_element("id", "night-start").click()
+            wait_text(d, "#night-status", lambda t: t in ("finished", "partial"), 900)
 
             d.get(f"{u}/field")
             wait_text(d, "#live", lambda t: t == "live", 30)
@@ -95,8 +97,8 @@ def main() -> int:
             wait_text(d, "#live", lambda t: t == "live", 30)
             shoot(d, out / "console-heliostat.png", 2.0)
             d.get(f"{u}/reports")
-            wait_text(d, "#camps tbody", lambda t: "demo-night" in t, 30)
-            shoot(d, out / "console-reports.png", 4.0)
+            wait_text(d, "#nights tbody", lambda t: "planned" in t, 30)
+            shoot(d, out / "console-reports.png", 6.0)
             with urllib.request.urlopen(f"{u}/api/campaign") as r:
                 print(json.dumps(json.loads(r.read())["outcome"]))
         finally:

@@ -266,6 +266,20 @@ def test_pages_and_reading_endpoints(plant_console):
     r = client.get(f"/reports/campaign/{console.store.campaign_by_name('api-abort').id}/report.html")
     assert r.status_code == 200 and "api-abort" in r.text
     assert client.get("/reports/campaign/1/../../etc/passwd").status_code in (400, 404)
+    nights = client.get("/api/reports").json()["nights"]
+    assert [n["index"] for n in nights] == list(range(len(nights))) and nights[0]["kind"] == "calibration"
+    r = client.get("/reports/night/0/report.html")
+    assert r.status_code == 200 and nights[0]["name"] in r.text
+    assert client.get(f"/reports/night/{len(nights)}/report.html").status_code == 400
+
+
+def test_model_sigma_is_never_one_figure_over_two_units():
+    from controller.calibration.records import ModelRecord
+    from controller.console.views import model_json
+
+    m = model_json(ModelRecord({}, {"az_offset_mrad": 0.4, "tilt_east_mrad": 0.9, "position_e_mm": 30.0,
+                                    "el_stroke0_mm": None}, 0.1, 5))
+    assert (m["sigma_max_mrad"], m["sigma_max_mm"]) == (0.9, 30.0)
 
 
 def test_event_bus_delivers_across_threads():

@@ -1,5 +1,7 @@
 """The console in a real browser (headless Chromium) against the simulated plant: click through
-commissioning, then watch a 3-heliostat campaign to its end."""
+commissioning, watch a 3-heliostat campaign to its end, then a planned night, and read it on
+the Reports page (the night's morning report) and a heliostat's page (its nights side by side,
+the beam image with that measurement's aim point)."""
 
 from __future__ import annotations
 
@@ -8,10 +10,19 @@ import urllib.request
 
 import cv2
 import numpy as np
+import pytest
 from selenium.webdriver.common.by import By
 from selenium.webdriver.support.ui import WebDriverWait
 
+from controller.config import load_config
+from controller.geometry.target_frame import TargetFrame
+from controller.storage.db import CampaignStore
+from controller.storage.trends import heliostat_trends
 from tests.conftest import scaled_s
+
+# The tests share one console and follow on from each other (commissioning, night 0, night 1):
+# one worker runs them, in order.
+pytestmark = pytest.mark.xdist_group("console-browser")
 
 
 def _text(driver, css: str) -> str:
@@ -109,3 +120,69 @@ def test_campaign_to_completion(console_server, browser):
     assert seen & {"slewing", "capturing", "settling", "verifying"}, f"no live state shown, saw {seen}"
     assert _text(d, "#holder") == "nobody"
     assert "ok" in _text(d, "#safety")
+
+
+def test_a_planned_night_on_the_reports_and_heliostat_pages(console_server, browser):
+    d = browser
+    d.get(f"{console_server.url}/campaign")
+    _wait(d, 20, lambda d: _text(d, "#live") == "live" and d.find_element(By.ID, "night-start").is_enabled(),
+          "the campaign page")
+    d.find_element(By.ID, "night-start").click()
+    _wait(d, 180, lambda d: _text(d, "#night-status") in ("finished", "partial"), "the end of the night")
+
+    # Reports: the nights, the latest shown first with its morning report and trend.
+    d.get(f"{console_server.url}/reports")
+    _wait(d, 20, lambda d: len(_texts(d, "#nights tbody tr")) == 2, "the two nights")
+    row = _texts(d, "#nights tbody tr")[0].split("\t")
+    assert row[0] == "1" and row[2] == "planned"
+    measured, planned = (int(v) for v in row[5].split(" / "))
+    assert 0 < measured <= planned
+    loaded = ("const f = document.getElementById('report').contentDocument; "
+              "return f && f.readyState === 'complete' && [...f.images].length > 0 && "
+              "[...f.images].every((i) => i.complete && i.naturalWidth > 0)")
+    _wait(d, 60, lambda d: d.execute_script(loaded), "the night's report with its figures")
+    d.switch_to.frame("report")
+    assert d.find_element(By.TAG_NAME, "h1").text.startswith("Morning report: night 1")
+    shown = {i.get_attribute("src").rsplit("/", 1)[-1] for i in d.find_elements(By.TAG_NAME, "img")}
+    assert {"passes.png", "field_map.png", "trend.png"} <= shown
+    d.switch_to.default_content()
+
+    # A heliostat's page: its nights, as the database has them, and the chart of them.
+    with CampaignStore(console_server.db, readonly=True) as store:
+        trends = heliostat_trends(store, ["H02", "H08", "H14"])
+        last = {}
+        for hid in trends:
+            ms = [m for m in store.measurements(heliostat_id=hid) if len(store.images(m.id)) >= 2]
+            last[hid] = (ms[-1], store.campaign(ms[-1].campaign_id).target)
+    d.get(f"{console_server.url}/heliostat/H02")
+    _wait(d, 20, lambda d: len(_texts(d, "#nights tbody tr")) == len(trends["H02"]), "the nights' table")
+    cells = [r.split("\t") for r in _texts(d, "#nights tbody tr")]
+    assert [c[0].split(" · ")[0] for c in cells] == ["0", "1"]
+    assert [c[3] for c in cells] == [f"{p['first_look_error_mrad']:.3f}" for p in trends["H02"]]
+    assert cells[1][4] == f"{trends['H02'][1]['predicted_rms_mrad']:.3f}"
+    points = d.execute_script(
+        "return [...document.querySelectorAll('#trend polyline')].map((p) => p.points.length)")
+    assert points == [2, 1]  # first looks on nights 0 and 1; a prediction from night 1 on
+
+    # The beam image marks the aim point of its measurement, not the target centre: the
+    # heliostat whose last stored measurement aimed farthest from the centre.
+    cfg = load_config(console_server.config)
+    far = max(last, key=lambda h: np.linalg.norm(np.subtract(last[h][0].aim_enu,
+                                                             cfg.target(last[h][1]).center_enu_m)))
+    m, tid = last[far]
+    cam = cfg.camera_of(tid)
+    frame = TargetFrame.from_config(cfg.target(tid), (cam.height_px, cam.width_px))
+    # The pixel whose centre is the aim point (TargetFrame.pixel_to_enu is linear in x and y).
+    o = frame.pixel_to_enu(0, 0)
+    ex, ey = frame.pixel_to_enu(1, 0) - o, frame.pixel_to_enu(0, 1) - o
+    d_aim = np.asarray(m.aim_enu) - o
+    ax, ay = d_aim @ ex / (ex @ ex), d_aim @ ey / (ey @ ey)
+    off = np.hypot(ax - (frame.shape[1] - 1) / 2, ay - (frame.shape[0] - 1) / 2)
+    assert off > 10, "no measurement aimed off the centre"
+    url = f"{console_server.url}/api/heliostats/{far}/image.png"
+    png = cv2.imdecode(np.frombuffer(urllib.request.urlopen(url).read(), np.uint8), cv2.IMREAD_COLOR)
+    k = png.shape[1] / frame.shape[1]
+    cyan = (png[..., 0] > 200) & (png[..., 1] > 200) & (png[..., 2] < 80)
+    ys, xs = np.nonzero(cyan)
+    assert len(xs) > 50, "no cyan aim mark"
+    assert abs(xs.mean() - (ax + 0.5) * k) < 3 and abs(ys.mean() - (ay + 0.5) * k) < 3

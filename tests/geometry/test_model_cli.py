@@ -183,9 +183,18 @@ def test_fit_names_a_bad_target(capsys, tmp_path):
     assert bad in msg and "'no_such_target'" in msg and "solar_tower_juelich_upper" in msg
 
 
-def test_fit_needs_the_utis_spot(capsys, tmp_path):
-    bad = _edited_record(tmp_path, lambda r: r["focal_spot"].pop("UTIS"))
-    assert "focal_spot.UTIS" in _fit_fails(capsys, tmp_path, [bad])
+def test_a_record_with_one_spot_method_is_fitted_with_it_and_said(capsys, tmp_path):
+    """A record with only HeliOS's spot takes HeliOS's and says so on stderr; a record with
+    neither method's spot is refused, naming both."""
+    helios = _edited_record(tmp_path, lambda r: r["focal_spot"].pop("UTIS"))
+    out = tmp_path / "m.json"
+    code = main(["model", "fit", helios, *RECORDS[1:], "--heliostat-properties", PROPS, "--towers", TOWERS,
+                 "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 0 and "no UTIS spot; HeliOS's used" in err and "edited-record.json" in err
+    neither = _edited_record(tmp_path, lambda r: r.pop("focal_spot") and r.update(focal_spot={}))
+    assert "focal_spot.UTIS" in _fit_fails(capsys, tmp_path, [neither]) and "HeliOS" in _fit_fails(
+        capsys, tmp_path, [neither])
 
 
 def test_fit_names_a_bad_properties_key(capsys, tmp_path):

@@ -262,7 +262,7 @@ def test_a_properties_file_that_leaves_the_actuator_triangle_is_imported_with_a_
     assert [x.id for x in cfg.heliostats] == ["BH58"]
     code, out, err = run_cli(["aim", "--config", str(tmp_path / "f.config.yaml"), "--db", str(db),
                               "--heliostat", "BH58", "--sun-az", "150", "--sun-el", "40", "--json"])
-    if code == 0:
+    if code in (0, 5):  # 5: no model yet, the nominal kinematics' steps (said on stderr)
         assert az.soft_limits.min_steps <= json.loads(out)["az_steps"] <= az.soft_limits.max_steps
     else:
         assert code == 2 and len(err.strip().splitlines()) == 1 and "Traceback" not in err

@@ -1,7 +1,8 @@
-"""``heliocal sim {firmware,errorset}``: the embedded simulated plant's pieces."""
+"""``heliocal sim {plant,firmware,lamp-panel,errorset}``: the simulated plant, whole on real
+transports or in pieces."""
 
 from controller.commands._groups import register_group
 
 
 def register(subparsers) -> None:
-    register_group(subparsers, __name__, "run pieces of the simulated plant")
+    register_group(subparsers, __name__, "run the simulated plant on real transports, whole or in pieces")

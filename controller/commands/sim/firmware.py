@@ -14,13 +14,16 @@ the symlink PATH. Each unit's axes come from the configuration by the rule of
 
 from __future__ import annotations
 
-import signal
-import sys
-import threading
 import time
 from types import SimpleNamespace
 
-from controller.commands._common import DEFAULT_CONFIG, add_json_option, print_json
+from controller.commands._common import (
+    DEFAULT_CONFIG,
+    add_json_option,
+    print_json,
+    serve_until,
+    stop_on_signals,
+)
 from controller.commands._links import (
     add_link_options,
     heliostat_for,
@@ -82,9 +85,7 @@ def run(args) -> int:
     if args.modbus_tcp:
         host_port(args.modbus_tcp)  # validate before building anything
     controllers = build_controllers(plant, args, units, args.speedup)
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+    stop = stop_on_signals()
     if args.serial:
         from simplant.firmware.serial import SerialSimFirmware
 
@@ -119,9 +120,7 @@ def run(args) -> int:
             print(f"serving units {','.join(map(str, units))} on {ready['link']}"
                   + (f" ({ready['device']})" if "device" in ready else "")
                   + "; stop with Ctrl-C or SIGTERM")
-        sys.stdout.flush()
-        while not stop.wait(0.2):
-            pass
+        serve_until(stop)
     finally:
         server.stop()
     return 0
