@@ -1,4 +1,5 @@
-# Every target installs the Debian packages it uses (.ci/system-packages, as root), creates
+# Every target installs the Debian packages it uses (.ci/system-packages, as root) and the npm
+# packages of the tests (.ci/node-packages: the independent OPC UA client), creates
 # .venv on first use and installs the project (editable, with its test and gige extras). The
 # stamp file makes re-runs quiet and fast; it is rebuilt when pyproject.toml changes.
 PYTHON ?= python3
@@ -8,8 +9,9 @@ STAMP := $(VENV)/.installed
 
 .PHONY: demo test bench lint clean
 
-$(STAMP): pyproject.toml .ci/system-packages
+$(STAMP): pyproject.toml .ci/system-packages .ci/node-packages tests/plant/node_client/package-lock.json
 	@bash .ci/system-packages
+	@bash .ci/node-packages
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	@$(BIN)/python -m pip install -q --disable-pip-version-check --upgrade pip
 	@$(BIN)/python -m pip install -q --disable-pip-version-check -e '.[test]'

@@ -22,6 +22,7 @@ from typing import Annotated, Literal
 
 from pydantic import Field, ValidationError, field_validator, model_validator
 
+from controller.alarm_config import AlarmLimits
 from controller.axis_config import Axes, AxisConfig, SoftLimits  # noqa: F401 - the axes section
 from controller.camera_config import Camera, Gige, Sensor  # noqa: F401 - the camera section
 from controller.config_rules import Direction, Position, PriorSigma, Section
@@ -216,6 +217,7 @@ class PlantConfig(_Model):
     person_zones: tuple[PersonZone, ...] = ()
     lamps: Lamps | None = Field(default=None, description="the lamp panel (docs/lamps.md); None: "
                                 "lamps are switched by hand or by the simulator")
+    alarms: AlarmLimits = Field(default_factory=AlarmLimits, description="limits that raise alarms")
 
     @model_validator(mode="after")
     def _references(self) -> PlantConfig:

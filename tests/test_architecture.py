@@ -21,7 +21,8 @@ PRODUCT = ("controller", "firmware_proto")
 # Imported by every layer: the error types and the validated plant configuration (data only).
 FOUNDATION = {"controller", "controller.errors", "controller.config", "controller.axis_config",
               "controller.camera_config", "controller.link_config", "controller.lamp_config",
-              "controller.config_rules", "controller.heliostat_config", "controller.field_file"}
+              "controller.config_rules", "controller.heliostat_config", "controller.field_file",
+              "controller.alarm_config"}
 
 LAYERS: dict[str, set[str]] = {
     "wire": {"firmware_proto"},
@@ -29,9 +30,9 @@ LAYERS: dict[str, set[str]] = {
     "devices": {"controller.devices"},
     "domain": {"controller.geometry", "controller.imaging", "controller.flux", "controller.recognition"},
     "domain-io": set(),  # modules named *_io inside a domain package: their file handling
-    "orchestration": {"controller.calibration"},
+    "orchestration": {"controller.calibration", "controller.alarms"},
     "interfaces": {"controller.commands", "controller.reports", "controller.storage", "controller.console",
-                   "controller.cli"},
+                   "controller.opcua", "controller.hfcs", "controller.cli"},
 }
 
 # Which layers each layer may import (besides FOUNDATION and itself).

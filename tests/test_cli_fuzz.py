@@ -110,7 +110,21 @@ TABLE: dict[str, list[Entry]] = {
                    {"config": Slot("--config", YAML, "config")}, {"--out": OUTPUTS})],
     "export": [Entry("export --db {db} --format paint --out {out}/e --config {config}",
                      {"db": Slot("--db", DB, "db"), "config": Slot("--config", YAML, "config")},
-                     {"--out": OUTPUTS, "--campaign": "a campaign name"})],
+                     {"--out": OUTPUTS, "--campaign": "a campaign name", "--day": "a date",
+                      "--heliostats": "heliostat ids"}),
+               Entry("export tracking-table --config {config} --db {db} --day 2026-06-21 --out {out}/t.csv",
+                     {"db": Slot("--db", DB, "db"), "config": Slot("--config", YAML, "config")})],
+    # The plant-integration commands open the database as a writer: an empty file is a new one.
+    "alarms": [Entry("alarms list --db {db}", {"db": Slot("--db", DB, "db", NEW_DB)},
+                     {"ID": "an alarm's number", "--for": "a duration", "--comment": "a comment"})],
+    "audit": [Entry("audit --db {db}", {"db": Slot("--db", DB, "db", NEW_DB)}, {"--since": "a time"})],
+    "users": [Entry("users list --db {db}", {"db": Slot("--db", DB, "db", NEW_DB)},
+                    {"NAME": "an account name"}),
+              Entry("users add fuzz --role viewer --password-file {pw} --db {v[db]}",
+                    {"pw": Slot("--password-file", TEXT, "token")})],
+    "opcua": [Entry("opcua --config {config} --db {db} --endpoint opc.tcp://127.0.0.1:1/heliocal",
+                    {"config": Slot("--config", YAML, "config"), "db": Slot("--db", DB, "db", NEW_DB)},
+                    {"--endpoint": "an address", "--heliostats": "heliostat ids", "--pki": OUTPUTS})],
     "flux": [
         Entry("flux {rx} --sun {sun} --ambient {amb} --dni 900 --reflectivity 0.9 --crf {crf} "
               "--out {out}/f.npy --png {out}/f.png",

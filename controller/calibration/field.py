@@ -12,7 +12,10 @@ is simulated.
   operator when no panel is configured;
 * ``store`` / ``images``: the record store and the frame archive (handed in by the interface layer);
 * ``time``: plant time (:class:`controller.devices.plant_time.PlantTime`);
-* ``library``: the error library the beam chain matches against (None: no recognition).
+* ``library``: the error library the beam chain matches against (None: no recognition);
+* ``alarms`` / ``audit``: the plant's alarm list and audit trail (handed in by the interface
+  layer, :mod:`controller.alarms.sink`): a lamp that does not confirm raises its alarm, every
+  lamp switched and every model changed is recorded.
 """
 
 from __future__ import annotations
@@ -22,6 +25,9 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
+from controller.alarms.conditions import LAMP_NOT_DARK, LAMP_NOT_LIT
+from controller.alarms.lamps import lamp_alarms
+from controller.alarms.sink import NO_ALARMS, NO_AUDIT, AlarmSink, AuditSink
 from controller.calibration.records import ModelRecord
 from controller.config import PlantConfig
 from controller.devices.drive import Drive, DriveLimits
@@ -99,6 +105,8 @@ class Field:
     library: Any = None
     meta: dict = field(default_factory=dict)
     label: str = "field"
+    alarms: AlarmSink = NO_ALARMS
+    audit: AuditSink = NO_AUDIT
     _drives: dict[str, Drive] = field(default_factory=dict, repr=False)
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
 
@@ -134,14 +142,22 @@ class Field:
         confirmed lit, else LampError naming it) or, without one, by asking the operator
         (``ask_operator(lamp)``, a campaign observer's ``light_source_needed``)."""
         if self.lamps is not None:
-            return self.lamps.light_only(lamp)
+            with lamp_alarms(self.alarms):
+                lit = self.lamps.light_only(lamp)
+            self.alarms.clear_alarm(LAMP_NOT_LIT, lamp)
+            self.audit.record("lamp.on", lamp, "every other lamp confirmed dark, this one lit")
+            return lit
         ask_operator(lamp)
         return LampLit(lamp, False, "operator", self.time.utc())
 
     def lights_out(self, ask_operator: Callable[[], None] | None = None) -> None:
-        """Every lamp off (confirmed by the panel), or the operator asked to switch them off."""
+        """Every lamp off (confirmed by the panel: a lamp that is not raises its alarm), or the
+        operator asked to switch them off."""
         if self.lamps is not None:
-            self.lamps.lights_out()
+            with lamp_alarms(self.alarms):
+                self.lamps.lights_out()
+            self.alarms.clear_alarm(LAMP_NOT_DARK)
+            self.audit.record("lamps.off", "all", "every lamp confirmed dark")
         elif ask_operator is not None:
             ask_operator()
 

@@ -5,8 +5,9 @@ operator interrupted it, an exception stopped it — :func:`lights_out_at_end` s
 channel of the field's lamp panel off (fiducials too), waits for each to confirm dark and reads
 every channel back. Each channel's end state goes into the store (``lamp_states``, through
 :class:`LampBook`), a lamp not confirmed dark is told to every observer
-(:meth:`controller.calibration.observers.CampaignObserver.lamp_not_dark`, where an alarm list
-raises it) and then stops the command with one line naming it (:class:`LampNotDark`, exit 1).
+(:meth:`controller.calibration.observers.CampaignObserver.lamp_not_dark`) and raised as the
+alarm ``lamp_not_dark`` on the field's alarm list (:func:`controller.alarms.lamps.lights_out_alarms`),
+then stops the command with one line naming it (:class:`LampNotDark`, exit 1).
 Nothing about it is silent.
 
 A field without a lamp panel cannot confirm anything: its operator is asked to switch the
@@ -18,6 +19,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable
 from typing import Protocol
 
+from controller.alarms.lamps import lights_out_alarms
 from controller.calibration.field import Field, LampEnd
 from controller.calibration.observers import CampaignObserver
 from controller.devices.lamp_panel import LampError
@@ -49,6 +51,7 @@ def lights_out_at_end(plant: Field, book: LampBook, session: str, ended: str, ob
     else:
         ends = _panel_ends(plant)
     book.record_lamp_states(session, ended, ends)
+    lights_out_alarms(plant.alarms, plant.audit, session, ends)
     bad = [e for e in ends if e.state in ("lit", "no_answer")]
     for e in bad:
         observer.lamp_not_dark(session, e)

@@ -27,6 +27,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
+from controller.alarms.watch import night_ended
 from controller.calibration.daytime import DaytimeTally, predicted_daytime, sun_path
 from controller.calibration.field import Field, LampEnd
 from controller.calibration.lamp_change import LampChange, LampChangeError, LampChanger, Standby
@@ -65,8 +66,9 @@ def calibration_night(book: NightStore, campaign: Campaign) -> CampaignResult:
     new field, the next index otherwise; its record says how it ended. However it ends, every
     lamp is switched off and confirmed dark, and recorded (:mod:`controller.calibration.lights_out`)."""
     name = campaign.opt.name
-    rec, _ = book.open_night(name, "calibration")
+    rec, resumed = book.open_night(name, "calibration")
     plant = campaign.field
+    plant.audit.record("night.resume" if resumed else "night.start", name, "calibration campaign")
     book.record_field(plant.cfg, campaign.ids, plant.config_path, plant.config_sha256)
 
     def lights_out(ended: str) -> list[LampEnd]:
@@ -80,6 +82,7 @@ def calibration_night(book: NightStore, campaign: Campaign) -> CampaignResult:
         ends = lights_out(status)
         book.finish_night(rec.id, status, _with_lamps(cause, name, ends),
                           {"lights_out": [e.to_json() for e in ends]})
+        plant.audit.record("night.end", name, status + (f": {cause}" if cause else ""))
         require_dark(name, ends, after=exc)
         raise
     ends = lights_out(r.status)
@@ -87,6 +90,7 @@ def calibration_night(book: NightStore, campaign: Campaign) -> CampaignResult:
     book.finish_night(rec.id, r.status, _with_lamps(r.cause, name, ends),
                       {"campaign": r.name, "status": r.status, "lamps": lamps,
                        "lights_out": [e.to_json() for e in ends]})
+    plant.audit.record("night.end", name, r.status + (f": {r.cause}" if r.cause else ""))
     require_dark(name, ends)
     return r
 
@@ -211,8 +215,10 @@ class PlannedNight:
 
     # -- the night -------------------------------------------------------------------------------
     def run(self) -> NightSummary:
-        rec, _ = self.book.open_night(self.name, "planned")
+        rec, resumed = self.book.open_night(self.name, "planned")
         f = self.field
+        f.audit.record("night.resume" if resumed else "night.start", self.name,
+                       f"{len(self.ids)} heliostat(s)")
         self.book.record_field(f.cfg, self.ids, f.config_path, f.config_sha256)  # what the models rest on
         results: list[CampaignResult] = []
         first: list[str] = []
@@ -355,6 +361,7 @@ class PlannedNight:
                          [c.to_json() for c in self.changes], self.unmeasurable, [e.to_json() for e in ends],
                          self.book.flagged(self.ids))
         self.book.finish_night(rec.id, status, cause, s.to_json())
+        night_ended(self.field, self.name, status, cause, now.per_heliostat, self.ids)
         self.progress(f"{self.name}: {status}; {measured}/{len(self.plan)} geometries measured; "
                       "field predicted "
                       f"daytime RMS {s.daytime_error_predicted_mrad['rms']:.2f} mrad")

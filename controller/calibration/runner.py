@@ -35,6 +35,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from typing import Any, Protocol
 
+from controller.alarms.watch import FieldWatch
 from controller.calibration.beam_chain import BeamChain
 from controller.calibration.beams import beams_allowed
 from controller.calibration.context import CycleContext, CycleObserver
@@ -137,7 +138,8 @@ class Campaign:
         for hid in self.ids:
             cfg.heliostat(hid)  # ConfigError naming an unknown id
         self.meta = {**plant.meta, **(meta or {})}
-        self.observer = Observers([_StateTable(self), *observers])
+        watch = FieldWatch(plant.alarms, plant.audit, plant.cfg.alarms, opt.target, opt.name, plant.models)
+        self.observer = Observers([_StateTable(self), watch, *observers])
         self.chain = BeamChain(cfg, plant.library)
         self._camera_lock = threading.Lock()
         self.states: dict[str, str] = {}

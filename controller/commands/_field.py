@@ -16,10 +16,13 @@ from pathlib import Path
 from typing import Any
 
 from controller.calibration.field import Field, PanelLamps
+from controller.commands._plant import cli_user
 from controller.config import PlantConfig, config_sha256
 from controller.devices.factory import LinkPool, open_camera
 from controller.devices.plant_time import PlantTime
 from controller.errors import InputError
+from controller.storage.alarms import AlarmBook
+from controller.storage.audit import AuditTrail
 from controller.storage.db import CampaignStore
 from controller.storage.images import ImageArchive
 from controller.storage.nights import NightBook
@@ -70,8 +73,8 @@ def real_field(cfg: PlantConfig, config_path: str, store: CampaignStore, *,
             lamps = PanelLamps.open(cfg.lamps, time)
             stack.callback(lamps.close)
         images = ImageArchive(Path(store.path).parent / "images")
-        yield FieldSession(Field(cfg, str(config_path), config_sha256(config_path), store, pool, cameras,
-                                 time, lamps, images, lib), NightBook(store))
+        yield FieldSession(plant_records(Field(cfg, str(config_path), config_sha256(config_path), store, pool,
+                                               cameras, time, lamps, images, lib)), NightBook(store))
 
 
 def _target_camera(cfg: PlantConfig, target: str):
@@ -116,7 +119,16 @@ def plant_field(plant, config_path: str | Path, store, pool, *, library=None, im
     clock = plant.clock
     time = PlantTime(now=clock, sleep=clock.sleep, utc=plant.utc, computing=clock.realtime)
     s = plant.settings
-    return Field(plant.config, str(config_path), config_sha256(config_path), store, pool, plant.cameras, time,
-                 PanelLamps.open(plant.config.lamps, time), images, library,
-                 meta={"plant": "simulated", "seed": plant.seed, "clock_speedup": s.clock_speedup},
-                 label="simulated plant")
+    meta = {"plant": "simulated", "seed": plant.seed, "clock_speedup": s.clock_speedup}
+    lamps = PanelLamps.open(plant.config.lamps, time)
+    field = Field(plant.config, str(config_path), config_sha256(config_path), store, pool, plant.cameras,
+                  time, lamps, images, library, meta=meta, label="simulated plant")
+    return plant_records(field)
+
+
+def plant_records(field: Field) -> Field:
+    """``field`` with its store's alarm list and audit trail (recording as the shell's user; the
+    console and the OPC UA server record as the account that asked)."""
+    field.alarms = AlarmBook(field.store)
+    field.audit = AuditTrail(field.store, cli_user())
+    return field

@@ -4,13 +4,14 @@ Security model (docs/console.md): nothing changes state on GET; every state-chan
 is a POST with a JSON body (``Content-Type: application/json``, so a form on another web site
 cannot send one without a CORS preflight, which this app never grants) and, when it carries an
 ``Origin``, from this console's own origin. With a token (always when the console listens on an
-address other than loopback) every POST must carry ``X-Heliocal-Token``, compared with
-:func:`hmac.compare_digest`; otherwise 401 and nothing is done.
+address other than loopback) or operator accounts, every POST must carry ``X-Heliocal-Token``:
+the token (the service account) or a signed-in account's session
+(:mod:`controller.console.access`); otherwise 401 and nothing is done. The account's role must
+allow the request (403 otherwise), and every state change is audited with its name.
 """
 
 from __future__ import annotations
 
-import hmac
 from pathlib import Path
 from urllib.parse import urlsplit
 
@@ -23,15 +24,19 @@ from starlette.staticfiles import StaticFiles
 
 from controller.calibration.beam_safety import UnsafePath
 from controller.console import views
+from controller.console.access import ConsoleAccess
 from controller.console.backend import Conflict, Console
 from controller.console.campaigns import CampaignControl
 from controller.console.events import plain
 from controller.console.nights import NightControl
+from controller.console.plant_routes import audited, plant_routes
 from controller.console.steps import STEPS, run_step
 from controller.devices.drive import DriveError, LinkError, NakError
 from controller.errors import HeliocalError, InputError, LimitError
 from controller.io.json_files import parse_json
+from controller.storage.audit import AuditTrail
 from controller.storage.lock import DatabaseBusy
+from controller.storage.users import AccessDenied, require
 
 STATIC = Path(__file__).resolve().parent / "static"
 TOKEN_HEADER = "X-Heliocal-Token"
@@ -46,7 +51,9 @@ def error_response(exc: HeliocalError) -> JSONResponse:
     """A controller error as JSON ``{"ok": false, "error", "kind", "outcome"}`` with its HTTP
     status: 400 bad input or soft limits (nothing sent), 409 conflicts (campaign running,
     target held, database in use, unsafe path) and firmware refusals (NAK), 502 device failures."""
-    if isinstance(exc, (Conflict, DatabaseBusy, UnsafePath)):
+    if isinstance(exc, AccessDenied):
+        status, kind = 403, "forbidden"
+    elif isinstance(exc, (Conflict, DatabaseBusy, UnsafePath)):
         status, kind = 409, "conflict"
     elif isinstance(exc, NakError):  # before LimitError: a Modbus out-of-range refusal is both
         status, kind = 409, "firmware_refused"
@@ -93,13 +100,17 @@ def create_app(console: Console, *, token: str | None = None) -> Starlette:
     if console.night is None:
         console.night = NightControl(console)
     c = console
+    access = ConsoleAccess(c.store, token)
 
-    async def guard(request: Request) -> dict:
-        """The checks of every state-changing request; returns its JSON body."""
-        if token is not None:
-            sent = request.headers.get(TOKEN_HEADER, "")
-            if not hmac.compare_digest(sent.encode(), token.encode()):
-                raise _Refused(401, f"missing or wrong {TOKEN_HEADER} header")
+    async def guard(request: Request, signed_in: bool = True) -> dict:
+        """The checks of every state-changing request; returns its JSON body (the account in
+        ``request.state.who``)."""
+        if signed_in:
+            who = await run_in_threadpool(access.who, request.headers.get(TOKEN_HEADER, ""))
+            if who is None:
+                raise _Refused(401, f"missing or wrong {TOKEN_HEADER} header: sign in, or send the console's "
+                                    "token")
+            request.state.who = who
         origin = request.headers.get("origin")
         if origin and urlsplit(origin).netloc != request.headers.get("host", ""):
             raise _Refused(403, f"cross-origin request from {origin} refused")
@@ -110,14 +121,24 @@ def create_app(console: Console, *, token: str | None = None) -> Starlette:
             raise _Refused(400, "the request body must be a JSON object")
         return body
 
-    def post(handler):
+    def post(handler, needed: str | None = "operator", signed_in: bool = True):
+        """A POST endpoint: ``guard``, then the account's role must allow ``needed``, then the
+        handler; its action is audited (:func:`controller.console.plant_routes.audited`)."""
         async def endpoint(request: Request) -> Response:
             try:
-                body = await guard(request)
+                body = await guard(request, signed_in)
             except _Refused as r:
                 return _json({"ok": False, "error": r.message, "kind": "refused"}, r.status)
+
+            def act():
+                if needed is not None:
+                    who = request.state.who
+                    require(who.name, who.role, _needed(request, needed), request.url.path)
+                out = handler(request, body)
+                audited(request, body, out, c.store)
+                return out
             try:
-                return _json(await run_in_threadpool(handler, request, body))
+                return _json(await run_in_threadpool(act))
             except HeliocalError as exc:
                 return error_response(exc)
         return endpoint
@@ -139,7 +160,8 @@ def create_app(console: Console, *, token: str | None = None) -> Starlette:
 
     # -- API -----------------------------------------------------------------------------------------
     def api_plant(request):
-        return {**views.plant_json(c), "token_required": token is not None, "steps": list(STEPS)}
+        return {**views.plant_json(c), "token_required": token is not None, "steps": list(STEPS),
+                "accounts": access.accounts_exist()}
 
     def api_heliostats(request):
         return {"heliostats": views.heliostat_summaries(c, c.ids)}
@@ -163,6 +185,7 @@ def create_app(console: Console, *, token: str | None = None) -> Starlette:
         if action == "start":
             from controller.commands.campaign import default_name
 
+            c.field.audit = AuditTrail(c.store, request.state.who.name)  # the runs' model changes
             ids = body.get("heliostats")
             if ids is not None and not (isinstance(ids, list) and all(isinstance(i, str) for i in ids)):
                 raise InputError("heliostats must be a list of heliostat ids")
@@ -177,6 +200,7 @@ def create_app(console: Console, *, token: str | None = None) -> Starlette:
     def api_night_action(request, body):
         action = request.path_params["action"]
         if action == "start":
+            c.field.audit = AuditTrail(c.store, request.state.who.name)  # the night's lamps, models, end
             ids = body.get("heliostats")
             if ids is not None and not (isinstance(ids, list) and all(isinstance(i, str) for i in ids)):
                 raise InputError("heliostats must be a list of heliostat ids")
@@ -233,9 +257,15 @@ def create_app(console: Console, *, token: str | None = None) -> Starlette:
         Route("/reports/night/{idx:int}/{file:path}", get(night_report)),
         Route("/reports/files/{file:path}", get(report_files)),
         Route("/api/events", events),
+        *plant_routes(c, access, post, get, page),
         Mount("/static", StaticFiles(directory=STATIC), name="static"),
     ]
     return Starlette(routes=routes)
+
+
+def _needed(request: Request, default: str) -> str:
+    """The role a POST needs: recording a reference case changes the error library (engineer)."""
+    return "engineer" if request.path_params.get("step") == "record" else default
 
 
 class _Refused(Exception):

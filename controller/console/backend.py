@@ -24,12 +24,14 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
+from controller.alarms.conditions import DRIVE_LINK_DOWN
 from controller.calibration.commissioning import Commissioning
 from controller.calibration.field import Field
 from controller.console.events import EventBus
 from controller.devices.drive import Drive, DriveError, DriveLimits, DriveStatus
 from controller.devices.lamp_panel import fiducial_hook
 from controller.errors import HeliocalError, InputError
+from controller.storage.alarms import AlarmBook
 
 STATUS_POLL_S = 0.1  # wall seconds between two status readings of every drive
 
@@ -109,6 +111,7 @@ class Console:
         self._claim = threading.Lock()  # target claim + campaign lock decisions
         self._stop = threading.Event()
         self._poller: threading.Thread | None = None
+        self.alarms = AlarmBook(self.store)
         self.campaign = None  # controller.console.campaigns.CampaignControl, set by the app
         self.night = None  # controller.console.nights.NightControl, set by the app
 
@@ -152,6 +155,11 @@ class Console:
         self.bus.close()
         return done
 
+    @property
+    def closing(self) -> threading.Event:
+        """Set when the console shuts down (background threads end)."""
+        return self._stop
+
     def commands_running(self) -> bool:
         return any(lock.locked() for lock in self._busy.values())
 
@@ -174,10 +182,15 @@ class Console:
             changed = h.failures == 0
             h.failures += 1
             h.last_error = str(exc)
+            if h.failures == self.cfg.alarms.link_failures:
+                self.alarms.raise_alarm(DRIVE_LINK_DOWN, hid,
+                                        f"{hid}: {h.failures} status readings failed in a row: {exc}")
             if changed:
                 self.bus.publish("drive", {"heliostat": hid, "status": self.status[hid], "link": h.to_json()})
             return None
         was_failing = h.failures > 0
+        if h.failures >= self.cfg.alarms.link_failures:
+            self.alarms.clear_alarm(DRIVE_LINK_DOWN, hid)
         h.failures, h.last_ok = 0, time.monotonic()
         if st != self.status[hid] or was_failing:
             self.status[hid] = st

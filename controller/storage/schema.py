@@ -259,6 +259,52 @@ MIGRATIONS: tuple[str, ...] = (
     );
     CREATE INDEX run_frames_run ON run_frames(run_id);
     """,
+    # Plant integration (docs/plant-integration.md): the alarm list (one row per condition and
+    # source, its ISA-18.2 state) and its history (never rewritten), the operator accounts (scrypt
+    # password hashes, roles) and the audit trail of who did what.
+    """
+    CREATE TABLE alarms (
+        id INTEGER PRIMARY KEY,
+        condition TEXT NOT NULL,
+        source TEXT NOT NULL,
+        message TEXT NOT NULL,
+        active INTEGER NOT NULL,
+        acked INTEGER NOT NULL,
+        raised_utc TEXT NOT NULL,
+        count INTEGER NOT NULL DEFAULT 1,
+        cleared_utc TEXT,
+        acked_utc TEXT,
+        acked_by TEXT,
+        ack_comment TEXT,
+        shelved_until_utc TEXT,
+        shelved_by TEXT,
+        UNIQUE (condition, source)
+    );
+    CREATE TABLE alarm_events (
+        id INTEGER PRIMARY KEY,
+        alarm_id INTEGER NOT NULL REFERENCES alarms(id),
+        time_utc TEXT NOT NULL,
+        kind TEXT NOT NULL CHECK (kind IN ('raised', 'cleared', 'acknowledged', 'shelved', 'unshelved')),
+        user TEXT,
+        message TEXT NOT NULL
+    );
+    CREATE INDEX alarm_events_alarm ON alarm_events(alarm_id, id);
+    CREATE TABLE users (
+        name TEXT PRIMARY KEY,
+        role TEXT NOT NULL CHECK (role IN ('viewer', 'operator', 'engineer')),
+        password_hash TEXT NOT NULL,
+        created_utc TEXT NOT NULL
+    );
+    CREATE TABLE audit (
+        id INTEGER PRIMARY KEY,
+        time_utc TEXT NOT NULL,
+        user TEXT NOT NULL,
+        action TEXT NOT NULL,
+        target TEXT NOT NULL DEFAULT '',
+        detail TEXT NOT NULL DEFAULT ''
+    );
+    CREATE INDEX audit_time ON audit(time_utc);
+    """,
 )
 
 SCHEMA_VERSION = len(MIGRATIONS)

@@ -9,12 +9,17 @@ HC.get = async (path) => {
   return data;
 };
 // Every state change is a POST with a JSON body (and the token when the console needs one).
+// With operator accounts the token is the signed-in account's session (the Sign-in page).
 HC.post = async (path, body) => {
   const headers = {"Content-Type": "application/json"};
-  if (HC.plant && HC.plant.token_required) {
-    if (!HC.token()) sessionStorage.setItem("heliocal-token", prompt("Console token (X-Heliocal-Token):") || "");
-    headers["X-Heliocal-Token"] = HC.token();
+  if (HC.plant && HC.plant.accounts && !HC.token() && path !== "/api/login") {
+    location.href = "/login?next=" + encodeURIComponent(location.pathname);
+    throw new Error("sign in first");
   }
+  if (HC.plant && HC.plant.token_required && !HC.plant.accounts && !HC.token()) {
+    sessionStorage.setItem("heliocal-token", prompt("Console token (X-Heliocal-Token):") || "");
+  }
+  if (HC.token()) headers["X-Heliocal-Token"] = HC.token();
   const r = await fetch(path, {method: "POST", headers, body: JSON.stringify(body || {})});
   const data = await r.json();
   if (r.status === 401) sessionStorage.removeItem("heliocal-token");
@@ -35,11 +40,41 @@ HC.faultPill = (st, link) => {
 HC.init = async (here) => {
   HC.plant = await HC.get("/api/plant");
   const nav = [["field", "/field", "Field"], ["commission", "/commission/" + HC.plant.heliostats[0].id, "Commission"],
-               ["campaign", "/campaign", "Campaign"], ["reports", "/reports", "Reports"]];
+               ["campaign", "/campaign", "Campaign"], ["reports", "/reports", "Reports"],
+               ["alarms", "/alarms", "Alarms"], ["audit", "/audit", "Audit"]];
   document.querySelector("header").innerHTML = `<b>heliocal console</b><nav>` +
     nav.map(([k, href, t]) => `<a href="${href}" class="${k === here ? "here" : ""}">${t}</a>`).join("") +
-    `</nav><span class="plant">${HC.esc(HC.plant.site)} · ${HC.esc(HC.plant.plant)}</span><span id="live">offline</span>`;
+    `</nav><span class="plant">${HC.esc(HC.plant.site)} · ${HC.esc(HC.plant.plant)}</span>` +
+    `<span id="who"></span><span id="live">offline</span>`;
+  document.querySelector("header").insertAdjacentHTML("afterend", '<div id="alarm-banner" style="display:none"></div>');
+  HC.whoami();
+  HC.banner();
   return HC.plant;
+};
+// Who is signed in (with accounts), and a way out.
+HC.whoami = async () => {
+  const headers = HC.token() ? {"X-Heliocal-Token": HC.token()} : {};
+  const r = await fetch("/api/whoami", {cache: "no-store", headers});
+  const w = await r.json();
+  const el = document.getElementById("who");
+  if (!w.accounts) return;
+  el.innerHTML = w.user ? `${HC.esc(w.user)} (${HC.esc(w.role)}) <a href="#" id="sign-out">sign out</a>`
+    : `<a href="/login?next=${encodeURIComponent(location.pathname)}">sign in</a>`;
+  const out = document.getElementById("sign-out");
+  if (out) out.onclick = async (ev) => { ev.preventDefault(); await HC.post("/api/logout").catch(() => null);
+    sessionStorage.removeItem("heliocal-token"); location.reload(); };
+};
+// The alarm banner on every page: the alarms not acknowledged and not shelved, most urgent first.
+HC.banner = async () => {
+  const el = document.getElementById("alarm-banner");
+  if (!el) return;
+  const data = await HC.get("/api/alarms");
+  const open = data.alarms.filter((a) => a.state === "unack_active" || a.state === "unack_rtn");
+  el.style.display = open.length ? "" : "none";
+  el.className = open.some((a) => a.priority === "high") ? "high" : "";
+  el.innerHTML = open.length ? `<b>${open.length} alarm${open.length > 1 ? "s" : ""} to acknowledge</b>: ` +
+    open.slice(0, 3).map((a) => `${HC.esc(a.priority)} ${HC.esc(a.condition)} ${HC.esc(a.source)}`).join("; ") +
+    (open.length > 3 ? " …" : "") + ` <a href="/alarms">alarm list</a>` : "";
 };
 // Server-sent events: handlers by event name; the indicator shows whether the stream is up.
 HC.listen = (handlers) => {
@@ -50,6 +85,7 @@ HC.listen = (handlers) => {
   for (const [name, fn] of Object.entries(handlers)) {
     if (name !== "open") es.addEventListener(name, (ev) => fn(JSON.parse(ev.data)));
   }
+  if (!handlers.alarms) es.addEventListener("alarms", () => HC.banner());
   return es;
 };
 // Coalesce bursts of events into one refresh per animation frame.
