@@ -21,8 +21,13 @@ $(STAMP): pyproject.toml .ci/system-packages .ci/node-packages tests/plant/node_
 		|| echo "make: PyGObject could not be built; the GigE Vision tests will skip and say why"
 	@touch $(STAMP)
 
+# heliocal demo exits 3 when one of its nights ended partial (a geometry not measured: the
+# table it prints says which); the demonstration itself ran to its end, so make says so and
+# succeeds. Any other failure fails make.
 demo: $(STAMP)
-	$(BIN)/heliocal demo --uncalibrated 12
+	@$(BIN)/heliocal demo --uncalibrated 12; rc=$$?; \
+	if [ $$rc -eq 3 ]; then echo "make demo: a night ended partial (heliocal demo exit 3; the table above says which)"; \
+	elif [ $$rc -ne 0 ]; then exit $$rc; fi
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q -n 2 --dist loadgroup
