@@ -68,7 +68,7 @@ def heliostat_rows(cfg: PlantConfig, hid: str, model: ModelRecord | None,
     """The table's rows of heliostat ``hid`` (``model``: its latest fitted model)."""
     kin = HeliostatKinematics.from_config(cfg.heliostat(hid))
     aim = np.asarray(cfg.target().center_enu_m, float)
-    tracking, cov = model_covariance(model, cfg.calibration.model.prior_sigma)
+    tracking, cov = model_covariance(model, cfg.calibration.model)
     for sun in suns:
         s = azel_to_vector(sun.azimuth_deg, sun.elevation_deg)
         try:

@@ -410,6 +410,8 @@ def test_the_lights_out_at_the_end_of_a_night_raises_a_lamp_left_lit_and_clears_
     sim, config, db, server = plant
     c, client = console
     lamp = sim.config.calibration.light_source
+    code, out, err = run_cli(["alarms", "--db", str(db), "--all", "--json"])
+    before = sum(a["count"] for a in json.loads(out) if a["condition"] == "lamp_not_dark")  # earlier tests'
     _light(config, lamp)
     sim.lamp_panel.stuck_lit.add(lamp)
     try:
@@ -424,4 +426,5 @@ def test_the_lights_out_at_the_end_of_a_night_raises_a_lamp_left_lit_and_clears_
     assert all(e.dark for e in ends)
     code, out, err = run_cli(["alarms", "--db", str(db), "--all", "--json"])
     (alarm,) = [a for a in json.loads(out) if a["condition"] == "lamp_not_dark"]
-    assert (alarm["state"], alarm["count"]) == ("unack_rtn", 2)  # back to normal, still to acknowledge
+    # Back to normal, still to acknowledge; counted once more than the earlier tests left it.
+    assert (alarm["state"], alarm["count"]) == ("unack_rtn", before + 1)

@@ -4,9 +4,9 @@ Contract (scripts depend on it)::
 
     heliocal model prior MODEL.json... --out PRIOR.json [--json]
 
-Each term's field mean and spread are the random-effects estimate over the heliostats whose fit
-identified it (each fit weighed by its own σ); a term fewer than three fits identified keeps the
-documented prior. ``heliocal model fit --prior PRIOR.json`` then fits a heliostat with a few
+Each term's field mean and spread are the mean and standard deviation of its value over the
+heliostats whose fit identified it; a term fewer than three fits identified keeps the documented
+prior. ``heliocal model fit --prior PRIOR.json`` then fits a heliostat with a few
 records against its field; ``calibration.model.field_prior`` gives it to the nights.
 """
 
@@ -41,9 +41,8 @@ def run(args: argparse.Namespace) -> int:
     if dup:
         raise InputError(f"model prior: more than one model of heliostat {', '.join(dup)}; give one each")
     values = np.array([f.model.values for f in files])
-    sigmas = np.array([np.sqrt(np.clip(np.diag(f.covariance), 0.0, None)) for f in files])
     identified = np.array([[n in f.identified for n in NAMES] for f in files])
-    prior = field_prior(values, sigmas, identified)
+    prior = field_prior(values, identified)
     doc = prior_document(prior, ids)
     write_prior(out, doc)
     if args.json:
