@@ -1,17 +1,16 @@
 """The calibration state machine of one heliostat (one calibration cycle).
 
 The whole behaviour is the two tables :data:`STATES` (name, timeout, what happens there) and
-:data:`TRANSITIONS` (trigger, sources, destination), read by a ``transitions``
-``LockedMachine`` with the ``Timeout`` state feature. ``docs/state-machine.md`` holds the
-mermaid diagram generated from these tables (:mod:`controller.calibration.diagram`, regenerated
-by ``python -m controller.calibration.diagram``; a test checks it is current).
+:data:`TRANSITIONS` (trigger, sources, destination), read by a ``transitions`` ``LockedMachine``
+with state timeouts (:mod:`controller.calibration.timeouts`). ``docs/state-machine.md`` holds the
+mermaid diagram generated from them (``python -m controller.calibration.diagram``; tested current).
 
 How it runs (``transitions`` pitfalls in docs/architecture.md): the work of a state is a short ``do_<state>``
 method that returns the name of the next trigger. :meth:`CalibrationCycle.run` calls it *outside*
-the machine's lock, then fires the trigger. A state's ``Timeout`` timer fires ``timeout`` from
-its own thread, which moves the machine to *fault*; because a timer cannot interrupt a
-blocking call, every wait in a ``do_`` method polls :meth:`_check_current` and gives up as soon
-as the machine has left that state. An exception in a ``do_`` method fires ``fail``.
+the machine's lock, then fires the trigger. A state's timeout fires ``timeout`` from its own
+thread, which moves the machine to *fault*; it cannot interrupt a blocking call, so every wait
+in a ``do_`` method polls :meth:`_check_current` and gives up once the machine left that state.
+An exception in a ``do_`` method fires ``fail``.
 
 Beam safety:
 * a heliostat approaches the target only from its standby point (``preparing`` parks it
@@ -41,7 +40,7 @@ import sys
 import numpy as np
 from transitions import MachineError
 from transitions.extensions import LockedMachine
-from transitions.extensions.states import Timeout, add_state_features
+from transitions.extensions.states import add_state_features
 
 from controller.calibration.approach import approach_path
 from controller.calibration.coarse import correction_step
@@ -49,12 +48,13 @@ from controller.calibration.context import CycleContext, CycleObserver
 from controller.calibration.observations import BeamNotFound, NoBeam, Observation
 from controller.calibration.park import park
 from controller.calibration.records import CorrectionRecord, RunRecord, measurement_record
+from controller.calibration.timeouts import SharedTimeout
 from controller.devices.drive import DriveError, LinkError, MoveCancelled
 from controller.recognition.library import Match
 
 # -- the tables ---------------------------------------------------------------------------------
-# (state, timeout in wall seconds, what the state does). Timeouts are generous upper bounds
-# for a real field (a full-range slew at 10 mm/s takes ~50 s); tests pass smaller ones.
+# (state, timeout in wall s, what it does): generous upper bounds for a real field (a full-range
+# slew at 10 mm/s takes ~50 s); tests pass smaller ones.
 STATES: tuple[tuple[str, float, str], ...] = (
     ("idle", 5.0, "cycle created, nothing commanded"),
     ("preparing", 180.0, "compute the aim (with the fitted model) and park the beam at standby"),
@@ -106,7 +106,7 @@ class Cancelled(Exception):
     """The machine left the state while its work was still running (timeout, abort)."""
 
 
-@add_state_features(Timeout)
+@add_state_features(SharedTimeout)
 class _Machine(LockedMachine):
     pass
 
