@@ -170,6 +170,7 @@ TABLE: dict[str, list[Entry]] = {
                            {"--out": OUTPUTS, "--heliostat": "heliostat ids", "--sources": "light source ids",
                             "--magnitudes": "numbers", "--test-heliostats": "heliostat ids",
                             "--test-sources": "light source ids", "--test-magnitudes": "numbers"})],
+    "sim field": [Entry("sim field --out {out}/f --heliostats 2 --targets 1", {}, {"--out": OUTPUTS})],
     "sim firmware": [Entry("sim firmware --config {config} --serial-link {out}/pty",
                            {"config": Slot("--config", YAML, "config")},
                            {"--serial-link": OUTPUTS, "--modbus-tcp": "an address",
