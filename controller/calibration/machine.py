@@ -2,7 +2,7 @@
 
 The whole behaviour is the two tables :data:`STATES` (name, timeout, what happens there) and
 :data:`TRANSITIONS` (trigger, sources, destination), read by a ``transitions`` ``LockedMachine``
-with state timeouts (:mod:`controller.calibration.timeouts`). ``docs/state-machine.md`` holds the
+shared by every cycle (:mod:`controller.calibration.shared_machine`). ``docs/state-machine.md`` holds the
 mermaid diagram generated from them (``python -m controller.calibration.diagram``; tested current).
 
 How it runs (``transitions`` pitfalls in docs/architecture.md): the work of a state is a short ``do_<state>``
@@ -39,8 +39,6 @@ import sys
 
 import numpy as np
 from transitions import MachineError
-from transitions.extensions import LockedMachine
-from transitions.extensions.states import add_state_features
 
 from controller.calibration.approach import approach_path
 from controller.calibration.coarse import correction_step
@@ -48,7 +46,7 @@ from controller.calibration.context import CycleContext, CycleObserver
 from controller.calibration.observations import BeamNotFound, NoBeam, Observation
 from controller.calibration.park import park
 from controller.calibration.records import CorrectionRecord, RunRecord, measurement_record
-from controller.calibration.timeouts import SharedTimeout
+from controller.calibration.shared_machine import shared_machine
 from controller.devices.drive import DriveError, LinkError, MoveCancelled
 from controller.recognition.library import Match
 
@@ -106,25 +104,13 @@ class Cancelled(Exception):
     """The machine left the state while its work was still running (timeout, abort)."""
 
 
-@add_state_features(SharedTimeout)
-class _Machine(LockedMachine):
-    pass
-
-
 class CalibrationCycle:
     """Runs one heliostat through :data:`STATES`; :meth:`run` returns its :class:`RunRecord`."""
 
     def __init__(self, ctx: CycleContext) -> None:
         self.ctx = ctx
-        states = [{"name": s, "timeout": ctx.timeouts.get(s, t),
-                   "on_timeout": functools.partial(self._on_state_timeout, s)} for s, t, _ in STATES]
-        self.machine = _Machine(model=self, states=states, initial="idle", auto_transitions=False,
-                                after_state_change="_state_changed", on_exception="_on_exception",
-                                send_event=False)
-        for trig, src, dst in TRANSITIONS:
-            cond = ["_timeout_is_current"] if trig == "timeout" else None
-            self.machine.add_transition(trig, list(src) if isinstance(src, tuple) else src, dst,
-                                        conditions=cond)
+        self.machine = shared_machine(STATES, TRANSITIONS, ctx.timeouts)  # this cycle one of its models
+        self.machine.add_model(self)
         self._timed_out: str | None = None
         self.iteration = 0
         self.az = self.el = 0
@@ -397,4 +383,10 @@ class CalibrationCycle:
         r.fault_cause = self.cause
         r.fault_state = self.fault_state
         r.end_s = self.ctx.time.now()
+        self.machine.remove_model(self)
         return r
+
+
+for _state, _, _ in STATES:  # the shared machine's on_timeout of each state (shared_machine.py)
+    setattr(CalibrationCycle, f"_timeout_{_state}",
+            functools.partialmethod(CalibrationCycle._on_state_timeout, _state))

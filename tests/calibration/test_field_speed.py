@@ -16,7 +16,7 @@ from controller.calibration.reprocess_plan import (
     TaskSizer,
     take_task,
 )
-from controller.calibration.timeouts import Deadlines
+from controller.calibration.shared_machine import Deadlines
 from tests.conftest import scaled_s
 
 
