@@ -7,6 +7,8 @@ corrections it moves by. The beam-safety geometry it checks every pose and slew 
 from __future__ import annotations
 
 import math
+import threading
+from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,6 +28,12 @@ from controller.geometry.tracking_model import TERMS, TrackingModel, model_aim, 
 from controller.geometry.vectors import vector_to_azel
 
 PARK_MARGIN_M = 0.5  # a parked spot's 3σ footprint ends at least this far outside the camera's view
+# Steps solved by GeometryPointing._steps, least recently used dropped first: (heliostat config
+# object, model terms, point, source) -> (the heliostat object, steps). A 10,000-heliostat
+# night asks for a few per heliostat and lamp.
+AIMS_KEPT = 200_000
+_AIMS: OrderedDict[tuple, tuple[Heliostat, tuple[int, int]]] = OrderedDict()
+_AIMS_LOCK = threading.Lock()
 
 
 # -- geometry of one heliostat ------------------------------------------------------------------
@@ -138,7 +146,21 @@ class GeometryPointing(BeamSafety):
                                    float(spot.position_sigma_m[0, 0]), PARK_MARGIN_M)
 
     def _steps(self, point: np.ndarray, model: ModelRecord | None) -> tuple[int, int]:
-        return steps_to_aim(self.kin, model, self.source_dir, point, self.source_pos)
+        # The same heliostat, model, source and point come back many times in a night (its lamp
+        # change, its pass's queue, slot and cycle): each is solved once (_AIMS).
+        key = (id(self.heliostat), None if model is None else tuple(model.params.items()),
+               np.asarray(point, float).tobytes(), self.source_dir.tobytes(), self.source_pos)
+        with _AIMS_LOCK:
+            hit = _AIMS.get(key)
+            if hit is not None and hit[0] is self.heliostat:  # the very object: its id is not reused
+                _AIMS.move_to_end(key)
+                return hit[1]
+        steps = steps_to_aim(self.kin, model, self.source_dir, point, self.source_pos)
+        with _AIMS_LOCK:
+            _AIMS[key] = (self.heliostat, steps)
+            if len(_AIMS) > AIMS_KEPT:
+                _AIMS.popitem(last=False)
+        return steps
 
     def aim_steps(self, model: ModelRecord | None) -> tuple[int, int]:
         """Steps onto the aim point; UnsafePath when the beam there, or on the approach from
