@@ -39,6 +39,14 @@ from controller.errors import HeliocalError, InputError
 SCHEDULER_ADDRESS = re.compile(r"^(tcp|tls)://[A-Za-z0-9.\-\[\]:]+:(\d{1,5})$")
 REFIT_BATCH = 64  # refits committed per transaction
 TASKS_PER_WORKER = 3  # pair tasks in flight per worker: one running, the next ones queued on it
+# A local cluster's workers (docs/reprocess.md, "On a cluster", for workers started by hand):
+# * the nanny's MALLOC_TRIM_THRESHOLD_ fixes glibc's mmap threshold, so every image-sized array
+#   is mapped and faulted in afresh: the same pairs cost 45 % more CPU (6.3 instead of 4.3 s
+#   for 1,020 pairs in one process; twice the loop's CPU on the workers);
+# * the statistical profiler samples the task's thread every 10 ms for a dashboard a local
+#   cluster does not serve.
+LOCAL_WORKERS = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
+                 "distributed.worker.profile.enabled": False}
 
 
 class ClusterError(HeliocalError):
@@ -99,9 +107,7 @@ def open_cluster(scheduler: str | None, workers: int, *, timeout_s: float = 60.0
         return
     import dask
 
-    # The workers' statistical profiler samples the task's thread every 10 ms for a dashboard
-    # that a local cluster does not serve (7.4 instead of 7.9 CPU s for 1,020 pairs, one run).
-    with dask.config.set({"distributed.worker.profile.enabled": False}), \
+    with dask.config.set(LOCAL_WORKERS), \
             LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
                          dashboard_address=None) as cluster, Client(cluster, set_as_default=False) as client:
         client.wait_for_workers(workers, timeout=timeout_s)
