@@ -103,27 +103,28 @@ class LampChanger:
         half = max(max(t.width_m, t.height_m) for t in self.cfg.targets) / 2
         moving: dict[str, tuple[Drive, GeometryPointing, tuple[int, int] | None]] = {}
         stowed: list[str] = []
+        # Checking and commanding the field is the controller's own work, costing the plant the
+        # time it takes (a simulated plant's clock at 1x); the moves happen meanwhile.
         with self.time.computing():
             models = self.field.models(list(standby))  # one query for the night's heliostats
-        for hid, where in standby.items():
-            drive = self._ask(hid, lamp, lambda h=hid: self.field.drive(h))
-            st = self._ask(hid, lamp, drive.status)
-            with self.time.computing():
+            for hid, where in standby.items():
+                drive = self._ask(hid, lamp, lambda h=hid: self.field.drive(h))
+                st = self._ask(hid, lamp, drive.status)
                 model = models[hid]
                 p = self.pointing(hid, lamp, where, (st.az_steps, st.el_steps), model)
                 stay_margin = max(2.0, p.standby_offset_m - half)
                 if not where.required and _safe(p, st.az_steps, st.el_steps, stay_margin):
                     continue
                 pose = _safe_standby(p, model)
-            try:
-                if pose is None:
-                    raise LimitError("no safe standby for it")
-                drive.move_abs(*pose)
-                moving[hid] = (drive, p, pose)
-            except (LimitError, DriveError):
-                self._ask(hid, lamp, drive.stow)
-                moving[hid] = (drive, p, None)
-                stowed.append(hid)
+                try:
+                    if pose is None:
+                        raise LimitError("no safe standby for it")
+                    drive.move_abs(*pose)
+                    moving[hid] = (drive, p, pose)
+                except (LimitError, DriveError):
+                    self._ask(hid, lamp, drive.stow)
+                    moving[hid] = (drive, p, None)
+                    stowed.append(hid)
         for hid, (drive, p, pose) in moving.items():
             st = self._ask(hid, lamp, lambda d=drive, e=pose: d.wait_in_position(
                 self.move_timeout_s, self.time, expect=e))

@@ -227,8 +227,8 @@ class CalibrationCycle:
 
     def do_preparing(self) -> str:
         p = self.ctx.pointing
-        self.aim = p.aim_steps(self.ctx.model)
-        self.standby = p.standby_steps(self.ctx.model)
+        with self.ctx.time.computing():
+            self.aim, self.standby = p.aim_steps(self.ctx.model), p.standby_steps(self.ctx.model)
         self._park("preparing")
         self.run_rec.at_standby_s = self.ctx.time.now()
         return "parked"
@@ -237,7 +237,8 @@ class CalibrationCycle:
         # The slew to standby must not sweep the beam across a target (someone else may be
         # measured there) nor into a person zone: the pointing plans waypoints that keep it off,
         # from wherever the drive stands (after a fault, anywhere along a move).
-        park(self.ctx.drive, self.ctx.pointing, self.standby, lambda az, el: self._move(state, az, el, watch))
+        park(self.ctx.drive, self.ctx.pointing, self.standby, lambda az, el: self._move(state, az, el, watch),
+             computing=self.ctx.time.computing)
 
     def do_standby(self) -> str:
         if self.measured or self.cause:
