@@ -273,7 +273,7 @@ def main() -> None:
         "plan_total": len(plan.items), "unmeasurable": len(plan.unmeasurable),
         "sample": {"heliostats": len(sampled), "of": len(ids), "limit_geometries": args.sample},
         "second_beam_captures": bad, "captures": captures, "second_beam_examples": examples,
-        "runs_not_measured": failed, "night_status": r.summary.status,
+        "runs_not_measured": failed, "night_status": r.summary.status, "night_cause": r.summary.cause,
         "plant_hours": r.plant_s / 3600.0, "plant_hours_whole_plan": whole_h,
         "nights_needed": math.ceil(whole_h / args.night_h - 1e-9),
         "ended_by_night_budget": r.stopped_by_budget,
