@@ -51,6 +51,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import resource
 import sys
@@ -66,7 +67,14 @@ from controller.calibration.nights import night_passes
 from controller.calibration.planner import plan_field
 from controller.calibration.planning import slew_time_s
 from controller.calibration.refit import refit_models
-from controller.commands._cheap_night import calibrate_from_truth, run_cheap_night
+from controller.commands.sim.field import (
+    OnTarget,
+    night_zero,
+    run_planned_night,
+    seed_from_truth,
+    spread,
+    strays,
+)
 from controller.geometry.kinematics import HeliostatKinematics
 from controller.reports.night import write_night_report
 from controller.storage.db import CampaignStore
@@ -92,8 +100,8 @@ def cpu_s() -> float:
 def sample_plan(plan, ids: list[str], limit: int, targets: int) -> tuple[list, list[str]]:
     """The plan of every k-th heliostat of ``ids``, k the least that keeps it within ``limit``
     geometries and shares no factor with ``targets`` (heliostat i's target is i mod targets:
-    so the sample has every target); all of it when it fits."""
-    if len(plan) <= limit:
+    so the sample has every target); all of it when it fits or ``limit`` is 0."""
+    if not limit or len(plan) <= limit:
         return plan, ids
     k = int(np.ceil(len(plan) / limit))
     while np.gcd(k, targets) != 1:
@@ -163,9 +171,16 @@ def main() -> None:
     ap.add_argument("--heliostats", type=int, default=1000)
     ap.add_argument("--targets", type=int, default=3)
     ap.add_argument("--geometries", type=int, default=3, help="planned per heliostat and night")
+    ap.add_argument("--beams-per-target", type=int, default=1,
+                    help="calibration.beams_per_target: beams measured together on a target under lamps")
     ap.add_argument("--sample", type=int, default=1500,
-                    help="most geometries the night runs (an evenly spread sample of heliostats beyond)")
-    ap.add_argument("--night-h", type=float, default=12.0, help="the night's budget, plant hours")
+                    help="most geometries the night runs (an evenly spread sample of heliostats beyond); "
+                         "0: the whole plan")
+    ap.add_argument("--night0-sample", type=int, default=60,
+                    help="heliostats calibrated closed loop in night 0 (evenly spread; the rest seeded "
+                         "from the plant's truth); 0: all")
+    ap.add_argument("--night-h", type=float, default=8.0,
+                    help="the night's budget, plant hours (default 8: a summer night)")
     ap.add_argument("--speedup", type=float, default=200.0,
                     help="plant seconds per wall second (<= 1000; higher counts more of the simulator's own "
                          "wall time as plant time)")
@@ -178,26 +193,37 @@ def main() -> None:
     if not 1 <= args.heliostats <= 50_000 or not 1 <= args.targets <= 3 or not 1 <= args.geometries <= 12:
         ap.exit(2, "bench_field.py: --heliostats in [1, 50000], --targets in [1, 3], "
                    "--geometries in [1, 12]\n")
-    if args.sample < 1 or not 0 < args.night_h <= 24 or not 0 < args.speedup <= 1000:
-        ap.exit(2, "bench_field.py: --sample >= 1, --night-h in (0, 24], --speedup in (0, 1000]\n")
-    if args.workers is not None and not 1 <= args.workers <= 64:
-        ap.exit(2, "bench_field.py: --workers in [1, 64]\n")
+    if min(args.sample, args.night0_sample) < 0 or not 0 < args.night_h <= 24 or not 0 < args.speedup <= 1000:
+        ap.exit(2, "bench_field.py: --sample >= 0, --night0-sample >= 0, --night-h in (0, 24], "
+                   "--speedup in (0, 1000]\n")
+    if not 1 <= args.beams_per_target <= 8 or (args.workers is not None and not 1 <= args.workers <= 64):
+        ap.exit(2, "bench_field.py: --beams-per-target in [1, 8], --workers in [1, 64]\n")
     wall0, load0 = time.perf_counter(), os.getloadavg()
     tmp = None if args.out else tempfile.TemporaryDirectory(prefix="bench-field-")
     out = Path(args.out or tmp.name)
     base = yaml.safe_load((ROOT / "configs" / "demo.yaml").read_text())
-    data = field_data(base, args.heliostats, args.targets, args.geometries)
+    data = field_data(base, args.heliostats, args.targets, args.geometries, beams=args.beams_per_target)
     t = time.perf_counter()
     cheap = CheapField(data, out / "field", speedup=args.speedup)
     build_s = time.perf_counter() - t
     cfg, ids = cheap.cfg, [h.id for h in cheap.cfg.heliostats]
-    centre = {t.id: np.asarray(t.center_enu_m, float) for t in cfg.targets}
-    t = time.perf_counter()
-    seed = calibrate_from_truth(cheap, "field", workers=args.workers)
-    seed_s = time.perf_counter() - t
-    say(f"{len(ids)} heliostats, night 0 from the truth in {seed_s:.0f} s (field built in {build_s:.0f} s)")
+    clock = cheap.plant.clock
 
-    cpu0 = cpu_s()
+    # Night 0: closed loop on a sample (the product's calibration campaign), the rest seeded.
+    k = args.beams_per_target
+    closed = spread(ids, args.night0_sample or len(ids))
+    watch = OnTarget(cheap, None)
+    z = night_zero(cheap, closed, "field/night-0", 3600.0 * 24, observers=[watch])
+    z_bad, z_caps, _ = strays(cheap, k, {})
+    say(f"night 0 closed loop: {z.calibrated}/{z.heliostats} calibrated, {z.measurements} measurements, "
+        f"{z.plant_s / 3600:.2f} plant h, {z.wall_s:.0f} s wall")
+    rest = [h for h in ids if h not in set(closed)]
+    t = time.perf_counter()
+    seed = seed_from_truth(cheap, "field/night-0-seeded", workers=args.workers, heliostat_ids=rest) if rest \
+        else {"unreachable": []}
+    seed_s = time.perf_counter() - t
+    night0_h = z.plant_s / 3600.0 * len(ids) / max(1, z.heliostats)
+
     store = CampaignStore(cheap.db_path, readonly=True)
     try:
         book = NightBook(store)
@@ -210,10 +236,14 @@ def main() -> None:
     say(f"planned {len(plan.items)} geometries for {plan.decisions} heliostats in {plan.seconds:.1f} s; "
         f"{len(plan.unmeasurable)} with no measurable geometry")
     items, sampled = sample_plan(plan.items, ids, args.sample, args.targets)
-    r = run_cheap_night(cheap, items, night, 3600.0 * args.night_h, heliostat_ids=ids,
-                        unmeasurable=plan.unmeasurable, workers=args.workers)
+    watch = OnTarget(cheap, items)
+    since = {tid: len(cam.beams_in_view) for tid, cam in cheap.cameras.items()}
+    cpu0, sim0 = cpu_s(), clock.frozen_cpu_s
+    r = run_planned_night(cheap, items, night, 3600.0 * args.night_h, heliostat_ids=ids,
+                          unmeasurable=plan.unmeasurable, workers=args.workers, observers=[watch])
+    night_cpu, plant_cpu = cpu_s() - cpu0, clock.frozen_cpu_s - sim0
     say(f"night: {len(r.measured)}/{r.planned} measured, {r.plant_s / 3600:.2f} plant h, "
-        f"{r.wall_s:.0f} s wall")
+        f"{r.wall_s:.0f} s wall, {night_cpu:.0f} s CPU ({plant_cpu:.0f} s of it the simulated plant's)")
     fit = refit_field(cfg, cheap.db_path, args.workers)
     say(f"refit {fit['fit_heliostats']} models in {fit['fit_s']:.1f} s")
     t = time.perf_counter()
@@ -231,26 +261,35 @@ def main() -> None:
         kind = (run.fault_cause or run.status).split(":")[0]
         failed[kind] = failed.get(kind, 0) + 1
     peer = model_night(data, items, 3600.0 * args.night_h)
-    second = [{"target": tid, "beams": {hid: [round(float(x), 2) for x in np.subtract(p, centre[tid])]
-                                        for hid, p in hits.items()}}
-              for tid, cam in cheap.cameras.items() for hits in cam.hits if len(hits) > 1][:5]
+    bad, captures, examples = strays(cheap, k, since)
+    measured = len(r.measured)
+    # The whole plan's plant hours at the night's rate (a sample's, or a night the budget ended).
+    whole_h = (r.plant_s / 3600.0 * len(plan.items) / max(1, measured if r.stopped_by_budget else r.planned))
     result = {
         "benchmark": "field night (the product's PlannedNight, cheap optics)",
         "heliostats": len(ids), "targets": args.targets, "geometries_per_heliostat": args.geometries,
-        "lamps": len(LAMPS), "planned": r.planned, "measured": len(r.measured),
-        "measured_fraction": len(r.measured) / r.planned if r.planned else None,
+        "beams_per_target": k, "lamps": len(LAMPS), "planned": r.planned, "measured": measured,
+        "measured_fraction": measured / r.planned if r.planned else None,
         "plan_total": len(plan.items), "unmeasurable": len(plan.unmeasurable),
-        "sample": {"heliostats": len(sampled), "of": len(ids), "limit_geometries": args.sample,
-                   "night_0_unreachable": len(seed["unreachable"])},
-        "second_beam_captures": sum(1 for v in r.beams_in_view.values() for b in v if len(b) > 1),
-        "captures": sum(len(v) for v in r.beams_in_view.values()),
-        "second_beam_examples": second,
-        "runs_not_measured": failed, "night_status": r.summary.status,
+        "sample": {"heliostats": len(sampled), "of": len(ids), "limit_geometries": args.sample},
+        "second_beam_captures": bad, "captures": captures, "second_beam_examples": examples,
+        "runs_not_measured": failed, "night_status": r.summary.status, "night_cause": r.summary.cause,
+        "plant_hours": r.plant_s / 3600.0, "plant_hours_whole_plan": whole_h,
+        "nights_needed": math.ceil(whole_h / args.night_h - 1e-9),
+        "ended_by_night_budget": r.stopped_by_budget,
+        "controller_ms_per_measurement": 1e3 * (night_cpu - plant_cpu) / max(1, measured),
+        "plant_ms_per_measurement": 1e3 * plant_cpu / max(1, measured),
+        "night_cpu_s": night_cpu, "night_plant_cpu_s": plant_cpu, "night_wall_s": r.wall_s,
+        "night0": {"closed_loop_heliostats": z.heliostats, "calibrated": z.calibrated, "statuses": z.statuses,
+                   "measurements": z.measurements, "plant_hours": z.plant_s / 3600.0, "wall_s": z.wall_s,
+                   "captures_with_a_stray_beam": z_bad, "captures": z_caps,
+                   "seeded_from_truth": len(rest), "seed_unreachable": len(seed["unreachable"]),
+                   "seed_s": seed_s},
+        "night0_plant_hours": night0_h,
+        "nights_to_first_planned_night": math.ceil(night0_h / args.night_h - 1e-9),
         "planner_ms_per_decision": 1e3 * plan.seconds / max(1, plan.decisions), "decisions": plan.decisions,
         "planner_ms_per_geometry": 1e3 * plan.seconds / max(1, len(plan.items)),
-        "plan_s": plan.seconds, **fit, "report_s": report_s,
-        "plant_hours": r.plant_s / 3600.0, "ended_by_night_budget": r.stopped_by_budget,
-        "night_wall_s": r.wall_s, "seed_s": seed_s, "build_s": build_s,
+        "plan_s": plan.seconds, **fit, "report_s": report_s, "build_s": build_s,
         "controller_cpu_s": cpu, "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
         "workers_peak_rss_mb": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024.0,
         "daytime_error_predicted_mrad": r.summary.daytime_error_predicted_mrad,

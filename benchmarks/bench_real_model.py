@@ -68,7 +68,8 @@ def records(h: str, timed: dict) -> list[Path]:
 def cli(*args) -> subprocess.CompletedProcess:
     r = subprocess.run([*HELIOCAL, *map(str, args)], capture_output=True, text=True)
     if r.returncode not in (0,):
-        raise SystemExit(f"heliocal {' '.join(map(str, args[:2]))}: exit {r.returncode}: {r.stderr.strip()[-300:]}")
+        raise SystemExit(f"heliocal {' '.join(map(str, args[:2]))}: exit {r.returncode}: "
+                         f"{r.stderr.strip()[-300:]}")
     return r
 
 
@@ -86,9 +87,10 @@ def spot_error(h: str, record: Path, spot_wgs84, towers) -> float:
 def via_cli(h: str, train: list[Path], test: list[Path], tmp: Path, towers, prior: Path | None) -> float:
     """Median error of ``test`` predicted by a model ``model fit`` fitted to ``train``."""
     model = tmp / f"{h}.json"
-    cli("model", "fit", *train, "--heliostat-properties", FIELD / h / f"{h}_properties.json", "--towers", TOWERS,
-        "--out", model, "--timestamps", STAMPS, *(["--prior", prior] if prior else []))
-    out = cli("model", "predict", model, "--record", *test, "--towers", TOWERS, "--timestamps", STAMPS, "--json")
+    cli("model", "fit", *train, "--heliostat-properties", FIELD / h / f"{h}_properties.json",
+        "--towers", TOWERS, "--out", model, "--timestamps", STAMPS, *(["--prior", prior] if prior else []))
+    out = cli("model", "predict", model, "--record", *test, "--towers", TOWERS, "--timestamps", STAMPS,
+              "--json")
     spots = [json.loads(line)["focal_spot_wgs84"] for line in out.stdout.splitlines()]
     return float(np.median([spot_error(h, r, s, towers) for r, s in zip(test, spots, strict=True)]))
 
@@ -100,7 +102,8 @@ def peer_and_floor(h: str, train: list[Path], test: list[Path], timed: dict) -> 
     recs = ps.records
     tr, te = recs[:len(train)], recs[len(train):]
     res = held_out(ps.kinematics, [r.sample for r in tr], [r.sample for r in te],
-                   Targets(np.array([r.target.center_enu for r in te]), np.array([r.target.normal for r in te])),
+                   Targets(np.array([r.target.center_enu for r in te]),
+                           np.array([r.target.normal for r in te])),
                    noise_mrad=0.8)
     pos = ps.kinematics.position
     floor = [angle_mrad(aim_normal(r.sample.source_dir, pos, r.focal_spots["UTIS"]),
@@ -136,8 +139,8 @@ def choices(hs: list[str], timed: dict, stamps: dict, field_prior: dict) -> dict
             ps = read_paint_set([str(p) for p in recs], FIELD / h / f"{h}_properties.json", TOWERS,
                                 timestamps=stamps, methods=("UTIS", "HeliOS"))
             samples = ps.records
-            sets = {"recent20": (samples[-30:-10], samples[-10:]), "recent5": (samples[-15:-10], samples[-10:]),
-                    "first20": (samples[:20], samples[-10:])}
+            sets = {"recent20": (samples[-30:-10], samples[-10:]),
+                    "recent5": (samples[-15:-10], samples[-10:]), "first20": (samples[:20], samples[-10:])}
             kw = {k: v for k, v in opts.items() if k != "field"}
             if opts.get("field"):
                 fp = field_prior[h]
@@ -167,8 +170,9 @@ def main() -> int:
         models = {}
         for h in hs:
             models[h] = tmp / f"all-{h}.json"
-            cli("model", "fit", *records(h, timed), "--heliostat-properties", FIELD / h / f"{h}_properties.json",
-                "--towers", TOWERS, "--out", models[h], "--timestamps", STAMPS)
+            cli("model", "fit", *records(h, timed), "--heliostat-properties",
+                FIELD / h / f"{h}_properties.json", "--towers", TOWERS, "--out", models[h],
+                "--timestamps", STAMPS)
         from controller.geometry.field_prior_io import read_prior
 
         field_prior = {}

@@ -15,6 +15,7 @@ still while a scene is drawn and advances by the HIGH exposure, as with the plan
 from __future__ import annotations
 
 import threading
+from collections.abc import Callable, Collection
 
 import numpy as np
 
@@ -155,6 +156,11 @@ class CheapCamera(PlantClockCamera):
         self.focal = np.array([m.focal_length_m for m in mirrors])
         self.beams_in_view: list[tuple[str, ...]] = []
         self.hits: list[dict[str, tuple[float, float, float]]] = []  # per capture: hid -> true ENU hit
+        # Who is meant to be on this target now (set by whoever watches the controller, e.g. a
+        # benchmark's observer): each capture then records in ``strays`` the beams in view that
+        # are not (several beams per target: a beam that is not the capture's).
+        self.expected: Callable[[], Collection[str]] | None = None
+        self.strays: list[tuple[str, ...]] = []
 
     def _scene(self) -> np.ndarray:
         g = self.grid
@@ -162,6 +168,8 @@ class CheapCamera(PlantClockCamera):
         if self.plant.lamp() is None:  # every lamp dark (a lamp change): no beam
             self.beams_in_view.append(())
             self.hits.append({})
+            if self.expected is not None:
+                self.strays.append(())
             return img
         pos, beam, lamp_m, cos_i = self.field.beams()
         lamp_d = float(self.plant.lamp().diameter_m)
@@ -197,4 +205,7 @@ class CheapCamera(PlantClockCamera):
             hits[hid] = tuple(float(v) for v in hit[k])
         self.beams_in_view.append(tuple(seen))
         self.hits.append(hits)
+        if self.expected is not None:
+            meant = self.expected()
+            self.strays.append(tuple(h for h in seen if h not in meant))
         return img

@@ -38,7 +38,8 @@ AIM_OFFSET_V_M = 1.0  # the aim grid's points are this far above and below the t
 TARGET_ROOM_M = 2.7
 
 
-def field_data(base: dict, n: int, targets: int, geometries: int = 3, span_deg: float = SPAN_DEG) -> dict:
+def field_data(base: dict, n: int, targets: int, geometries: int = 3, span_deg: float = SPAN_DEG,
+               beams: int = 1) -> dict:
     """A field of ``n`` heliostats (config mapping) from ``base`` (a plant config mapping whose
     first heliostat is the prototype): staggered half rings north of the tower from 40 m, 7 m
     apart, spanning ±``span_deg``, heliostats 6 m apart on a ring, each focused at its
@@ -49,7 +50,9 @@ def field_data(base: dict, n: int, targets: int, geometries: int = 3, span_deg: 
     :data:`TARGET_ROOM_M` per side, at least 7 m, and 8/7 as wide; six lamps (the tower's top
     lamp above the highest target), the planner at ``geometries`` per heliostat, standby
     points at least 12 m off the aim; a ``CAMERA_PX`` camera without registration (cheap
-    optics)."""
+    optics). ``beams`` > 1 (``calibration.beams_per_target``): each target holds a grid of
+    ⌈√beams⌉ columns of such spots, one per slot (controller.calibration.slots), and is that
+    many spot-heights tall and wide."""
     proto = base["heliostats"][0]
     data = copy.deepcopy(base)
     positions, r, k = [], 40.0, 0
@@ -62,8 +65,10 @@ def field_data(base: dict, n: int, targets: int, geometries: int = 3, span_deg: 
         k += 1
     far = max(rr for rr, _ in positions)
     slope = 1e-3 * float(proto["mirror"].get("slope_error_mrad", 1.5))
-    height = max(7.0, 2.0 * (3.0 * 2.0 * slope * far + TARGET_ROOM_M))
-    width = 8.0 / 7.0 * height
+    cols = math.ceil(math.sqrt(beams))
+    rows = math.ceil(beams / cols)
+    height = rows * max(7.0, 2.0 * (3.0 * 2.0 * slope * far + TARGET_ROOM_M))
+    width = 8.0 / 7.0 * height * cols / rows
     step = height + TARGET_GAP_M
     heights = [LOWEST_TARGET_M + (2 - i) * step for i in range(3)][:targets]
     middle = LOWEST_TARGET_M + step
@@ -78,7 +83,8 @@ def field_data(base: dict, n: int, targets: int, geometries: int = 3, span_deg: 
         {"kind": "lamp", "id": f"L{i + 1}", "position_enu_m": p, "diameter_m": 0.3}
         for i, p in enumerate(lamps)]
     cal = data["calibration"]
-    cal.update(light_source="L1", target="T1", targets=[f"T{i + 1}" for i in range(targets)],
+    cal.update(beams_per_target=beams, light_source="L1", target="T1",
+               targets=[f"T{i + 1}" for i in range(targets)],
                lamps=[f"L{i + 1}" for i in range(len(LAMPS))],
                aim_grid={"rows": 2, "cols": 2, "margin_m": round(height / 2 - AIM_OFFSET_V_M, 2)},
                # The least standby offset; the cycle grows it with the spot's size (oblique beams

@@ -1,5 +1,7 @@
 """The plant clock: plant seconds run ``speedup`` times faster than wall time, and can stand
-still while the simulator works (rendering is the simulator's cost, not the plant's)."""
+still while the simulator works (rendering is the simulator's cost, not the plant's). The CPU
+time the simulator spends while the clock stands still is counted (:attr:`PlantClock.frozen_cpu_s`):
+a benchmark subtracts it to tell the controller's CPU from the simulated plant's."""
 
 from __future__ import annotations
 
@@ -19,6 +21,8 @@ class PlantClock:
         self._frozen = 0
         self._frozen_at = start
         self._realtime = 0
+        self._local = threading.local()  # per thread: depth of frozen blocks, CPU time at the outermost
+        self.frozen_cpu_s = 0.0  # CPU seconds spent inside frozen blocks, every thread
 
     def __call__(self) -> float:
         with self._lock:
@@ -29,6 +33,11 @@ class PlantClock:
     @contextlib.contextmanager
     def frozen(self, advance_s: float = 0.0):
         """Stop plant time inside the block; afterwards continue ``advance_s`` later."""
+        local = self._local
+        depth = getattr(local, "depth", 0)
+        local.depth = depth + 1
+        if not depth:
+            local.cpu0 = time.thread_time()
         with self._lock:
             if not self._frozen:
                 self._frozen_at = self._base + (time.monotonic() - self._wall0) * self._rate()
@@ -41,6 +50,9 @@ class PlantClock:
                 if not self._frozen:
                     self._base = self._frozen_at + advance_s
                     self._wall0 = time.monotonic()
+                local.depth = depth
+                if not depth:
+                    self.frozen_cpu_s += time.thread_time() - local.cpu0
 
     @contextlib.contextmanager
     def realtime(self):

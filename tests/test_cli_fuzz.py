@@ -205,6 +205,7 @@ TABLE: dict[str, list[Entry]] = {
                         {"config": Slot("--config", YAML, "config")}, {"--write-config": OUTPUTS})],
     "sim lamp-panel": [Entry("sim lamp-panel --config {config}",
                              {"config": Slot("--config", YAML, "config")})],
+    "sim field": [Entry("sim field --out {out}/f --heliostats 2 --targets 1", {}, {"--out": OUTPUTS})],
     "sim firmware": [Entry("sim firmware --config {config} --serial-link {out}/pty",
                            {"config": Slot("--config", YAML, "config")},
                            {"--serial-link": OUTPUTS, "--modbus-tcp": "an address",

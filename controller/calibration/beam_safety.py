@@ -74,6 +74,17 @@ class BeamSafety:
             out |= self._lands_on(c, b, centre, f, t, margin_m)
         return out
 
+    def off_targets(self, az_steps: float, el_steps: float, margin_m: float = 2.0) -> bool:
+        """Whether the ray at this pose lands on neither the target nor any of ``others`` (each
+        grown by ``margin_m``) and enters no person zone: :meth:`beam_on_target`,
+        :meth:`beam_on_other_target` and :meth:`beam_in_zone` on one trace of the ray."""
+        c, b = self.rays([(az_steps, el_steps)])
+        if self._lands_on(c, b, self.frame.center, self.frame, self.target, margin_m)[0]:
+            return False
+        if any(self._lands_on(c, b, centre, f, t, margin_m)[0] for centre, f, t in self.others):
+            return False
+        return not self.zone_ids or zone_entered(c[0], b[0], self.zones, self._stop(c, b)[0]) is None
+
     def beam_in_zone(self, az_steps: float, el_steps: float) -> str | None:
         """The id of the person zone the reflected central ray enters at this pose, or None; a
         beam that lands on the target ends there."""

@@ -1,17 +1,16 @@
 """The calibration state machine of one heliostat (one calibration cycle).
 
 The whole behaviour is the two tables :data:`STATES` (name, timeout, what happens there) and
-:data:`TRANSITIONS` (trigger, sources, destination), read by a ``transitions``
-``LockedMachine`` with the ``Timeout`` state feature. ``docs/state-machine.md`` holds the
-mermaid diagram generated from these tables (:mod:`controller.calibration.diagram`, regenerated
-by ``python -m controller.calibration.diagram``; a test checks it is current).
+:data:`TRANSITIONS` (trigger, sources, destination), read by a ``transitions`` ``LockedMachine``
+shared by every cycle (:mod:`controller.calibration.shared_machine`). ``docs/state-machine.md`` holds the
+mermaid diagram generated from them (``python -m controller.calibration.diagram``; tested current).
 
 How it runs (``transitions`` pitfalls in docs/architecture.md): the work of a state is a short ``do_<state>``
 method that returns the name of the next trigger. :meth:`CalibrationCycle.run` calls it *outside*
-the machine's lock, then fires the trigger. A state's ``Timeout`` timer fires ``timeout`` from
-its own thread, which moves the machine to *fault*; because a timer cannot interrupt a
-blocking call, every wait in a ``do_`` method polls :meth:`_check_current` and gives up as soon
-as the machine has left that state. An exception in a ``do_`` method fires ``fail``.
+the machine's lock, then fires the trigger. A state's timeout fires ``timeout`` from its own
+thread, which moves the machine to *fault*; it cannot interrupt a blocking call, so every wait
+in a ``do_`` method polls :meth:`_check_current` and gives up once the machine left that state.
+An exception in a ``do_`` method fires ``fail``.
 
 Beam safety:
 * a heliostat approaches the target only from its standby point (``preparing`` parks it
@@ -40,8 +39,6 @@ import sys
 
 import numpy as np
 from transitions import MachineError
-from transitions.extensions import LockedMachine
-from transitions.extensions.states import Timeout, add_state_features
 
 from controller.calibration.approach import approach_path
 from controller.calibration.coarse import correction_step
@@ -49,12 +46,13 @@ from controller.calibration.context import CycleContext, CycleObserver
 from controller.calibration.observations import BeamNotFound, NoBeam, Observation
 from controller.calibration.park import park
 from controller.calibration.records import CorrectionRecord, RunRecord, measurement_record
+from controller.calibration.shared_machine import shared_machine
 from controller.devices.drive import DriveError, LinkError, MoveCancelled
 from controller.recognition.library import Match
 
 # -- the tables ---------------------------------------------------------------------------------
-# (state, timeout in wall seconds, what the state does). Timeouts are generous upper bounds
-# for a real field (a full-range slew at 10 mm/s takes ~50 s); tests pass smaller ones.
+# (state, timeout in wall s, what it does): generous upper bounds for a real field (a full-range
+# slew at 10 mm/s takes ~50 s); tests pass smaller ones.
 STATES: tuple[tuple[str, float, str], ...] = (
     ("idle", 5.0, "cycle created, nothing commanded"),
     ("preparing", 180.0, "compute the aim (with the fitted model) and park the beam at standby"),
@@ -106,25 +104,13 @@ class Cancelled(Exception):
     """The machine left the state while its work was still running (timeout, abort)."""
 
 
-@add_state_features(Timeout)
-class _Machine(LockedMachine):
-    pass
-
-
 class CalibrationCycle:
     """Runs one heliostat through :data:`STATES`; :meth:`run` returns its :class:`RunRecord`."""
 
     def __init__(self, ctx: CycleContext) -> None:
         self.ctx = ctx
-        states = [{"name": s, "timeout": ctx.timeouts.get(s, t),
-                   "on_timeout": functools.partial(self._on_state_timeout, s)} for s, t, _ in STATES]
-        self.machine = _Machine(model=self, states=states, initial="idle", auto_transitions=False,
-                                after_state_change="_state_changed", on_exception="_on_exception",
-                                send_event=False)
-        for trig, src, dst in TRANSITIONS:
-            cond = ["_timeout_is_current"] if trig == "timeout" else None
-            self.machine.add_transition(trig, list(src) if isinstance(src, tuple) else src, dst,
-                                        conditions=cond)
+        self.machine = shared_machine(STATES, TRANSITIONS, ctx.timeouts)  # this cycle one of its models
+        self.machine.add_model(self)
         self._timed_out: str | None = None
         self.iteration = 0
         self.az = self.el = 0
@@ -241,8 +227,8 @@ class CalibrationCycle:
 
     def do_preparing(self) -> str:
         p = self.ctx.pointing
-        self.aim = p.aim_steps(self.ctx.model)
-        self.standby = p.standby_steps(self.ctx.model)
+        with self.ctx.time.computing():
+            self.aim, self.standby = p.aim_steps(self.ctx.model), p.standby_steps(self.ctx.model)
         self._park("preparing")
         self.run_rec.at_standby_s = self.ctx.time.now()
         return "parked"
@@ -251,7 +237,8 @@ class CalibrationCycle:
         # The slew to standby must not sweep the beam across a target (someone else may be
         # measured there) nor into a person zone: the pointing plans waypoints that keep it off,
         # from wherever the drive stands (after a fault, anywhere along a move).
-        park(self.ctx.drive, self.ctx.pointing, self.standby, lambda az, el: self._move(state, az, el, watch))
+        park(self.ctx.drive, self.ctx.pointing, self.standby, lambda az, el: self._move(state, az, el, watch),
+             computing=self.ctx.time.computing)
 
     def do_standby(self) -> str:
         if self.measured or self.cause:
@@ -397,4 +384,10 @@ class CalibrationCycle:
         r.fault_cause = self.cause
         r.fault_state = self.fault_state
         r.end_s = self.ctx.time.now()
+        self.machine.remove_model(self)
         return r
+
+
+for _state, _, _ in STATES:  # the shared machine's on_timeout of each state (shared_machine.py)
+    setattr(CalibrationCycle, f"_timeout_{_state}",
+            functools.partialmethod(CalibrationCycle._on_state_timeout, _state))

@@ -10,6 +10,7 @@ state machine, commissioning's records a step).
 from __future__ import annotations
 
 from collections.abc import Callable
+from contextlib import AbstractContextManager, nullcontext
 from typing import Any, Protocol
 
 
@@ -18,13 +19,16 @@ class _Pointing(Protocol):
 
 
 def park(drive: Any, pointing: _Pointing, standby: tuple[int, int],
-         move: Callable[[int, int], Any], status: Any = None) -> Any:
+         move: Callable[[int, int], Any], status: Any = None,
+         computing: Callable[[], AbstractContextManager] = nullcontext) -> Any:
     """Read the drive's pose (or take ``status``, a reading just made), then ``move(az, el)``
-    through each waypoint of the beam-safe path to ``standby`` (motor steps). Returns the last
-    move's result (the status when no move was needed). UnsafePath when no safe path exists:
-    nothing has moved then."""
+    through each waypoint of the beam-safe path to ``standby`` (motor steps), planned inside
+    ``computing()`` (``PlantTime.computing``). Returns the last move's result (the status when
+    no move was needed). UnsafePath when no safe path exists: nothing has moved then."""
     st = drive.status() if status is None else status
     out = st
-    for az, el in pointing.path_to((st.az_steps, st.el_steps), standby):
+    with computing():
+        path = pointing.path_to((st.az_steps, st.el_steps), standby)
+    for az, el in path:
         out = move(az, el)
     return out

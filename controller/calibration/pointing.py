@@ -7,6 +7,8 @@ corrections it moves by. The beam-safety geometry it checks every pose and slew 
 from __future__ import annotations
 
 import math
+import threading
+from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,6 +28,12 @@ from controller.geometry.tracking_model import TERMS, TrackingModel, model_aim
 from controller.geometry.vectors import vector_to_azel
 
 PARK_MARGIN_M = 0.5  # a parked spot's 3σ footprint ends at least this far outside the camera's view
+# Steps solved by GeometryPointing._steps, least recently used dropped first: (heliostat config
+# object, model terms, point, source) -> (the heliostat object, steps). A 10,000-heliostat
+# night asks for a few per heliostat and lamp.
+AIMS_KEPT = 200_000
+_AIMS: OrderedDict[tuple, tuple[Heliostat, tuple[int, int]]] = OrderedDict()
+_AIMS_LOCK = threading.Lock()
 
 
 # -- geometry of one heliostat ------------------------------------------------------------------
@@ -63,8 +71,20 @@ class GeometryPointing(BeamSafety):
         standby_offset_m = max(standby_offset_m, self.park_clearance_m(source, model)
                                + abs(float((self.aim_point - frame.center) @ frame.u)))
         self.standby_offset_m = standby_offset_m
+        self._current, self._standby_point = current_steps, None
+
+    @property
+    def standby_point(self) -> np.ndarray:
+        """The standby point (m ENU), chosen when first asked for: a lamp change asks only
+        whether a heliostat may stay where it is, which needs no standby point."""
+        if self._standby_point is None:
+            self._standby_point = self._choose_standby()
+        return self._standby_point
+
+    def _choose_standby(self) -> np.ndarray:
+        current_steps, model, frame = self._current, self.model, self.frame
         own = frame.side(self.heliostat_pos)
-        self.standby_point = self.aim_point + standby_offset_m * own
+        chosen = self.aim_point + self.standby_offset_m * own
         if current_steps is not None or self.zone_ids:
             # Park on the side where the beam is now (its ray beside the target: what the slew's
             # beam-safety check traces), else the side the slew from the present pose
@@ -74,7 +94,7 @@ class GeometryPointing(BeamSafety):
             now = self._beam_side(current_steps) if current_steps is not None else 0.0
             best = None
             for side in (own, -own):
-                point = self.aim_point + standby_offset_m * side
+                point = self.aim_point + self.standby_offset_m * side
                 try:  # the steps the model will take there: far from nominal, a side's may differ
                     az, el = self._steps(point, model) if model is not None else self.kin.aim(self.source_dir,
                                                                                               point)
@@ -89,7 +109,8 @@ class GeometryPointing(BeamSafety):
                 if best is None or cost < best[0]:
                     best = (cost, point)
             if best is not None:
-                self.standby_point = best[1]
+                chosen = best[1]
+        return chosen
 
     def _beam_side(self, steps: tuple[int, int]) -> float:
         """+1 or −1: the side (along the view's u axis) of the target where the ray at ``steps``
@@ -125,14 +146,31 @@ class GeometryPointing(BeamSafety):
                                    float(spot.position_sigma_m[0, 0]), PARK_MARGIN_M)
 
     def _steps(self, point: np.ndarray, model: ModelRecord | None) -> tuple[int, int]:
-        return steps_to_aim(self.kin, model, self.source_dir, point, self.source_pos)
+        # The same heliostat, model, source and point come back many times in a night (its lamp
+        # change, its pass's queue, slot and cycle): each is solved once (_AIMS).
+        key = (id(self.heliostat), None if model is None else tuple(model.params.items()),
+               np.asarray(point, float).tobytes(), self.source_dir.tobytes(), self.source_pos)
+        with _AIMS_LOCK:
+            hit = _AIMS.get(key)
+            if hit is not None and hit[0] is self.heliostat:  # the very object: its id is not reused
+                _AIMS.move_to_end(key)
+                return hit[1]
+        steps = steps_to_aim(self.kin, model, self.source_dir, point, self.source_pos)
+        with _AIMS_LOCK:
+            _AIMS[key] = (self.heliostat, steps)
+            if len(_AIMS) > AIMS_KEPT:
+                _AIMS.popitem(last=False)
+        return steps
 
     def aim_steps(self, model: ModelRecord | None) -> tuple[int, int]:
         """Steps onto the aim point; UnsafePath when the beam there, or on the approach from
         standby, would enter a person zone (nothing has moved yet)."""
         aim = self._steps(self.aim_point, model)
         if self.zone_ids:
-            for pose in self._sweep(self.standby_steps(model), aim):
+            sweep = self._sweep(self.standby_steps(model), aim)
+            # All poses traced at once; the first that enters a zone is named.
+            inside = self.in_zone(sweep)
+            for pose in sweep[int(np.argmax(inside)):] if inside.any() else ():
                 zone = self.beam_in_zone(*pose)
                 if zone is not None:
                     raise UnsafePath(f"{self.heliostat.id}: the approach to the aim point {aim} would send "

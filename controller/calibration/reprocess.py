@@ -19,6 +19,7 @@ import functools
 import hashlib
 import json
 import math
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -161,6 +162,16 @@ def analyse_chunk(spec: ChainSpec, pairs: tuple[PairSpec, ...]) -> list[PairResu
         pos = np.asarray(cfg.heliostat(p.heliostat_id).position_enu_m, float)
         out.append(analyse_pair(chain, pos, p))
     return out
+
+
+def analyse_timed(groups: tuple[tuple[ChainSpec, tuple[PairSpec, ...]], ...]
+                  ) -> tuple[list[PairResult], float]:
+    """One task of several chunks (a night's passes are campaigns of their own: one task may
+    hold many): :func:`analyse_chunk` of each, and the seconds they took on the worker (the
+    client sizes the next tasks from them, :class:`controller.calibration.reprocess_plan.TaskSizer`)."""
+    t0 = time.perf_counter()
+    out = [r for spec, pairs in groups for r in analyse_chunk(spec, pairs)]
+    return out, time.perf_counter() - t0
 
 
 @dataclass(frozen=True)

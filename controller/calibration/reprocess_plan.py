@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
+from collections.abc import Iterator
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
@@ -21,7 +22,12 @@ from controller.calibration.reprocess import ChainSpec, PairResult, PairSpec, Re
 from controller.config import PlantConfig, config_sha256, load_config
 from controller.errors import HeliocalError, InputError
 
-MAX_PAIRS_PER_TASK = 32  # a task then lasts about a second at 1024×768: scheduling costs ~1 ms
+# Dask's scheduler costs about 1 ms per task; its documentation asks for tasks of 100 ms or more.
+# Tasks are sized from the pairs' measured cost to last TASK_S (a margin over 0.1 s: a pair's
+# cost varies with its spot and the worker's load), at most MAX_TASK_PAIRS pairs.
+TASK_S = 0.3
+FIRST_TASK_PAIRS = 4  # before any pair's cost is known
+MAX_TASK_PAIRS = 512
 
 
 @dataclass(frozen=True)
@@ -139,19 +145,39 @@ def plan_pairs(archive: Archive, configs: Configs, scope: list[MeasurementRecord
     return out
 
 
-def chunks(todo: list[tuple[ChainSpec, PairSpec]],
-           workers: int) -> list[tuple[ChainSpec, tuple[PairSpec, ...]]]:
-    """Tasks of at most :data:`MAX_PAIRS_PER_TASK` consecutive pairs of one campaign, small
-    enough that every worker gets several (the result does not depend on the chunking)."""
-    if not todo:
-        return []
-    size = max(1, min(MAX_PAIRS_PER_TASK, math.ceil(len(todo) / (4 * max(1, workers)))))
-    out: list[tuple[ChainSpec, list[PairSpec]]] = []
-    for spec, pair in todo:
-        if not out or out[-1][0] != spec or len(out[-1][1]) >= size:
-            out.append((spec, []))
-        out[-1][1].append(pair)
-    return [(s, tuple(p)) for s, p in out]
+class TaskSizer:
+    """How many pairs the next task holds: :data:`TASK_S` of work at the mean cost per pair
+    measured on the workers so far (:meth:`tell`), :data:`FIRST_TASK_PAIRS` until the first
+    result, within [1, :data:`MAX_TASK_PAIRS`]."""
+
+    def __init__(self) -> None:
+        self.pairs = 0
+        self.seconds = 0.0
+
+    def tell(self, pairs: int, seconds: float) -> None:
+        self.pairs += pairs
+        self.seconds += seconds
+
+    @property
+    def size(self) -> int:
+        if not self.pairs or self.seconds <= 0:
+            return FIRST_TASK_PAIRS
+        return max(1, min(MAX_TASK_PAIRS, math.ceil(TASK_S * self.pairs / self.seconds)))
+
+
+def take_task(todo: Iterator[tuple[ChainSpec, PairSpec]],
+              size: int) -> tuple[tuple[ChainSpec, tuple[PairSpec, ...]], ...]:
+    """The next task from ``todo``: up to ``size`` consecutive pairs, grouped by campaign (each
+    group one beam chain); empty at the end."""
+    groups: list[tuple[ChainSpec, list[PairSpec]]] = []
+    for _ in range(size):
+        item = next(todo, None)
+        if item is None:
+            break
+        if not groups or groups[-1][0] != item[0]:
+            groups.append((item[0], []))
+        groups[-1][1].append(item[1])
+    return tuple((spec, tuple(pairs)) for spec, pairs in groups)
 
 
 def reanalysed(m: MeasurementRecord, r: PairResult | None) -> MeasurementRecord:

@@ -5,7 +5,8 @@
   local cluster of worker processes on 127.0.0.1.
 * **Tasks**: one per chunk of pairs (:func:`controller.calibration.reprocess.analyse_chunk`:
   the worker reads the frames from their paths, only paths and small results travel through
-  the scheduler), then one per heliostat refit
+  the scheduler), sized from the measured cost per pair to last about 0.3 s (Dask's scheduler
+  costs ~1 ms a task) and submitted as earlier ones finish, then one per heliostat refit
   (:func:`controller.calibration.reprocess.refit_heliostat`).
 * **One writer**: results come back to this process, which alone writes the output database
   (a :class:`ReprocessSink`), one transaction per chunk or batch of refits. A worker that dies
@@ -15,6 +16,7 @@
 
 from __future__ import annotations
 
+import itertools
 import re
 import uuid
 from collections.abc import Callable, Iterator
@@ -23,12 +25,28 @@ from dataclasses import dataclass
 from typing import Any, Protocol
 
 from controller.calibration.records import ModelRecord
-from controller.calibration.reprocess import PairResult, RefitResult, analyse_chunk, refit_heliostat
-from controller.calibration.reprocess_plan import Archive, Configs, chunks, plan_pairs, refit_specs
+from controller.calibration.reprocess import PairResult, RefitResult, analyse_timed, refit_heliostat
+from controller.calibration.reprocess_plan import (
+    Archive,
+    Configs,
+    TaskSizer,
+    plan_pairs,
+    refit_specs,
+    take_task,
+)
 from controller.errors import HeliocalError, InputError
 
 SCHEDULER_ADDRESS = re.compile(r"^(tcp|tls)://[A-Za-z0-9.\-\[\]:]+:(\d{1,5})$")
 REFIT_BATCH = 64  # refits committed per transaction
+TASKS_PER_WORKER = 3  # pair tasks in flight per worker: one running, the next ones queued on it
+# A local cluster's workers (docs/reprocess.md, "On a cluster", for workers started by hand):
+# * the nanny's MALLOC_TRIM_THRESHOLD_ fixes glibc's mmap threshold, so every image-sized array
+#   is mapped and faulted in afresh: the same pairs cost 45 % more CPU (6.3 instead of 4.3 s
+#   for 1,020 pairs in one process; twice the loop's CPU on the workers);
+# * the statistical profiler samples the task's thread every 10 ms for a dashboard a local
+#   cluster does not serve.
+LOCAL_WORKERS = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
+                 "distributed.worker.profile.enabled": False}
 
 
 class ClusterError(HeliocalError):
@@ -87,8 +105,11 @@ def open_cluster(scheduler: str | None, workers: int, *, timeout_s: float = 60.0
         finally:
             client.close()
         return
-    with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                      dashboard_address=None) as cluster, Client(cluster, set_as_default=False) as client:
+    import dask
+
+    with dask.config.set(LOCAL_WORKERS), \
+            LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                         dashboard_address=None) as cluster, Client(cluster, set_as_default=False) as client:
         client.wait_for_workers(workers, timeout=timeout_s)
         yield Cluster(client, workers, cluster.scheduler_address, True)
 
@@ -105,9 +126,7 @@ def reprocess(cluster: Cluster, archive: Archive, configs: Configs, scope: list,
     old = {m.id: m for m in archive.measurements}
     progress("pairs", len(planned) - len(todo), len(planned))
     n = len(planned) - len(todo)
-    futures = [client.submit(analyse_chunk, spec, pairs, key=f"reprocess-pairs-{token}-{i}", pure=False)
-               for i, (spec, pairs) in enumerate(chunks(todo, cluster.workers))]
-    for results in _completed(client, futures):
+    for results in _streamed(client, iter(todo), cluster.workers, token):
         sink.record_pairs(results, old)
         n += len(results)
         progress("pairs", n, len(planned))
@@ -127,6 +146,41 @@ def reprocess(cluster: Cluster, archive: Archive, configs: Configs, scope: list,
             k += len(batch)
             batch = []
             progress("refits", k, len(specs))
+
+
+def _streamed(client, todo: Iterator, workers: int, token: str) -> Iterator[list[PairResult]]:
+    """The pairs of ``todo`` analysed, a task's results at a time as tasks finish. Tasks are
+    sized by a :class:`TaskSizer` from the cost measured so far and submitted as others finish,
+    :data:`TASKS_PER_WORKER` per worker in flight: neither the tasks nor their results are held
+    for the whole archive. On a failure the tasks in flight are cancelled and the task's
+    exception is raised here (what was committed stays)."""
+    from dask.distributed import as_completed
+
+    sizer, live, ids = TaskSizer(), set(), itertools.count()
+    running = as_completed(loop=client.loop)
+
+    def submit() -> bool:
+        task = take_task(todo, sizer.size)
+        if not task:
+            return False
+        fut = client.submit(analyse_timed, task, key=f"reprocess-pairs-{token}-{next(ids)}", pure=False)
+        live.add(fut)
+        running.add(fut)
+        return True
+
+    try:
+        for _ in range(TASKS_PER_WORKER * max(1, workers)):
+            if not submit():
+                break
+        for fut in running:
+            live.discard(fut)
+            results, seconds = fut.result()  # raises the worker's exception
+            fut.release()
+            sizer.tell(len(results), seconds)
+            submit()
+            yield results
+    finally:
+        client.cancel([f for f in live if not f.done()])
 
 
 def _completed(client, futures: list) -> Iterator[Any]:

@@ -77,12 +77,14 @@ def cheap_field(cheap, store) -> Field:
 
 def run_cheap_night(cheap, plan: list[PlanItem] | None, night: str, budget_s: float, *,
                     heliostat_ids: list[str] | None = None, unmeasurable: list[Unmeasurable] = (),
-                    workers: int | None = None, unsafe_lamp_change: bool = False) -> CheapNight:
+                    workers: int | None = None, unsafe_lamp_change: bool = False,
+                    observers=()) -> CheapNight:
     """Run night ``night`` on ``cheap`` (module docstring): ``plan`` (None: planned by the night)
     for ``heliostat_ids`` (default: the plan's heliostats, or the whole field);
     ``unmeasurable``: what the planner said of the heliostats it left out of a plan handed in.
     ``unsafe_lamp_change`` lights each lamp without first making the heliostats safe for it
-    (the defect the lamp change fixes, kept for its regression test)."""
+    (the defect the lamp change fixes, kept for its regression test); ``observers``: told what
+    every campaign of the night does."""
     store = open_store(cheap.db_path)
     book = NightBook(store)
     over = threading.Event()
@@ -95,7 +97,8 @@ def run_cheap_night(cheap, plan: list[PlanItem] | None, night: str, budget_s: fl
             book.record_plan(plan)
             book.open_night(night, "planned")
             book.add_to_summary(night, {"unmeasurable": [u.to_json() for u in unmeasurable]})
-        pn = PlannedNight(plant, book, night, book.index_for(night), heliostat_ids=ids, workers=workers)
+        pn = PlannedNight(plant, book, night, book.index_for(night), heliostat_ids=ids, workers=workers,
+                          observers=observers)
         if unsafe_lamp_change:
             pn._change_lamp = lambda lamp, standbys: plant.lights_out()
         t0 = cheap.time.now()
@@ -130,14 +133,15 @@ def run_cheap_night(cheap, plan: list[PlanItem] | None, night: str, budget_s: fl
 
 
 def calibrate_from_truth(cheap, name: str, *, noise_m: float = 0.02, seed: int = 0,
-                         workers: int | None = None) -> dict:
+                         workers: int | None = None, heliostat_ids: list[str] | None = None) -> dict:
     """Night 0 of ``cheap`` without running it (module docstring): for every heliostat the pose
     the calibration cycle takes first (its nominal aim at the calibration target's centre under
     the calibration lamp, :func:`controller.calibration.pointing.steps_to_aim`), the spot the
     plant's truth puts on the target there (:meth:`CheapField.true_hit`) with ``noise_m`` of
     centroid noise per axis, the model the product fits to it
     (:func:`controller.calibration.refit.refit_models`), recorded as the calibration campaign
-    and night 0 ``name``. Returns ``{"heliostats", "recorded", "unreachable", "fit_s", "record_s"}``."""
+    and night 0 ``name`` (``heliostat_ids``: only these). Returns ``{"heliostats", "recorded",
+    "unreachable", "fit_s", "record_s"}``."""
     cfg = cheap.cfg
     lamp, target = cfg.light_source(), cfg.target()
     lamp_pos = np.asarray(lamp.position_enu_m, float)
@@ -149,7 +153,8 @@ def calibrate_from_truth(cheap, name: str, *, noise_m: float = 0.02, seed: int =
     utc = cheap.time.utc()
     history: dict[str, list[MeasurementRecord]] = {}
     unreachable = []
-    for h in cfg.heliostats:
+    chosen = [cfg.heliostat(hid) for hid in heliostat_ids] if heliostat_ids is not None else cfg.heliostats
+    for h in chosen:
         pos = np.asarray(h.position_enu_m, float)
         s = np.asarray(source_direction(lamp, pos), float)
         try:
@@ -176,7 +181,7 @@ def calibrate_from_truth(cheap, name: str, *, noise_m: float = 0.02, seed: int =
         night, _ = book.open_night(name, "calibration")
         cid, _ = store.open_campaign(name, config_path=str(cheap.config_path),
                                      config_sha256=config_sha256(cheap.config_path), light_source=lamp.id,
-                                     target=target.id, queue=[h.id for h in cfg.heliostats],
+                                     target=target.id, queue=[h.id for h in chosen],
                                      meta={"plant": "simulated, cheap optics",
                                            "night_0": "from the plant's truth"})
         for qi, (hid, ms) in enumerate(history.items()):
@@ -187,5 +192,5 @@ def calibrate_from_truth(cheap, name: str, *, noise_m: float = 0.02, seed: int =
         book.finish_night(night.id, "finished", None, {"campaign": name, "status": "finished", "lamps": []})
     finally:
         store.close()
-    return {"heliostats": len(cfg.heliostats), "recorded": len(history), "unreachable": unreachable,
+    return {"heliostats": len(chosen), "recorded": len(history), "unreachable": unreachable,
             "fit_s": fits.seconds, "record_s": time.perf_counter() - t0}

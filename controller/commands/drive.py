@@ -120,24 +120,28 @@ def _act(args, drive, cfg_limits: DriveLimits | None, source: str | None) -> dic
     if fw_limits is not None:
         fw_limits.check(*target, f"{what} (firmware)")
     drive.limits = _intersect(cfg_limits, fw_limits)
-    if status is not None:
-        drive.jog(args.az_steps, args.el_steps, from_status=status)
-        target = drive.last_targets or target
-    else:
-        drive.move_abs(*target)
-    az, el = target
-    if args.wait:
-        try:
-            st = drive.wait_in_position(args.wait_timeout, expect=target)
-        except KeyboardInterrupt:
+    # A signal may arrive as soon as the command is on its way (the axes may already move): with
+    # --wait, from then on it stops them, not only once the wait has begun.
+    try:
+        if status is not None:
+            drive.jog(args.az_steps, args.el_steps, from_status=status)
+            target = drive.last_targets or target
+        else:
+            drive.move_abs(*target)
+        az, el = target
+        if args.wait:
+            try:
+                st = drive.wait_in_position(args.wait_timeout, expect=target)
+            except DriveError as exc:
+                # The command itself was acknowledged: whatever went wrong while waiting, it was
+                # executed, and sending it again would move the axes twice.
+                exc.outcome = "executed"
+                raise
+            az, el = st.az_steps, st.el_steps
+    except KeyboardInterrupt:
+        if args.wait:
             _interrupted(args, drive)
-            raise
-        except DriveError as exc:
-            # The command itself was acknowledged: whatever went wrong while waiting, it was
-            # executed, and sending it again would move the axes twice.
-            exc.outcome = "executed"
-            raise
-        az, el = st.az_steps, st.el_steps
+        raise
     return MoveResult(True, az, el, retries=drive.retries_used).to_json()
 
 

@@ -88,6 +88,11 @@ class SimAxis:
             return
         p = self.params
         while dt > 1e-12:
+            n = self._cruise_steps(dt)
+            if n > 1:  # n whole steps at full speed at once: what n passes of the loop would do
+                self._move_motor(math.copysign(p.speed * _DT_MAX * n, self.velocity))
+                dt -= n * _DT_MAX
+                continue
             h = min(dt, _DT_MAX)
             dt -= h
             remaining = self.target - self.motor
@@ -113,6 +118,21 @@ class SimAxis:
                 self.limit_hit = True
                 self.velocity = 0.0
                 return
+
+    def _cruise_steps(self, dt: float) -> int:
+        """How many whole integration steps of the next ``dt`` s the axis cruises at full speed
+        towards its target: each starts farther from it than the stopping distance and a step,
+        so the loop would neither brake nor overshoot (0 when not cruising, or when the cruise
+        would reach a hard limit, which the loop stops at step by step)."""
+        p = self.params
+        remaining = self.target - self.motor
+        if abs(self.velocity) != p.speed or self.velocity * remaining <= 0:
+            return 0
+        # Each step starts farther than the stopping distance and than the step itself.
+        near = max(p.speed * p.speed / (2.0 * p.acceleration), p.speed * _DT_MAX)
+        n = min(int(dt / _DT_MAX), math.ceil((abs(remaining) - near) / (p.speed * _DT_MAX)))
+        end = self.motor + math.copysign(p.speed * _DT_MAX * n, self.velocity)
+        return n if n > 1 and p.hard_min <= end <= p.hard_max else 0
 
     def _move_motor(self, step: float) -> None:
         if step == 0:

@@ -11,6 +11,7 @@ import pytest
 import yaml
 
 from controller.commands._cheap_night import run_cheap_night
+from controller.commands.sim.field import OnTarget, run_planned_night, seed_from_truth, strays
 from controller.devices.drive import AxisLimits, DriveLimits
 from controller.errors import LimitError
 from controller.storage.db import CampaignStore
@@ -73,3 +74,29 @@ def test_inproc_drive_firmware_enforces_its_soft_limits(base, tmp_path):
     assert (after.az_target, after.el_target) == (before.az_target, before.el_target)
     drive.move_abs(fw.max_steps, before.el_steps)
     assert drive.status().az_target == fw.max_steps
+
+
+def test_several_beams_on_the_cheap_field_and_a_beam_not_the_captures_is_counted(base, tmp_path):
+    """K = 2 on the cheap field: rounds share captures, every spot is measured where its own
+    beam hit, and no capture holds a beam that is not the capture's; a watcher that expects no
+    beam on the targets counts every beam of every capture as a stray."""
+    field = CheapField(field_data(base, 10, 1, 1, beams=2), tmp_path, speedup=1000.0)
+    seed_from_truth(field, "n0")
+    watch = OnTarget(field, None)
+    night = run_planned_night(field, None, "n1", budget_s=8 * 3600.0, observers=[watch])
+    store = CampaignStore(field.db_path, readonly=True)
+    try:
+        rounds = [store.campaign_by_name(r.name).meta.get("beams", {}).get("rounds", 0)
+                  for r in night.results]
+    finally:
+        store.close()
+    # Two start stowed where no safe slew leaves the targets' plane (UnsafePath): parked, not measured.
+    assert len(night.measured) >= 8 and sum(rounds) >= 2
+    assert max(len(b) for b in field.cameras["T1"].beams_in_view) == 2  # two beams shared a capture
+    assert strays(field, 2, {})[0] == 0
+    watch.on.clear()
+    watch.state_changed = lambda *_: None  # a watcher that expects no beam anywhere
+    for cam in field.cameras.values():
+        cam.beams_in_view, cam.strays = [], []
+    field.cameras["T1"].capture()  # the beams parked off the target: nothing in view, nothing stray
+    assert strays(field, 2, {}) == (0, 1, [])

@@ -1,0 +1,193 @@
+"""``heliocal sim field``: a large simulated field with cheap optics, and its night 0 closed loop.
+
+Contract::
+
+    heliocal sim field --out DIR [--heliostats 1000] [--targets 3] [--calibrate N]
+                       [--speedup 200] [--night-h 12] [--json]
+
+Builds the field of ``benchmarks/bench_field.py`` (:func:`simplant.cheap_night.field_data` from
+the packaged demo plant: ``--heliostats`` on staggered half rings, ``--targets`` stacked on
+the tower, six lamps; in-process drives, analytic-spot cameras, on the plant clock at
+``--speedup``) in ``DIR`` (``field.yaml``, ``night.db``, ``images/``) and runs its **night 0**:
+the product's calibration campaign (``heliocal campaign run``'s, closed loop from the nominal
+kinematics, one measurement and correction after another until within tolerance) on ``N``
+evenly spread heliostats (default: all), stopped after ``--night-h`` plant hours. The JSON says
+how many were calibrated, the plant hours it took and the plant hours the whole field would
+take at that rate.
+
+Its Python entry points are what ``benchmarks/bench_field.py`` runs: :func:`night_zero`, the
+planned night :func:`run_planned_night`, :func:`seed_from_truth` (the stand-in for a night 0
+too long to run closed loop in a benchmark: each heliostat's first capture taken from the plant's
+truth), and the truth of "no beam in view but the capture's": :class:`OnTarget`, :func:`strays`.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from controller.calibration.night import calibration_night
+from controller.calibration.observers import CampaignObserver
+from controller.calibration.runner import Campaign, CampaignOptions
+from controller.commands._cheap_night import WATCH_S, cheap_field
+from controller.commands._cheap_night import calibrate_from_truth as seed_from_truth
+from controller.commands._cheap_night import run_cheap_night as run_planned_night
+from controller.commands._common import add_json_option, print_json
+from controller.commands._field import open_store
+from controller.commands._numbers import Number
+from controller.errors import InputError
+from controller.storage.nights import NightBook
+
+__all__ = ["NightZero", "OnTarget", "night_zero", "run_planned_night", "seed_from_truth", "spread", "strays"]
+
+
+@dataclass
+class NightZero:
+    """Night 0 on a cheap field: ``heliostats`` calibrated closed loop, how their runs ended
+    (``statuses``), their ``measurements``, ``plant_s`` and ``wall_s`` it took."""
+
+    heliostats: int
+    statuses: dict[str, int]
+    measurements: int
+    plant_s: float
+    wall_s: float
+    stopped_by_budget: bool
+
+    @property
+    def calibrated(self) -> int:
+        return self.statuses.get("calibrated", 0)
+
+
+def spread(ids: list[str], n: int) -> list[str]:
+    """``n`` of ``ids`` evenly spread (every ring and sector of a field in it); all when n ≥ len."""
+    if n >= len(ids):
+        return list(ids)
+    step = len(ids) / n
+    return [ids[int(i * step)] for i in range(n)]
+
+
+def night_zero(cheap, ids: list[str], name: str, budget_s: float, observers=()) -> NightZero:
+    """Night 0 of ``ids`` on ``cheap`` (a :class:`simplant.cheap_night.CheapField`): the product's
+    calibration campaign as ``heliocal campaign run`` runs it (:func:`calibration_night`),
+    closed loop from whatever models the store holds (none: the nominal kinematics), stopped as
+    the console's stop would after ``budget_s`` plant seconds; ``observers`` are told what it does."""
+    store = open_store(cheap.db_path)
+    done = threading.Event()
+    over = threading.Event()
+    try:
+        campaign = Campaign(cheap_field(cheap, store), CampaignOptions(name=name), heliostat_ids=ids,
+                            observers=observers)
+        t0, wall0 = cheap.time.now(), time.perf_counter()
+
+        def watch() -> None:
+            while not done.wait(WATCH_S):
+                if cheap.time.now() >= t0 + budget_s:
+                    over.set()
+                    campaign.request_stop()
+                    return
+
+        watcher = threading.Thread(target=watch, name="night-0-budget", daemon=True)
+        watcher.start()
+        try:
+            r = calibration_night(NightBook(store), campaign)
+        finally:
+            done.set()
+            watcher.join()
+        plant_s, wall_s = cheap.time.now() - t0, time.perf_counter() - wall0
+    finally:
+        store.close()
+    statuses: dict[str, int] = {}
+    for run in r.runs:
+        statuses[run.status] = statuses.get(run.status, 0) + 1
+    return NightZero(len(ids), statuses, sum(run.iterations for run in r.runs), plant_s, wall_s,
+                     over.is_set())
+
+
+class OnTarget(CampaignObserver):
+    """Which heliostats the controller means to have on each target now: those whose cycle is
+    between its approach and its park (the states from *slewing* to *correcting*), on the
+    target the plan gives them under the lit lamp (night 0: the calibration target). Each
+    cheap camera asks it at every capture (``CheapCamera.expected``); a beam in view that is
+    not meant to be there is a stray."""
+
+    STATES = frozenset(("slewing", "settling", "capturing", "merging", "analysing", "matching", "verifying",
+                        "correcting"))
+
+    def __init__(self, cheap, plan) -> None:
+        self.plant, self.default = cheap.plant, cheap.cfg.calibration.target
+        self.where: dict[tuple[str, str], set[str]] = {}
+        for it in plan or ():
+            key = (it.heliostat_id, it.geometry.lamp)
+            self.where.setdefault(key, set()).add(it.geometry.target or self.default)
+        self.on: set[str] = set()
+        for tid, cam in cheap.cameras.items():
+            cam.expected = (lambda t=tid: self.meant(t))
+
+    def meant(self, target: str) -> set[str]:
+        lamp = self.plant.lit
+        return {h for h in list(self.on) if target in self.where.get((h, lamp), {self.default})}
+
+    def state_changed(self, heliostat_id: str, state: str) -> None:
+        (self.on.add if state in self.STATES else self.on.discard)(heliostat_id)
+
+
+def strays(cheap, k: int, since: dict[str, int]) -> tuple[int, int, list]:
+    """Captures since ``since`` (per camera, a count of captures) with a beam in view that is not
+    the capture's (:class:`OnTarget`) or with more than ``k`` beams: (such captures, captures,
+    up to five examples)."""
+    bad, total, examples = 0, 0, []
+    for tid, cam in cheap.cameras.items():
+        for i in range(since.get(tid, 0), len(cam.beams_in_view)):
+            seen, stray = cam.beams_in_view[i], cam.strays[i] if i < len(cam.strays) else ()
+            total += 1
+            if stray or len(seen) > k:
+                bad += 1
+                if len(examples) < 5:
+                    examples.append({"target": tid, "in_view": list(seen), "not_the_captures": list(stray)})
+    return bad, total, examples
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("field", help="a large simulated field (cheap optics) and its night 0",
+                              description=__doc__.split("\n\n")[0])
+    p.add_argument("--out", required=True, metavar="DIR", help="folder for the field (created)")
+    p.add_argument("--heliostats", type=Number(1, 50_000, integer=True), default=1000, metavar="N")
+    p.add_argument("--targets", type=Number(1, 3, integer=True), default=3, metavar="T")
+    p.add_argument("--calibrate", type=Number(1, 50_000, integer=True), default=None, metavar="N",
+                   help="heliostats calibrated in night 0, evenly spread (default: all)")
+    p.add_argument("--speedup", type=Number(0, 1000, lo_open=True), default=200.0, metavar="X",
+                   help="plant seconds per wall second (default 200)")
+    p.add_argument("--night-h", type=Number(0, 24, lo_open=True), default=12.0, metavar="H",
+                   help="night 0 stops after H plant hours (default 12)")
+    add_json_option(p)
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    import yaml
+
+    from controller.commands._common import PACKAGED_CONFIG
+    from simplant.cheap_night import CheapField, field_data
+
+    out = Path(args.out)
+    if out.exists() and any(out.iterdir()):
+        raise InputError(f"--out {out}: not empty; give a new folder")
+    data = field_data(yaml.safe_load(Path(PACKAGED_CONFIG).read_text(encoding="utf-8")), int(args.heliostats),
+                      int(args.targets))
+    cheap = CheapField(data, out, speedup=float(args.speedup))
+    ids = [h.id for h in cheap.cfg.heliostats]
+    chosen = spread(ids, int(args.calibrate or len(ids)))
+    r = night_zero(cheap, chosen, "field/night-0", 3600.0 * float(args.night_h))
+    whole_h = r.plant_s / 3600.0 * len(ids) / max(1, r.heliostats)
+    result = {"heliostats": len(ids), "calibrated_closed_loop": r.calibrated, "of": r.heliostats,
+              "statuses": r.statuses, "measurements": r.measurements, "plant_hours": r.plant_s / 3600.0,
+              "whole_field_plant_hours": whole_h, "stopped_by_budget": r.stopped_by_budget,
+              "wall_s": r.wall_s, "database": str(cheap.db_path)}
+    if args.json:
+        print_json(result)
+    else:
+        print(f"night 0: {r.calibrated} of {r.heliostats} heliostats calibrated closed loop in "
+              f"{r.plant_s / 3600:.2f} plant h ({whole_h:.1f} h for all {len(ids)}); {cheap.db_path}")
+    return 0
