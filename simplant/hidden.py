@@ -12,7 +12,7 @@ from controller.geometry.vectors import unit
 from simplant.errorset import ErrorCase
 from simplant.firmware.physics import SimController
 from simplant.optics import MirrorSurface, mirror_frame
-from simplant.truth import REPEATABILITY_RAD, HeliostatTruth
+from simplant.truth import HeliostatTruth
 
 
 @dataclass
@@ -57,7 +57,7 @@ class HiddenHeliostat:
         key = (night, *(int(round(v * 1000.0)) % (1 << 32) for v in steps))
         if key != self._settled[0]:
             rng = np.random.default_rng([*self.noise_key, *key])
-            self._settled = (key, tuple(rng.normal(0.0, REPEATABILITY_RAD, 2)))
+            self._settled = (key, tuple(rng.normal(0.0, self.truth.repeatability, 2)))
         return self._settled[1]
 
 

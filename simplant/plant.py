@@ -58,7 +58,7 @@ from simplant.poses import true_pose
 from simplant.safety import BeamSafetyMonitor
 from simplant.settings import SimulationSettings
 from simplant.spot_truth import SpotTruth
-from simplant.truth import hidden_truth
+from simplant.truth import HIDDEN_ERRORS, hidden_truth
 
 NIGHT_ONE = datetime(2026, 3, 1, 20, 0, tzinfo=UTC)  # first simulated night, plant calendar
 TRUTH_RAYS = 100_000
@@ -114,7 +114,8 @@ class SimulatedPlant:
             # One generator per heliostat: its truth does not depend on which others are in the run.
             rng = np.random.default_rng([self.seed, 7, index[hid]])
             case = CASES[int(rng.integers(0, cases))]
-            truth = hidden_truth(h, rng, sim.tracking_error_mrad / 3.0, case)
+            truth = hidden_truth(h, rng, sim.tracking_error_mrad / 3.0, case,
+                                 HIDDEN_ERRORS[sim.hidden_errors])
             mirror = replace(MirrorSurface.from_config(h.mirror), deformation=case.deformation,
                              focal_length_m=h.mirror.focal_length_m / case.focus_factor)
             ctl = SimController(unit=h.link.station,

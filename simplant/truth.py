@@ -88,6 +88,7 @@ class HeliostatTruth:
     concentrator: np.ndarray
     droop: float
     drift_per_night: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    repeatability: float = 0.07e-3  # rad per axis and move (ErrorSpread.repeatability)
 
     def _drift(self, night: int) -> np.ndarray:
         if night <= 0 or not len(self.drift_per_night):
@@ -123,49 +124,105 @@ class HeliostatTruth:
         return self.position + self._frame(az_steps, el_steps, night, None) @ self.concentrator
 
 
+@dataclass(frozen=True)
+class ErrorSpread:
+    """How a field's heliostats are built: the mean and 1-σ of each hidden error at ``scale``
+    1 (angles mrad, lengths mm). ``initial_angle`` and the other pairs are (elevation, azimuth),
+    ``tilt`` (north, east), ``canting`` (about the mirror's east, about its up axis); ``droop``
+    (mean, σ); ``drift_per_night`` the σ of each joint reference's step from one night to the
+    next; ``repeatability`` the σ of each rod's landing error per move (per axis)."""
+
+    initial_angle: tuple[float, float] = (3.0, 3.0)
+    initial_angle_mean: tuple[float, float] = (0.0, 0.0)
+    stroke: tuple[float, float] = (1.0, 1.0)
+    stroke_mean: tuple[float, float] = (0.0, 0.0)
+    lever_offset: float = 0.5
+    pivot_radius: float = 0.5
+    stroke_scale: float = 2e-4
+    tilt: tuple[float, float] = (1.5, 1.5)
+    tilt_mean: tuple[float, float] = (0.0, 0.0)
+    yaw: float = 3.0
+    yaw_mean: float = 0.0
+    non_orthogonality: float = 1.0
+    canting: tuple[float, float] = (1.0, 1.0)
+    canting_mean: tuple[float, float] = (0.0, 0.0)
+    position: float = 30.0
+    droop: tuple[float, float] = (0.3, 0.1)
+    drift_per_night: float = 0.1
+    repeatability: float = 0.07
+
+
+# The simulator's own assumptions (module docstring): at or below the controller's prior σ.
+ASSUMED = ErrorSpread()
+
+# What the 16 Jülich heliostats of PAINT show (tests/data/real/paint-field; docs/tracking-model.md,
+# "The simulated plant learns from the real field"): each heliostat's tracking model fitted to
+# all its records, then the mean and standard deviation over the heliostats whose fit identified
+# the term. Elevation reference −10.6 ± 4.6 mrad (it holds the pedestal's north tilt, which no
+# pointing data separate from it: that tilt keeps 1.5 mrad and the reference the rest), azimuth
+# reference −2.1 ± 3.0, base yaw 28 ± 44, tilt east −1.9 ± 6.7, non-orthogonality 0 ± 0.8, mirror
+# offset (canting about east) 10.1 ± 4.1, azimuth stroke 0.2 ± 0.4 mm. What the records do not
+# identify (the elevation stroke, the lever, the position, droop) keeps the assumption. Drift:
+# the references' random walk the fit uses on these records, 0.1 mrad per √day and 0.1 mrad
+# between sessions, i.e. 0.14 mrad from one night to the next. Repeatability: a record scatters
+# 0.38 mrad (normal, RMS) about the fit within its session; less the two spot methods' floor
+# (0.15 mrad), 0.35 mrad, i.e. 0.25 mrad per axis.
+PAINT_FIELD = ErrorSpread(
+    initial_angle=(4.3, 3.0), initial_angle_mean=(-10.6, -2.1), stroke=(1.0, 0.4),
+    stroke_mean=(0.0, 0.2),
+    tilt=(1.5, 6.7), tilt_mean=(0.0, -1.9), yaw=44.0, yaw_mean=28.0, non_orthogonality=0.8,
+    canting=(4.1, 1.0), canting_mean=(10.1, 0.0), drift_per_night=0.14, repeatability=0.25)
+
+HIDDEN_ERRORS = {"assumed": ASSUMED, "paint-field": PAINT_FIELD}
+
+
 def draw_truth(position, elevation: dict, azimuth: dict, concentrator, rng: np.random.Generator, *,
-               scale: float = 1.0, nights: int = 8, extra: dict | None = None) -> HeliostatTruth:
+               scale: float = 1.0, nights: int = 8, extra: dict | None = None,
+               spread: ErrorSpread = ASSUMED) -> HeliostatTruth:
     """A hidden heliostat about its surveyed description.
 
     ``elevation``/``azimuth``: surveyed actuator values (keys ``increment``,
     ``initial_stroke_length``, ``offset``, ``pivot_radius``, ``initial_angle``,
     ``clockwise_axis_movement``); ``position``: surveyed pivot, m ENU; ``concentrator``: body
-    offset of the mirror centre, m. ``scale`` multiplies every error (0: exactly as
-    surveyed); ``extra`` adds an error case's own pointing (``az_offset``, ``el_offset``,
-    ``tilt_east``, rad)."""
+    offset of the mirror centre, m. ``spread``: how the field is built (:class:`ErrorSpread`);
+    ``scale`` multiplies every error (0: exactly as surveyed); ``extra`` adds an error case's
+    own pointing (``az_offset``, ``el_offset``, ``tilt_east``, rad)."""
     extra = extra or {}
     mrad = 1e-3 * scale
     mm = 1e-3 * scale
+    sp = spread
 
-    def actuator(a: dict, offset_extra: float) -> ActuatorTruth:
-        return ActuatorTruth(float(a["increment"]),
-                             float(a["initial_stroke_length"]) + rng.normal(0.0, 1.0 * mm),
-                             float(a["offset"]) + rng.normal(0.0, 0.5 * mm),
-                             float(a["pivot_radius"]) + rng.normal(0.0, 0.5 * mm),
-                             float(a["initial_angle"]) + rng.normal(0.0, 3.0 * mrad) + offset_extra,
-                             bool(a["clockwise_axis_movement"]),
-                             1.0 + rng.normal(0.0, 2e-4 * scale))
+    def actuator(a: dict, k: int, offset_extra: float) -> ActuatorTruth:
+        # Drawn in this order, whatever the spread: a seed gives the same heliostats as before.
+        stroke0 = float(a["initial_stroke_length"]) + rng.normal(sp.stroke_mean[k] * mm, sp.stroke[k] * mm)
+        lever = float(a["offset"]) + rng.normal(0.0, sp.lever_offset * mm)
+        radius = float(a["pivot_radius"]) + rng.normal(0.0, sp.pivot_radius * mm)
+        error = rng.normal(sp.initial_angle_mean[k] * mrad, sp.initial_angle[k] * mrad)
+        angle0 = float(a["initial_angle"]) + error + offset_extra
+        pitch = 1.0 + rng.normal(0.0, sp.stroke_scale * scale)
+        return ActuatorTruth(float(a["increment"]), stroke0, lever, radius, angle0,
+                             bool(a["clockwise_axis_movement"]), pitch)
 
-    el = actuator(elevation, float(extra.get("el_offset", 0.0)))
-    az = actuator(azimuth, float(extra.get("az_offset", 0.0)))
-    tilt_n, tilt_e = rng.normal(0.0, 1.5 * mrad, 2)
+    el = actuator(elevation, 0, float(extra.get("el_offset", 0.0)))
+    az = actuator(azimuth, 1, float(extra.get("az_offset", 0.0)))
+    tilt_n, tilt_e = rng.normal(np.multiply(sp.tilt_mean, mrad), np.multiply(sp.tilt, mrad))
     tilt_e += float(extra.get("tilt_east", 0.0))
-    pedestal = (rodrigues(UP, rng.normal(0.0, 3.0 * mrad)) @ rodrigues(NORTH, tilt_e)
+    pedestal = (rodrigues(UP, rng.normal(sp.yaw_mean * mrad, sp.yaw * mrad)) @ rodrigues(NORTH, tilt_e)
                 @ rodrigues(EAST, -tilt_n))
     return HeliostatTruth(
-        position=np.asarray(position, float) + rng.normal(0.0, 30.0 * mm, 3),
+        position=np.asarray(position, float) + rng.normal(0.0, sp.position * mm, 3),
         elevation=el, azimuth=az, pedestal=pedestal,
-        non_orthogonality=float(rng.normal(0.0, 1.0 * mrad)),
-        canting=(float(rng.normal(0.0, 1.0 * mrad)), float(rng.normal(0.0, 1.0 * mrad))),
+        non_orthogonality=float(rng.normal(0.0, sp.non_orthogonality * mrad)),
+        canting=(float(rng.normal(sp.canting_mean[0] * mrad, sp.canting[0] * mrad)),
+                 float(rng.normal(sp.canting_mean[1] * mrad, sp.canting[1] * mrad))),
         concentrator=np.asarray(concentrator, float),
-        droop=float(rng.normal(0.3, 0.1)) * mrad,
-        drift_per_night=rng.normal(0.0, 0.1 * mrad, (nights, 2)))
+        droop=float(rng.normal(*sp.droop)) * mrad,
+        drift_per_night=rng.normal(0.0, sp.drift_per_night * mrad, (nights, 2)),
+        repeatability=sp.repeatability * 1e-3)
 
 
-REPEATABILITY_RAD = 0.07e-3  # per axis: ≈ 0.1 mrad of normal in all
-
-
-def hidden_truth(h, rng: np.random.Generator, scale: float, case=None) -> HeliostatTruth:
+def hidden_truth(h, rng: np.random.Generator, scale: float, case=None,
+                 spread: ErrorSpread = ASSUMED) -> HeliostatTruth:
     """A hidden heliostat about the surveyed description of ``h`` (a configured heliostat:
     ``position_enu_m``, ``axes.elevation``/``axes.azimuth`` with the actuator fields,
     ``concentrator_translation_m``), with an
@@ -178,4 +235,4 @@ def hidden_truth(h, rng: np.random.Generator, scale: float, case=None) -> Helios
     pointing = ("az_offset", "el_offset", "tilt_east")
     extra = {} if case is None else {k: getattr(case.params, k) for k in pointing}
     return draw_truth(h.position_enu_m, axis(h.axes.elevation), axis(h.axes.azimuth),
-                      h.concentrator_translation_m, rng, scale=scale, extra=extra)
+                      h.concentrator_translation_m, rng, scale=scale, extra=extra, spread=spread)

@@ -205,3 +205,13 @@ def serve_until(stop: threading.Event) -> None:
     sys.stdout.flush()
     while not stop.wait(0.2):
         pass
+
+
+HIDDEN_ERRORS = ("assumed", "paint-field")  # simplant.truth.HIDDEN_ERRORS, named without importing it
+
+
+def add_hidden_errors_option(parser: argparse.ArgumentParser) -> None:
+    """``--hidden-errors``: how the simulated field is built (simplant's SimulationSettings)."""
+    parser.add_argument("--hidden-errors", choices=HIDDEN_ERRORS, default="assumed",
+                        help="the simulated field's hidden errors: the simulator's assumptions (default) or "
+                             "what 16 real Jülich heliostats show (docs/tracking-model.md)")

@@ -85,7 +85,8 @@ def _simulated(args, cfg, store, ids, base, progress) -> tuple[dict, int]:
         raise InputError(f"--seed {args.seed}: {args.db} was calibrated on the simulated plant with "
                          f"seed {seed}")
     report = planned_night(cfg, args.config, store, sim_dir(Path(args.db)), ids,
-                           SimulationSettings(seed=args.seed, clock_speedup=args.clock_speedup), base,
+                           SimulationSettings(seed=args.seed, clock_speedup=args.clock_speedup,
+                                              hidden_errors=args.hidden_errors), base,
                            progress=progress,
                            strategy=args.strategy)
     summary = {**report.summary.to_json(), "daytime_error_mrad": report.daytime.to_json()}

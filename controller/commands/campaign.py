@@ -26,6 +26,7 @@ from controller.commands._campaign_list import list_campaigns
 from controller.commands._common import (
     add_config_option,
     add_field_change_option,
+    add_hidden_errors_option,
     add_json_option,
     check_camera,
     check_db_field,
@@ -54,6 +55,7 @@ def register(subparsers) -> None:
     r.add_argument("--seed", type=SEED, default=0, help="simulation seed (with --simulate; default 0)")
     r.add_argument("--clock-speedup", type=SPEEDUP, default=20.0, metavar="X",
                    help="simulated plant seconds per wall second (with --simulate; default 20)")
+    add_hidden_errors_option(r)
     r.add_argument("--report", default=None, metavar="DIR", help="also write the morning report into DIR")
     r.add_argument("--notify", default=None, metavar="CMD",
                    help="run CMD (a shell command) at the end with the summary JSON on its standard input")
@@ -74,6 +76,7 @@ def register(subparsers) -> None:
     n.add_argument("--seed", type=SEED, default=0, help="simulation seed (with --simulate; default 0)")
     n.add_argument("--clock-speedup", type=SPEEDUP, default=20.0, metavar="X",
                    help="simulated plant seconds per wall second (with --simulate; default 20)")
+    add_hidden_errors_option(n)
     n.add_argument("--strategy", default="design", choices=("design", "round-robin"),
                    help="planner strategy (default design: the daytime variance reduction)")
     add_field_change_option(n)
@@ -199,7 +202,8 @@ def _run(args, cfg, ids, name, quiet, db):
         from controller.commands.demo import simulated_campaign
         from simplant.settings import SimulationSettings
 
-        settings = SimulationSettings(seed=args.seed, clock_speedup=args.clock_speedup)
+        settings = SimulationSettings(seed=args.seed, clock_speedup=args.clock_speedup,
+                                      hidden_errors=args.hidden_errors)
         summary, sim = simulated_campaign(cfg, args.config, sim_dir(db), db, ids, settings, name, quiet=quiet)
         return summary, sim.result
     return _run_field(cfg, args, ids, name, quiet)

@@ -12,7 +12,13 @@ import argparse
 import sys
 from pathlib import Path
 
-from controller.commands._common import add_config_option, add_json_option, output_dir, print_json
+from controller.commands._common import (
+    add_config_option,
+    add_hidden_errors_option,
+    add_json_option,
+    output_dir,
+    print_json,
+)
 from controller.commands._demo_coarse import (
     UNCALIBRATED_MAX_MRAD,
     centroid_only_twin,
@@ -45,6 +51,7 @@ def register(subparsers) -> None:
                    help="then calibrate the same heliostats on a plant whose hidden errors have this "
                         "scale (a newly installed field, first spots at the view's edge), with the "
                         "coarse correction and centroid only (make demo: 12)")
+    add_hidden_errors_option(p)
     p.add_argument("--aim-only", action="store_true",
                    help="only print the aim of each heliostat (source direction, normal, steps)")
     add_json_option(p)
@@ -83,8 +90,9 @@ def run(args: argparse.Namespace) -> int:
 
     name = f"demo-n{len(ids)}-seed{args.seed}" + ("-sequential" if args.sequential else "")
     quiet = args.json or not sys.stderr.isatty()
+    settings = SimulationSettings(seed=args.seed, hidden_errors=args.hidden_errors)
     summary, sim = simulated_campaign(cfg, args.config, Path(args.out), Path(args.out) / "campaign.db", ids,
-                                      SimulationSettings(seed=args.seed), name, sequential=args.sequential,
+                                      settings, name, sequential=args.sequential,
                                       quiet=quiet, library_dir=Path(args.out), nights=args.nights)
     coarse = summary["coarse_correction"]
     centroid_only_twin(coarse, cfg, Path(args.config), Path(args.out), sim, args)
