@@ -23,13 +23,19 @@ A heliostat (two linear actuators, elevation joint first, as the Jülich heliost
 * **repeatability** — each move lands within a small random error (applied by the plant per
   move, :meth:`HeliostatTruth.normal` takes it as ``jitter``).
 
-Magnitudes (1-σ, at the default ``scale`` 1, which multiplies all of them) are the
-simulator's assumptions, chosen at or below the controller's prior σ and of the order of
-as-built tolerances of linear-actuator heliostats (the Jülich AA39 records are 10–18 mrad off
-uncalibrated, mostly one joint reference; docs/tracking-model.md): pedestal tilt 1.5 mrad,
-yaw 3 mrad, non-orthogonality 1 mrad, canting 1 mrad, actuator initial angle 3 mrad, initial
-stroke 1 mm, lever offset and pivot radius 0.5 mm, stroke scale 2·10⁻⁴, position 3 cm, droop
-0.3 ± 0.1 mrad, nightly drift 0.1 mrad, repeatability 0.07 mrad per axis.
+How a field is built (:class:`ErrorSpread`, 1-σ and means at the default ``scale`` 1, which
+multiplies all of them) comes in two kinds (:data:`HIDDEN_ERRORS`):
+
+* ``assumed`` (the default): the simulator's assumptions, chosen at or below the controller's
+  prior σ and of the order of as-built tolerances of linear-actuator heliostats: pedestal tilt
+  1.5 mrad, yaw 3 mrad, non-orthogonality 1 mrad, canting 1 mrad, actuator initial angle 3 mrad,
+  initial stroke 1 mm, lever offset and pivot radius 0.5 mm, stroke scale 2·10⁻⁴, position 3 cm,
+  droop 0.3 ± 0.1 mrad, nightly drift 0.1 mrad, repeatability 0.07 mrad per axis;
+* ``paint-field``: what 16 real Jülich heliostats show (:data:`PAINT_FIELD`, its comment says
+  how it was measured): references −10.6 ± 4.3 and −2.1 ± 3.0 mrad, yaw 28 ± 44 mrad, tilt east
+  −1.9 ± 6.7 mrad, canting 10.1 ± 4.1 mrad, nightly drift 0.14 mrad, repeatability 0.25 mrad.
+
+The numbers are copied here from those measurements; nothing of the controller computes them.
 """
 
 from __future__ import annotations
