@@ -31,7 +31,7 @@ import cv2
 import numpy as np
 import yaml
 
-from controller.calibration.beam_chain import BeamChain
+from controller.calibration.cycle.beam_chain import BeamChain
 from controller.commands.demo import simulated_campaign
 from controller.config import load_config
 from controller.devices.camera import FramePair

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from controller.geometry.vectors import unit
-from simplant.grids import camera_grid
+from simplant.devices.grids import camera_grid
 from simplant.poses import true_pose
 
 if TYPE_CHECKING:  # the plant owns its monitor: a runtime import would be circular

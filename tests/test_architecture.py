@@ -61,10 +61,13 @@ SIMULATOR_USERS = ("controller.commands.demo", "controller.commands._demo_coarse
 
 # The product's orchestration the simulated plant must never import: it provides devices and
 # truth (like ophyd.sim), it does not assemble campaigns, nights or lamp changes itself.
-ORCHESTRATION_OPERATIONS = ("controller.calibration.runner", "controller.calibration.nights",
-                            "controller.calibration.night", "controller.calibration.lamp_change",
-                            "controller.calibration.planner", "controller.calibration.parallel",
-                            "controller.calibration.machine")
+ORCHESTRATION_OPERATIONS = ("controller.calibration.campaign.runner",
+                            "controller.calibration.night.passes",
+                            "controller.calibration.night.planned",
+                            "controller.calibration.night.lamp_change",
+                            "controller.calibration.night.planner",
+                            "controller.calibration.campaign.parallel",
+                            "controller.calibration.cycle.machine")
 
 # Modules allowed over MAX_LINES, with the reason (one cohesive thing each).
 MAX_LINES = 400
@@ -147,10 +150,11 @@ def test_layers_only_import_downward():
 @pytest.mark.parametrize("graph, expected", [
     ({"controller.geometry.kinematics": [("controller.devices.drive", True)]}, "imports controller.devices"),
     ({"controller.imaging.hdr": [("controller.io.images", False)]}, "imports controller.io"),
-    ({"controller.devices.drive": [("controller.calibration.machine", True)]},
+    ({"controller.devices.drive": [("controller.calibration.cycle.machine", True)]},
      "imports controller.calibration"),
-    ({"controller.calibration.runner": [("controller.storage.db", True)]}, "imports controller.storage"),
-    ({"controller.calibration.runner": [("simplant.plant", False)]}, "imports the simulator"),
+    ({"controller.calibration.campaign.runner": [("controller.storage.db", True)]},
+     "imports controller.storage"),
+    ({"controller.calibration.campaign.runner": [("simplant.plant", False)]}, "imports the simulator"),
     ({"controller.commands.demo": [("simplant.plant", True)]}, "at module level"),
     ({"firmware_proto.codec": [("controller.devices.drive", True)]}, "imports controller.devices"),
 ])
@@ -160,8 +164,9 @@ def test_a_broken_layer_is_caught(graph, expected):
 
 
 def test_allowed_imports_pass():
-    graph = {"controller.commands.demo": [("simplant.plant", False), ("controller.calibration.runner", True)],
-             "controller.storage.db": [("controller.calibration.records", True)],
+    graph = {"controller.commands.demo": [("simplant.plant", False),
+                                          ("controller.calibration.campaign.runner", True)],
+             "controller.storage.db": [("controller.calibration.records.runs", True)],
              "controller.imaging.crf": [("controller.imaging.crf_io", False)],
              "controller.recognition.library_io": [("controller.io.images", True)]}
     assert violations(graph) == []
@@ -200,5 +205,5 @@ def test_the_simulated_plant_assembles_no_orchestration():
 
 @pytest.mark.parametrize("module", ORCHESTRATION_OPERATIONS)
 def test_a_plant_that_imports_orchestration_is_caught(module):
-    graph = {"simplant.harness": [(module, True), ("controller.calibration.observers", True)]}
+    graph = {"simplant.harness": [(module, True), ("controller.calibration.records.observers", True)]}
     assert plant_violations(graph) == [f"simplant.harness imports {module}"]

@@ -1,8 +1,8 @@
 """The product's planned night on a large simulated field with cheap optics
 (:class:`simplant.cheap_night.CheapField`), with a budget of plant time.
 
-The night is :class:`controller.calibration.night.PlannedNight` — the same operation as
-``heliocal campaign night`` — on a :class:`controller.calibration.field.Field` built from the
+The night is :class:`controller.calibration.night.planned.PlannedNight` — the same operation as
+``heliocal campaign night`` — on a :class:`controller.calibration.campaign.field.Field` built from the
 cheap field's devices. Without a plan it plans itself, as ``campaign night`` does (first
 calibrating the heliostats that have no model); a plan handed in is stored first, so the
 night runs it as it runs a resumed night's stored plan. The night ends when every pass is
@@ -24,14 +24,14 @@ from pathlib import Path
 
 import numpy as np
 
-from controller.calibration.field import Field, PanelLamps
-from controller.calibration.night import NightSummary, PlannedNight
-from controller.calibration.nights import night_passes
-from controller.calibration.outcome import CampaignResult
-from controller.calibration.planner import PlanItem, Unmeasurable
-from controller.calibration.pointing import steps_to_aim
-from controller.calibration.records import MeasurementRecord, RunRecord
-from controller.calibration.refit import refit_models
+from controller.calibration.campaign.field import Field, PanelLamps
+from controller.calibration.campaign.outcome import CampaignResult
+from controller.calibration.cycle.pointing import steps_to_aim
+from controller.calibration.model.refit import refit_models
+from controller.calibration.night.passes import night_passes
+from controller.calibration.night.planned import NightSummary, PlannedNight
+from controller.calibration.night.planner import PlanItem, Unmeasurable
+from controller.calibration.records.runs import MeasurementRecord, RunRecord
 from controller.commands._field import open_store
 from controller.config import config_sha256
 from controller.errors import LimitError
@@ -136,10 +136,10 @@ def calibrate_from_truth(cheap, name: str, *, noise_m: float = 0.02, seed: int =
                          workers: int | None = None, heliostat_ids: list[str] | None = None) -> dict:
     """Night 0 of ``cheap`` without running it (module docstring): for every heliostat the pose
     the calibration cycle takes first (its nominal aim at the calibration target's centre under
-    the calibration lamp, :func:`controller.calibration.pointing.steps_to_aim`), the spot the
+    the calibration lamp, :func:`controller.calibration.cycle.pointing.steps_to_aim`), the spot the
     plant's truth puts on the target there (:meth:`CheapField.true_hit`) with ``noise_m`` of
     centroid noise per axis, the model the product fits to it
-    (:func:`controller.calibration.refit.refit_models`), recorded as the calibration campaign
+    (:func:`controller.calibration.model.refit.refit_models`), recorded as the calibration campaign
     and night 0 ``name`` (``heliostat_ids``: only these). Returns ``{"heliostats", "recorded",
     "unreachable", "fit_s", "record_s"}``."""
     cfg = cheap.cfg

@@ -1,4 +1,4 @@
-"""The one place that builds a :class:`controller.calibration.field.Field`: for the real plant
+"""The one place that builds a :class:`controller.calibration.campaign.field.Field`: for the real plant
 from its configuration (drives through the link pool, each target's camera, the lamp panel,
 wall time), for the simulated plant from the devices ``simplant`` provides (firmware on ptys
 and Modbus TCP, simulated cameras, its lamp panel on Modbus TCP, the plant clock). Both keep
@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from controller.calibration.field import Field, PanelLamps
+from controller.calibration.campaign.field import Field, PanelLamps
 from controller.commands._plant import cli_user
 from controller.config import PlantConfig, config_sha256
 from controller.devices.factory import LinkPool, open_camera

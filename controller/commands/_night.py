@@ -1,6 +1,6 @@
 """``heliocal campaign night``: tonight's planned night on the configured (or simulated) field.
 
-The night itself is the product's :class:`controller.calibration.night.PlannedNight`; this
+The night itself is the product's :class:`controller.calibration.night.planned.PlannedNight`; this
 module opens the database, picks tonight's night (the unfinished one to resume, else the next
 index, named ``<night 0's name>/night-<k>``), builds the field and prints the summary. With
 ``--simulate`` the field is the embedded simulated plant on that night
@@ -64,7 +64,7 @@ def run_night_cli(args: argparse.Namespace) -> int:
 
 
 def _field(args, cfg, store, book, ids, base, progress) -> tuple[dict, int]:
-    from controller.calibration.night import PlannedNight, tonight
+    from controller.calibration.night.planned import PlannedNight, tonight
     from controller.commands._field import real_field
 
     name, index = tonight(book, base)

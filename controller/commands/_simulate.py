@@ -2,9 +2,9 @@
 scored against the plant's truth.
 
 Nothing here runs a campaign or a night of its own: ``campaign run --simulate`` is the
-product's :class:`controller.calibration.runner.Campaign` and ``campaign night --simulate``
-its :class:`controller.calibration.night.PlannedNight`, each on the simulated
-:class:`controller.calibration.field.Field` (:func:`controller.commands._field.simulated_field`),
+product's :class:`controller.calibration.campaign.runner.Campaign` and ``campaign night --simulate``
+its :class:`controller.calibration.night.planned.PlannedNight`, each on the simulated
+:class:`controller.calibration.campaign.field.Field` (:func:`controller.commands._field.simulated_field`),
 each its own plant session whose night index is the number of nights recorded in the
 database (the calibration campaign is night 0, the k-th planned night is night k: the plant's
 drift and repeatability draws follow). What only the simulator knows — the true error at each
@@ -18,10 +18,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from controller.calibration.daytime import PredictedDaytime, predicted_daytime, sun_path
-from controller.calibration.night import NightSummary, PlannedNight, calibration_night, tonight
-from controller.calibration.outcome import CampaignResult
-from controller.calibration.runner import Campaign, CampaignOptions
+from controller.calibration.campaign.outcome import CampaignResult
+from controller.calibration.campaign.runner import Campaign, CampaignOptions
+from controller.calibration.model.daytime import PredictedDaytime, predicted_daytime, sun_path
+from controller.calibration.night.planned import NightSummary, PlannedNight, calibration_night, tonight
 from controller.commands._field import open_store, simulated_field
 from controller.config import PlantConfig
 from controller.storage.db import CampaignStore

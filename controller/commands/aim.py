@@ -58,7 +58,7 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from controller.calibration.pointing import steps_to_aim
+    from controller.calibration.cycle.pointing import steps_to_aim
     from controller.commands.sun import parse_time
     from controller.config import load_config
     from controller.geometry.kinematics import HeliostatKinematics

@@ -216,8 +216,8 @@ def sim_dir(db: Path) -> Path:
 
 
 def _run_field(cfg, args, ids, name, quiet):
-    from controller.calibration.night import calibration_night
-    from controller.calibration.runner import Campaign, CampaignOptions
+    from controller.calibration.campaign.runner import Campaign, CampaignOptions
+    from controller.calibration.night.planned import calibration_night
     from controller.commands._field import open_store, real_field
     from controller.commands._progress import TerminalProgress
     from controller.reports.summary import summarize

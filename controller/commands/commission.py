@@ -161,7 +161,7 @@ def _do(c, name: str, params: tuple, args) -> dict:
 
 
 def _session(cfg, args, steps, drive, camera, library, fiducial_lamps=None) -> int:
-    from controller.calibration.commissioning import Commissioning
+    from controller.calibration.cycle.commissioning import Commissioning
 
     c = Commissioning(cfg, args.heliostat, drive, camera, library=library, fiducial_lamps=fiducial_lamps)
     results: dict = {}

@@ -59,7 +59,7 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from controller.calibration.model_update import model_prior
+    from controller.calibration.model.update import model_prior
     from simplant.plant import field_selection
 
     output_dir(args.out)  # an existing file there is refused before any work
@@ -75,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
                          f"got {args.uncalibrated}")
     ids = field_selection(cfg, args.heliostats)
     if args.aim_only:
-        from controller.calibration.pointing import nominal_aims
+        from controller.calibration.cycle.pointing import nominal_aims
 
         rows = [{"heliostat": a.heliostat_id, "source_dir": a.source_dir.round(6).tolist(),
                  "normal": a.normal.round(6).tolist(), "az_deg": round(a.az_deg, 4),

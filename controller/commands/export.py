@@ -143,7 +143,7 @@ def _models(args: argparse.Namespace, fmt: str) -> int:
 
 def _paint(args: argparse.Namespace) -> int:
     from controller.storage.db import open_existing
-    from controller.storage.paint import export_paint
+    from controller.storage.paint.export import export_paint
 
     if args.out is None:
         raise InputError("export: --out DIR is required")

@@ -22,7 +22,7 @@ from starlette.responses import FileResponse, JSONResponse, RedirectResponse, Re
 from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
 
-from controller.calibration.beam_safety import UnsafePath
+from controller.calibration.cycle.beam_safety import UnsafePath
 from controller.console import views
 from controller.console.access import ConsoleAccess
 from controller.console.backend import Conflict, Console

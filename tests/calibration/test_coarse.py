@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from controller.calibration.coarse import clipped_applies, correction_step
-from controller.calibration.observations import Observation
+from controller.calibration.cycle.coarse import clipped_applies, correction_step
+from controller.calibration.cycle.observations import Observation
 from controller.config import load_config
 from controller.recognition.library import Match
 
@@ -26,7 +26,7 @@ class _Pointing:
         self.asked = []
 
     def fine_correction(self, az, el, offset_enu):
-        from controller.calibration.observations import Step
+        from controller.calibration.cycle.observations import Step
         self.asked.append(np.asarray(offset_enu, float))
         return Step(0.0, 0.0, int(round(-1000 * offset_enu[0])), int(round(-1000 * offset_enu[2])))
 
@@ -131,7 +131,7 @@ def test_bad_coarse_correction_threshold_is_refused_naming_the_key(tmp_path, cap
 def test_demo_coarse_summary_counts_runs_with_a_coarse_first_move():
     from types import SimpleNamespace as NS
 
-    from controller.calibration.records import CorrectionRecord
+    from controller.calibration.records.runs import CorrectionRecord
     from controller.commands._demo_coarse import coarse_summary
 
     runs = [NS(id=1, heliostat_id="H01", iterations=3), NS(id=2, heliostat_id="H02", iterations=1),

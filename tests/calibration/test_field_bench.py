@@ -16,7 +16,7 @@ from controller.devices.drive import AxisLimits, DriveLimits
 from controller.errors import LimitError
 from controller.storage.db import CampaignStore
 from simplant.cheap_night import CheapField, field_data
-from simplant.inproc import InProcPool
+from simplant.devices.inproc import InProcPool
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import pytest
 
-from controller.calibration.night import PlannedNight
-from controller.calibration.observers import CampaignObserver
+from controller.calibration.night.planned import PlannedNight
+from controller.calibration.records.observers import CampaignObserver
 from controller.commands._field import open_store, simulated_field
 from controller.config import load_config
 from controller.storage.nights import NightBook

@@ -24,7 +24,7 @@ import pytest
 import yaml
 
 from controller.commands._common import PACKAGED_CONFIG
-from controller.storage.archive import fingerprint
+from controller.storage.reprocess.archive import fingerprint
 from simplant.archive import replicate
 from tests.conftest import scaled_s
 

@@ -25,7 +25,7 @@ from controller.devices.lamp_panel import (
 )
 from controller.devices.plant_time import PlantTime
 from controller.errors import InputError
-from simplant.lamp_panel import SimLampPanel
+from simplant.devices.lamp_panel import SimLampPanel
 from simplant.plant import SimulatedPlant, load_config_data
 from tests.calibration.conftest import REPO
 from tests.conftest import scaled_s

@@ -39,7 +39,7 @@ def register(subparsers) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from controller.commands._common import print_json
-    from controller.storage.paint_import import import_paint
+    from controller.storage.paint.import_records import import_paint
 
     r = import_paint(args.dir, args.db, config=args.config, timestamps=args.timestamps)
     if args.json:

@@ -75,7 +75,7 @@ def _predict(mf, towers, rec, days: float | None) -> dict:
     """The prediction object of one record at time ``days`` (module docstring), or one with
     ``error``."""
     from controller.geometry.frames import enu_to_wgs84
-    from controller.geometry.tracking_model import model_normal, model_spot
+    from controller.geometry.model.tracking import model_normal, model_spot
 
     kin, s, model = mf.kinematics(), rec.sample, mf.model_at(days)
     out = {"record": rec.source, "target": rec.target.name, "heliostat": mf.heliostat_id,

@@ -36,7 +36,7 @@ def register(subparsers) -> None:
 
 def run(args) -> int:
     from controller.config import load_config
-    from simplant.lamp_panel import PanelLamps, SimLampPanel, panel_channels
+    from simplant.devices.lamp_panel import PanelLamps, SimLampPanel, panel_channels
 
     channels = panel_channels(load_config(args.config))
     if not channels:
