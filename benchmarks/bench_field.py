@@ -12,13 +12,13 @@ What runs, in order, each timed:
 1. **night 0** (``seed_s``): the calibration night, made from the plant's truth rather than
    run closed loop (10,000 closed-loop runs would take hours of wall time): each heliostat's
    first capture at the calibration lamp, fitted by the product's model fit
-   (:func:`controller.commands._cheap_night.calibrate_from_truth`);
+   (:func:`controller.commands.cheap_night.calibrate_from_truth`);
 2. **planning** (``plan_s``): tonight's plan for the *whole* field from the models in the
    database (:func:`controller.calibration.night.planner.plan_field`, as ``PlannedNight`` plans:
    measurable geometries only, ``--workers`` processes); ``planner_ms_per_decision`` is its wall
    time per heliostat planned (one decision = one heliostat's geometries);
 3. **the night** (``night_wall_s``, ``plant_hours``): the product's night operation
-   (:func:`controller.commands._cheap_night.run_cheap_night` →
+   (:func:`controller.commands.cheap_night.run_cheap_night` →
    :class:`controller.calibration.night.planned.PlannedNight`: lamp changes in the dark for every
    heliostat of the field, one campaign per pass, the targets of a lamp in parallel, the
    state machine, gate, fit, SQLite store, frame archive) over the whole field. When the plan

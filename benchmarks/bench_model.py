@@ -153,7 +153,7 @@ def bench_aim(kin, towers, runs: int, demo_dir: Path, *, make_demo: bool = False
     if not db.is_file():
         out["cli"] = f"skipped: no campaign.db in {demo_dir} (run: heliocal demo --out DIR --json)"
         return out
-    from controller.commands._common import DEFAULT_CONFIG
+    from controller.commands.common import DEFAULT_CONFIG
     from controller.config import load_config
     from controller.storage.db import open_existing
 

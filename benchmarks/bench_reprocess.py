@@ -44,7 +44,7 @@ from controller.calibration.reprocess.plan import (
 )
 from controller.calibration.reprocess.run import open_cluster, reprocess
 from controller.calibration.reprocess.tasks import analyse_chunk, refit_heliostat
-from controller.commands._common import PACKAGED_CONFIG
+from controller.commands.common import PACKAGED_CONFIG
 from controller.storage.db import open_existing
 from controller.storage.reprocess.archive import fingerprint, read_archive
 from controller.storage.reprocess.db import open_output

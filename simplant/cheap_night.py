@@ -4,7 +4,7 @@
 hidden heliostats are driven in-process (:class:`simplant.devices.inproc.InProcPool`), seen by
 analytic-spot cameras (:class:`simplant.devices.cheap_camera.CheapCamera`) and lit through an
 in-process lamp panel (:class:`simplant.devices.inproc.InProcLampPanel`), on the plant clock. The
-product's night runs on it (``controller.commands._cheap_night``), as it runs on any field.
+product's night runs on it (``controller.commands.cheap_night``), as it runs on any field.
 Used by ``benchmarks/bench_field.py`` and its tests.
 """
 

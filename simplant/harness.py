@@ -6,7 +6,7 @@ observes the product's campaigns (:class:`controller.calibration.records.observe
 and writes the plant's truth into its own table ``sim_truth`` of the same database file: per
 recorded run, the injected error case and the true reflected-beam error at the first and the
 last measurement. Reports written by the simulation commands read it back (:func:`read_truth`).
-The simulated plant never runs a campaign or a night itself: ``controller.commands._simulate``
+The simulated plant never runs a campaign or a night itself: ``controller.commands.simulated``
 runs the product's on the simulated field.
 """
 

@@ -31,7 +31,7 @@ import yaml
 from controller.config import PlantConfig, parse_config
 from controller.devices.drive import DriveLimits
 from controller.devices.factory import LinkPool
-from controller.devices.lamp_panel import open_lamp_panel
+from controller.devices.lamp_drivers import open_lamp_panel
 from controller.errors import DeviceError, InputError
 from simplant.devices.gige_imager import aravis, discover
 from simplant.devices.gige_plant import GigeCamera

@@ -183,7 +183,7 @@ def create_app(console: Console, *, token: str | None = None) -> Starlette:
     def api_campaign_action(request, body):
         action = request.path_params["action"]
         if action == "start":
-            from controller.commands.campaign import default_name
+            from controller.commands.campaigns.campaign import default_name
 
             c.field.audit = AuditTrail(c.store, request.state.who.name)  # the runs' model changes
             ids = body.get("heliostats")

@@ -140,7 +140,7 @@ class OpcPlant:
 
     def _open_field(self) -> Field:
         if self._field is None:
-            from controller.commands._field import real_field
+            from controller.commands.field import real_field
 
             fs = self._stack.enter_context(real_field(self.cfg, self.config_path, self.store))
             self._field = fs.field

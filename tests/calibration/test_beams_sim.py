@@ -14,7 +14,7 @@ from contextlib import contextmanager
 
 from controller.calibration.campaign.runner import Campaign, CampaignOptions
 from controller.calibration.records.observers import CampaignObserver
-from controller.commands._field import plant_field
+from controller.commands.simulated import plant_field
 from controller.devices.factory import LinkPool
 from controller.storage.db import CampaignStore
 from simplant.far_lamps import far_lamp_config

@@ -18,7 +18,7 @@ import time
 from pathlib import Path
 
 from controller.calibration.campaign.runner import Campaign, CampaignObserver, CampaignOptions
-from controller.commands._field import plant_field
+from controller.commands.simulated import plant_field
 from controller.config import load_config
 from controller.devices.factory import LinkPool
 from controller.storage.db import CampaignStore
@@ -53,7 +53,7 @@ def _wait_for_rows(p: subprocess.Popen, db: Path, sql: str, seconds: float) -> l
 
 
 def test_campaign_end_to_end(small_config, tmp_path):
-    from controller.commands.demo import simulated_campaign
+    from controller.commands.simulated import simulated_campaign
     from controller.storage.paint.export import export_paint
 
     cfg = load_config(small_config)

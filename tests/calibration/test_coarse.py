@@ -132,7 +132,7 @@ def test_demo_coarse_summary_counts_runs_with_a_coarse_first_move():
     from types import SimpleNamespace as NS
 
     from controller.calibration.records.runs import CorrectionRecord
-    from controller.commands._demo_coarse import coarse_summary
+    from controller.reports.summary import coarse_summary
 
     runs = [NS(id=1, heliostat_id="H01", iterations=3), NS(id=2, heliostat_id="H02", iterations=1),
             NS(id=3, heliostat_id="H03", iterations=2)]
@@ -152,8 +152,8 @@ def test_demo_recalibrates_only_the_heliostats_with_a_coarse_move_centroid_only(
     from argparse import Namespace
     from types import SimpleNamespace as NS
 
-    import controller.commands._demo_coarse as demo_coarse
-    import controller.commands.demo as demo
+    import controller.commands.campaigns._demo_coarse as demo_coarse
+    import controller.commands.simulated as demo
 
     from .conftest import REPO
 
@@ -191,8 +191,8 @@ def test_demo_recalibrates_only_the_heliostats_with_a_coarse_move_centroid_only(
 def test_demo_uncalibrated_field_runs_the_same_heliostats_with_and_without_the_coarse_correction(tmp_path,
                                                                                                  monkeypatch):
 
-    import controller.commands._demo_coarse as demo_coarse
-    import controller.commands.demo as demo
+    import controller.commands.campaigns._demo_coarse as demo_coarse
+    import controller.commands.simulated as demo
 
     from .conftest import REPO
 

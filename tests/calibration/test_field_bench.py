@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import yaml
 
-from controller.commands._cheap_night import run_cheap_night
+from controller.commands.cheap_night import run_cheap_night
 from controller.commands.sim.field import OnTarget, run_planned_night, seed_from_truth, strays
 from controller.devices.drive import AxisLimits, DriveLimits
 from controller.errors import LimitError

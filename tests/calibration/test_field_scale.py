@@ -98,7 +98,7 @@ def test_planning_in_worker_processes_equals_one_at_a_time(large):
 
 
 def test_refits_in_worker_processes_equal_one_at_a_time(tmp_path, base):
-    from controller.commands._cheap_night import calibrate_from_truth
+    from controller.commands.cheap_night import calibrate_from_truth
     from controller.storage.db import CampaignStore
     from controller.storage.field_records import measurements_by_heliostat, record_models
     from simplant.cheap_night import CheapField
@@ -185,7 +185,7 @@ def test_model_refit_command_refits_every_heliostat_as_one_at_a_time(tmp_path, b
     import subprocess
     import sys
 
-    from controller.commands._cheap_night import calibrate_from_truth
+    from controller.commands.cheap_night import calibrate_from_truth
     from controller.storage.db import CampaignStore
     from controller.storage.field_records import measurements_by_heliostat
     from simplant.cheap_night import CheapField

@@ -13,7 +13,7 @@ import yaml
 
 from controller.calibration.night.lamp_change import LampChangeError, LampChanger, Standby, clear_targets
 from controller.calibration.night.planner import plan_night
-from controller.commands._cheap_night import calibrate_from_truth, cheap_field, run_cheap_night
+from controller.commands.cheap_night import calibrate_from_truth, cheap_field, run_cheap_night
 from controller.errors import LimitError
 from controller.storage.db import CampaignStore
 from simplant.cheap_night import CheapField, field_data

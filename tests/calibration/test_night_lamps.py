@@ -8,7 +8,8 @@ import pytest
 
 from controller.calibration.night.planned import PlannedNight
 from controller.calibration.records.observers import CampaignObserver
-from controller.commands._field import open_store, simulated_field
+from controller.commands.field import open_store
+from controller.commands.simulated import simulated_field
 from controller.config import load_config
 from controller.storage.nights import NightBook
 from simplant.settings import SimulationSettings

@@ -19,8 +19,8 @@ from controller.calibration.model.daytime import PredictedDaytime
 from controller.calibration.night.planned import NightSummary, PlannedNight, calibration_night
 from controller.calibration.night.planner import geometry_key
 from controller.calibration.records.observers import CampaignObserver
-from controller.commands._field import open_store, simulated_field
-from controller.commands._simulate import NightReport, SimulatedRun
+from controller.commands.field import open_store
+from controller.commands.simulated import NightReport, SimulatedRun, simulated_field
 from controller.config import load_config
 from controller.reports.night import write_night_report
 from controller.storage.nights import NightBook

@@ -11,7 +11,7 @@ from controller.calibration.campaign.field import LampLit
 from controller.calibration.campaign.runner import Campaign, CampaignOptions
 from controller.calibration.cycle.no_beam import NO_BEAM, STOP_AFTER, NoBeamWatch
 from controller.calibration.records.runs import MeasurementRecord, RunRecord
-from controller.commands._field import plant_field
+from controller.commands.simulated import plant_field
 from controller.devices.factory import LinkPool
 from controller.storage.db import CampaignStore
 from simplant.plant import SimulatedPlant, load_config_data

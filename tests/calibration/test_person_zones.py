@@ -14,7 +14,7 @@ import yaml
 from controller.calibration.cycle.beam_safety import UnsafePath
 from controller.calibration.night.lamp_change import LampChanger, Standby
 from controller.calibration.night.planner import plan_night
-from controller.commands._cheap_night import cheap_field
+from controller.commands.cheap_night import cheap_field
 from controller.config import load_config
 from controller.errors import ConfigError, LimitError
 from controller.storage.db import CampaignStore

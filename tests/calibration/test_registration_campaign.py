@@ -11,7 +11,7 @@ import pytest
 
 from controller.calibration.campaign.runner import Campaign, CampaignObserver, CampaignOptions
 from controller.calibration.cycle.registration_step import RegistrationError, nominal_camera
-from controller.commands._field import plant_field
+from controller.commands.simulated import plant_field
 from controller.devices.factory import LinkPool
 from controller.imaging.registration import CameraModel
 from controller.storage.db import CampaignStore

@@ -187,7 +187,7 @@ def _overlap(a, b) -> bool:
 
 
 def test_two_targets_work_in_parallel_on_the_simulated_plant(small_config, tmp_path):
-    from controller.commands._simulate import simulated_run
+    from controller.commands.simulated import simulated_run
     from simplant.settings import SimulationSettings
     from tests.calibration.conftest import FAST
 

@@ -15,12 +15,12 @@ import pytest
 from controller.config import ModbusRtuLamps, ModbusTcpLamps
 from controller.devices.drive import DriveLimits
 from controller.devices.factory import LinkPool
+from controller.devices.lamp_drivers import open_lamp_panel
 from controller.devices.lamp_panel import (
     LampError,
     LampNotConfirmed,
     light_only,
     lights_out,
-    open_lamp_panel,
     set_and_confirm,
 )
 from controller.devices.plant_time import PlantTime

@@ -128,7 +128,7 @@ def test_measurable_spots_are_whole_in_the_simulated_plants_view(tmp_path):
     from controller.calibration.model.daytime import model_covariance
     from controller.calibration.night.candidates import FieldGeometry, evaluate
     from controller.calibration.night.planner import aim_points, planner_sun
-    from controller.commands._cheap_night import calibrate_from_truth
+    from controller.commands.cheap_night import calibrate_from_truth
     from controller.storage.db import CampaignStore
     from simplant.cheap_night import CheapField, field_data
     from simplant.devices.cheap_camera import SPOT_EXTENT_SIGMA

@@ -1,7 +1,7 @@
 """What a campaign or a night runs on: one field, its devices, its records and its time.
 
 As in Bluesky/ophyd, the devices are built once from the configuration — for a real plant by
-the interface layer (``controller.commands._field``), for the simulated plant from the
+the interface layer (``controller.commands.field``), for the simulated plant from the
 devices ``simplant`` provides — and everything that runs (a campaign, a planned night,
 commissioning, the console) is handed this one object. Nothing here knows whether the plant
 is simulated.
@@ -31,7 +31,8 @@ from controller.alarms.sink import NO_ALARMS, NO_AUDIT, AlarmSink, AuditSink
 from controller.calibration.records.runs import ModelRecord
 from controller.config import PlantConfig
 from controller.devices.drive import Drive, DriveLimits
-from controller.devices.lamp_panel import LampPanel, LampState, light_only, lights_out, open_lamp_panel
+from controller.devices.lamp_drivers import open_lamp_panel
+from controller.devices.lamp_panel import LampPanel, LampState, light_only, lights_out
 from controller.devices.plant_time import WALL, PlantTime
 from controller.errors import DeviceError
 
@@ -77,7 +78,7 @@ class Lamps(Protocol):
     returns once the plant confirms it (or raises naming the lamp); ``lights_out`` switches
     every lamp off (confirmed dark); ``states`` reads every channel (``channels``) as it is now.
     The targets' fiducial lamps are the camera registration's
-    (:func:`controller.devices.lamp_panel.fiducial_switch`)."""
+    (:func:`controller.devices.lamp_drivers.fiducial_switch`)."""
 
     channels: tuple[str, ...]
     timeout_s: float

@@ -24,7 +24,7 @@ import numpy as np
 from controller.config import PlantConfig
 from controller.devices.camera import DoubleCcdCamera, FramePair
 from controller.devices.file_camera import FileCamera
-from controller.devices.lamp_panel import fiducial_switch
+from controller.devices.lamp_drivers import fiducial_switch
 from controller.devices.plant_time import WALL, PlantTime
 from controller.errors import HeliocalError
 from controller.geometry.target_frame import TargetFrame
@@ -108,7 +108,7 @@ def register_camera(cfg: PlantConfig, camera: DoubleCcdCamera, lamps: Callable[[
                     frame: TargetFrame, time: PlantTime = WALL) -> CameraRegistration:
     """Register both sensors of ``camera`` to the target's fiducials (module docstring).
     The fiducial lamps are switched by the plant's lamp panel or ``lamp_command`` when
-    configured, else by ``lamps`` (:func:`controller.devices.lamp_panel.fiducial_switch`).
+    configured, else by ``lamps`` (:func:`controller.devices.lamp_drivers.fiducial_switch`).
     RegistrationError names the sensor and what failed."""
     reg_cfg = cfg.camera.registration
     nominal = nominal_camera(cfg)

@@ -48,7 +48,7 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from controller.commands._common import output_file, print_json
+    from controller.commands.common import output_file, print_json
     from controller.geometry.model.drift import PAINT_JUMP_RAD, RandomWalk
     from controller.geometry.model.field_prior_io import read_prior
     from controller.geometry.model.fit import fit_model

@@ -37,7 +37,7 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from controller.commands._common import print_json
+    from controller.commands.common import print_json
     from controller.geometry.paint_io import read_record, read_timestamps, read_towers, record_times
     from controller.storage.model_file import read_model
 

@@ -27,7 +27,7 @@ def register(subparsers) -> None:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from controller.commands._common import output_file, print_json
+    from controller.commands.common import output_file, print_json
     from controller.errors import InputError
     from controller.geometry.model.field_prior import field_prior
     from controller.geometry.model.field_prior_io import prior_document, write_prior

@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from controller.commands._common import add_json_option, existing_file, output_dir, print_json
 from controller.commands._numbers import fraction
+from controller.commands.common import add_json_option, existing_file, output_dir, print_json
 from controller.errors import InputError, NoBeamError
 from controller.imaging.beam import BeamResult, analyze
 from controller.io.images import pyplot, read_image, save_figure

@@ -19,8 +19,8 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from controller.commands._common import add_json_option, existing_file, output_file, print_json
-from controller.commands.beam import add_threshold_option
+from controller.commands.common import add_json_option, existing_file, output_file, print_json
+from controller.commands.devices.beam import add_threshold_option
 from controller.errors import InputError
 from controller.recognition.library import FEATURE_KINDS
 from controller.recognition.library_doc import check_widen

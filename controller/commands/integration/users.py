@@ -16,8 +16,8 @@ console and the OPC UA server (``heliocal opcua``) sign in with these accounts. 
 
 from __future__ import annotations
 
-from controller.commands._common import add_json_option, print_json
-from controller.commands._plant import add_db_option, cli_user, database, read_password
+from controller.commands.common import add_json_option, print_json
+from controller.commands.integration._plant import add_db_option, cli_user, database, read_password
 from controller.errors import InputError
 
 ROLES = ("viewer", "operator", "engineer")  # controller.storage.users.ROLES

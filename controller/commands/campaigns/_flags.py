@@ -11,12 +11,12 @@ from __future__ import annotations
 
 import argparse
 
-from controller.commands._common import print_json
+from controller.commands.common import print_json
 from controller.errors import InputError
 
 
 def flags_command(args: argparse.Namespace) -> int:
-    from controller.commands._field import open_store
+    from controller.commands.field import open_store
     from controller.storage.db import open_existing
     from controller.storage.geometry_flags import clear_flags, flagged
 

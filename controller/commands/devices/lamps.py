@@ -16,7 +16,7 @@ section, an unknown LAMP).
 
 from __future__ import annotations
 
-from controller.commands._common import add_config_option, add_json_option, print_json
+from controller.commands.common import add_config_option, add_json_option, print_json
 from controller.errors import InputError
 
 ACTIONS = ("status", "on", "off", "all-off")
@@ -38,7 +38,8 @@ def register(subparsers) -> None:
 
 def run(args) -> int:
     from controller.config import load_config
-    from controller.devices.lamp_panel import lights_out, open_lamp_panel, set_and_confirm
+    from controller.devices.lamp_drivers import open_lamp_panel
+    from controller.devices.lamp_panel import lights_out, set_and_confirm
     from controller.devices.plant_time import WALL
 
     cfg = load_config(args.config)

@@ -19,9 +19,9 @@ import argparse
 import math
 import sys
 
-from controller.commands._common import DEFAULT_CONFIG, add_json_option, print_json
-from controller.commands._links import add_link_options, heliostat_for, link_model, load_plant
 from controller.commands._numbers import STEPS, Number
+from controller.commands.common import DEFAULT_CONFIG, add_json_option, print_json
+from controller.commands.devices._links import add_link_options, heliostat_for, link_model, load_plant
 from controller.devices.drive import AxisLimits, DriveError, DriveLimits, MoveResult
 from controller.errors import DeviceError, HeliocalError, InputError
 

@@ -14,7 +14,7 @@ from pathlib import Path
 
 from pydantic import ValidationError
 
-from controller.commands._common import DEFAULT_CONFIG
+from controller.commands.common import DEFAULT_CONFIG
 from controller.config import (
     Heliostat,
     ModbusRtuLink,

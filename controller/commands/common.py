@@ -215,3 +215,20 @@ def add_hidden_errors_option(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--hidden-errors", choices=HIDDEN_ERRORS, default="assumed",
                         help="the simulated field's hidden errors: the simulator's assumptions (default) or "
                              "what 16 real Jülich heliostats show (docs/tracking-model.md)")
+
+
+def campaign_heliostats(args, cfg) -> list[str]:
+    """The heliostats of ``heliocal campaign run|night``: ``--heliostats`` (ids separated by
+    commas, each one of ``cfg``) or every heliostat of ``cfg``; the camera checked for them."""
+    ids = [h.id for h in cfg.heliostats]
+    if args.heliostats is not None:
+        ids = [i.strip() for i in args.heliostats.split(",") if i.strip()]
+        if not ids:
+            raise InputError(f"--heliostats: no heliostat id in {args.heliostats!r} "
+                             "(give ids separated by commas)")
+        if len(set(ids)) != len(ids):
+            raise InputError(f"--heliostats: an id is given twice in {args.heliostats!r}")
+        for hid in ids:
+            cfg.heliostat(hid)
+    check_camera(cfg, args, f"campaign {args.campaign_command}")
+    return ids

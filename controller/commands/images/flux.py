@@ -25,7 +25,6 @@ from pathlib import Path
 
 import numpy as np
 
-from controller.commands._common import add_json_option, existing_file, output_file, print_json
 from controller.commands._numbers import (
     DNI,
     EXPOSURE_S,
@@ -35,6 +34,7 @@ from controller.commands._numbers import (
     Number,
     fraction,
 )
+from controller.commands.common import add_json_option, existing_file, output_file, print_json
 from controller.errors import InputError
 from controller.flux import phlux
 from controller.flux.sun_disc import SunDiscError, find_sun_disc

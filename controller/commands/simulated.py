@@ -1,10 +1,14 @@
-"""``--simulate``: the product's campaign and planned nights on the embedded simulated plant,
-scored against the plant's truth.
+"""The simulated plant, wired in one place: every ``--simulate`` (``heliocal demo``,
+``campaign run|night``, ``console``, ``commission``) and ``heliocal report weighting`` ask this
+module, the only command module outside ``heliocal sim`` that imports :mod:`simplant` (lazily,
+in the simulation path). It builds the simulated field (:func:`simulated_field`), runs the
+product's campaign and planned nights on it, scored against the plant's truth, and is the
+public entry point benchmarks and tests use for the same.
 
 Nothing here runs a campaign or a night of its own: ``campaign run --simulate`` is the
 product's :class:`controller.calibration.campaign.runner.Campaign` and ``campaign night --simulate``
 its :class:`controller.calibration.night.planned.PlannedNight`, each on the simulated
-:class:`controller.calibration.campaign.field.Field` (:func:`controller.commands._field.simulated_field`),
+:class:`controller.calibration.campaign.field.Field` (:func:`simulated_field`),
 each its own plant session whose night index is the number of nights recorded in the
 database (the calibration campaign is night 0, the k-th planned night is night k: the plant's
 drift and repeatability draws follow). What only the simulator knows — the true error at each
@@ -14,18 +18,107 @@ its observers and scoring (``simplant.harness``, ``simplant.daytime``).
 
 from __future__ import annotations
 
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from controller.calibration.campaign.field import Field, PanelLamps
 from controller.calibration.campaign.outcome import CampaignResult
 from controller.calibration.campaign.runner import Campaign, CampaignOptions
 from controller.calibration.model.daytime import PredictedDaytime, predicted_daytime, sun_path
 from controller.calibration.night.planned import NightSummary, PlannedNight, calibration_night, tonight
-from controller.commands._field import open_store, simulated_field
-from controller.config import PlantConfig
+from controller.commands.field import FieldSession, open_store, plant_records
+from controller.config import PlantConfig, config_sha256
+from controller.devices.factory import LinkPool
+from controller.devices.plant_time import PlantTime
 from controller.storage.db import CampaignStore
+from controller.storage.images import ImageArchive
 from controller.storage.nights import NightBook
+
+BUILD = object()  # simulated_field(library=BUILD): the simulated plant's own error library
+
+
+def simulation_settings(**settings):
+    """The simulated plant's settings (:class:`simplant.settings.SimulationSettings`: seed, clock
+    speedup, hidden errors, ...)."""
+    from simplant.settings import SimulationSettings
+
+    return SimulationSettings(**settings)
+
+
+def field_selection(cfg: PlantConfig, n: int) -> list[str]:
+    """The ``n`` heliostats ``heliocal demo`` calibrates (:func:`simplant.plant.field_selection`)."""
+    from simplant.plant import field_selection as select
+
+    return select(cfg, n)
+
+
+def sim_dir(db: Path) -> Path:
+    """Where ``--simulate`` keeps the simulated plant's files (ptys, library, frames) for ``db``:
+    shared by ``campaign run`` and every ``campaign night`` on it."""
+    return db.parent / f"{db.stem}-sim"
+
+
+def simulated_plant(config_path: str, run_dir: Path, ids: list[str], *, seed: int):
+    """The simulated plant of ``config_path`` with heliostats ``ids`` (not started; a context
+    manager), for ``heliocal commission --simulate``."""
+    from simplant.plant import SimulatedPlant, load_config_data
+
+    return SimulatedPlant(load_config_data(config_path), run_dir, heliostat_ids=ids,
+                          settings=simulation_settings(seed=seed), source=config_path)
+
+
+def weighting_study():
+    """The simulator's HDR weighting study (:mod:`simplant.studies.weighting`, it needs the
+    simulator's noise-free irradiance) for ``heliocal report weighting``."""
+    from simplant.studies import weighting
+
+    return weighting
+
+
+@contextmanager
+def simulated_field(cfg: PlantConfig, config_path: str, store: CampaignStore, out: Path, ids: list[str],
+                    settings, *, night: int, library_dir: Path | None = None, clock_start: float = 0.0,
+                    progress=None, library: Any = BUILD) -> Iterator[FieldSession]:
+    """The embedded simulated plant in ``out`` on night ``night`` (its drift and repeatability
+    draws), its heliostats ``ids``. ``library``: the error library, or :data:`BUILD` (the
+    default): the simulated plant's own, built once into ``library_dir`` (default ``out``) and
+    reused."""
+    from simplant.harness import demo_library
+    from simplant.plant import SimulatedPlant, load_config_data
+
+    out.mkdir(parents=True, exist_ok=True)
+    lib = demo_library(cfg, config_path, library_dir or out, ids, settings.seed, progress) \
+        if library is BUILD else library
+    plant = SimulatedPlant(load_config_data(config_path), out / "plant", heliostat_ids=ids, settings=settings,
+                           source=str(config_path), clock_start=clock_start)
+    plant.set_night(night)
+    with plant, LinkPool(timeout_s=0.5, retries=2) as pool:
+        plant.start()
+        f = plant_field(plant, config_path, store, pool, library=lib, images=ImageArchive(out / "images"))
+        try:
+            yield FieldSession(f, NightBook(store), plant)
+        finally:
+            f.lamps.close()
+
+
+def plant_field(plant, config_path: str | Path, store, pool, *, library=None, images=None) -> Field:
+    """The :class:`Field` of a started simulated plant (``plant.start()`` done): its rewritten
+    configuration and links through ``pool``, its cameras, its lamp panel over Modbus TCP, its
+    clock. Close ``field.lamps`` when done."""
+    clock = plant.clock
+    time = PlantTime(now=clock, sleep=clock.sleep, utc=plant.utc, computing=clock.realtime)
+    s = plant.settings
+    meta = {"plant": "simulated", "seed": plant.seed, "clock_speedup": s.clock_speedup}
+    lamps = PanelLamps.open(plant.config.lamps, time)
+    field = Field(plant.config, str(config_path), config_sha256(config_path), store, pool, plant.cameras,
+                  time, lamps, images, library, meta=meta, label="simulated plant")
+    return plant_records(field)
+
+
 
 
 @dataclass(frozen=True)
@@ -182,3 +275,32 @@ def simulated_run(cfg: PlantConfig, config_path: str, out: Path, db: Path, ids: 
         store.close()
     return SimulatedRun(result, read_truth(db, result.campaign_id), safety, settings, db, out, daytime,
                         uncalibrated, predicted, reports, on_target)
+
+
+def simulated_campaign(cfg, config_path: str, out: Path, db: Path, ids: list[str], settings, name: str, *,
+                       sequential: bool = False, quiet: bool = True, library_dir: Path | None = None,
+                       nights: int = 0):
+    """The calibration campaign (``campaign run --simulate``) and ``nights`` planned nights
+    (``campaign night --simulate``) on the simulated plant, and the morning report with the
+    plant's truth; returns (summary dict, :class:`SimulatedRun`)."""
+    from controller.commands._progress import TerminalProgress
+    from controller.reports.campaign import write_report
+    from controller.reports.summary import coarse_summary, summarize
+    from controller.storage.db import open_existing
+
+    sim = simulated_run(cfg, config_path, out, db, ids, settings=settings, name=name, sequential=sequential,
+                        library_dir=library_dir, observers=[] if quiet else [TerminalProgress()],
+                        progress=None if quiet else (lambda text: print(text, file=sys.stderr)),
+                        nights=nights)
+    with open_existing(db) as store:
+        report = write_report(store, out / "report", sim.result.campaign_id, truth=sim.truth)
+        summary = summarize(store, sim.result.campaign_id, truth=sim.truth)
+        summary["coarse_correction"] = coarse_summary(store, sim.result.campaign_id,
+                                                      cfg.calibration.coarse_correction)
+    summary["daytime_error_mrad"] = sim.daytime.to_json()
+    summary["daytime_error_predicted_mrad"] = sim.predicted.to_json()
+    summary["daytime_error_uncalibrated_mrad"] = sim.daytime_uncalibrated.to_json()
+    summary["nights"] = [r.to_json() for r in sim.nights]
+    summary["db"] = str(db)
+    summary["report"] = str(report)
+    return summary, sim

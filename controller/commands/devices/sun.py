@@ -15,7 +15,7 @@ import argparse
 import math
 from datetime import UTC, datetime
 
-from controller.commands._common import DEFAULT_CONFIG, add_config_option, add_json_option, print_json
+from controller.commands.common import DEFAULT_CONFIG, add_config_option, add_json_option, print_json
 from controller.errors import InputError
 
 # option -> (lowest, highest) accepted value

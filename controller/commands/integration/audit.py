@@ -12,8 +12,8 @@ ISO 8601 with its offset (a date alone: from its UTC midnight). Exit 0, 2 bad in
 
 from __future__ import annotations
 
-from controller.commands._common import add_json_option, print_json
-from controller.commands._plant import add_db_option, database
+from controller.commands.common import add_json_option, print_json
+from controller.commands.integration._plant import add_db_option, database
 
 
 def register(subparsers) -> None:

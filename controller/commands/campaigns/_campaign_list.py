@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import argparse
 
-from controller.commands._common import print_json
+from controller.commands.common import print_json
 
 WIDTH = 120
 

@@ -4,7 +4,7 @@ The night itself is the product's :class:`controller.calibration.night.planned.P
 module opens the database, picks tonight's night (the unfinished one to resume, else the next
 index, named ``<night 0's name>/night-<k>``), builds the field and prints the summary. With
 ``--simulate`` the field is the embedded simulated plant on that night
-(:mod:`controller.commands._simulate`), and the summary adds the true daytime error.
+(:mod:`controller.commands.simulated`), and the summary adds the true daytime error.
 """
 
 from __future__ import annotations
@@ -13,18 +13,17 @@ import argparse
 import sys
 from pathlib import Path
 
-from controller.commands._common import check_db_field, print_json
+from controller.commands.common import campaign_heliostats, check_db_field, print_json
 from controller.errors import InputError
 
 
 def run_night_cli(args: argparse.Namespace) -> int:
-    from controller.commands._field import open_store
-    from controller.commands.campaign import _ids
+    from controller.commands.field import open_store
     from controller.config import load_config
     from controller.storage.nights import NightBook
 
     cfg = load_config(args.config)
-    ids = _ids(args, cfg)
+    ids = campaign_heliostats(args, cfg)
     if not args.simulate and cfg.lamps is None:
         raise InputError(f"{args.config}: lamps: a planned night switches lamps in the dark and confirms "
                          "each one lit; configure the lamp panel (lamps:, docs/lamps.md)")
@@ -65,7 +64,7 @@ def run_night_cli(args: argparse.Namespace) -> int:
 
 def _field(args, cfg, store, book, ids, base, progress) -> tuple[dict, int]:
     from controller.calibration.night.planned import PlannedNight, tonight
-    from controller.commands._field import real_field
+    from controller.commands.field import real_field
 
     name, index = tonight(book, base)
     with real_field(cfg, args.config, store, camera_manifest=args.camera_manifest) as fs:
@@ -75,9 +74,7 @@ def _field(args, cfg, store, book, ids, base, progress) -> tuple[dict, int]:
 
 
 def _simulated(args, cfg, store, ids, base, progress) -> tuple[dict, int]:
-    from controller.commands._simulate import planned_night
-    from controller.commands.campaign import sim_dir
-    from simplant.settings import SimulationSettings
+    from controller.commands.simulated import planned_night, sim_dir, simulation_settings
 
     first = store.campaign_by_name(base)
     seed = None if first is None else first.meta.get("seed")
@@ -85,7 +82,7 @@ def _simulated(args, cfg, store, ids, base, progress) -> tuple[dict, int]:
         raise InputError(f"--seed {args.seed}: {args.db} was calibrated on the simulated plant with "
                          f"seed {seed}")
     report = planned_night(cfg, args.config, store, sim_dir(Path(args.db)), ids,
-                           SimulationSettings(seed=args.seed, clock_speedup=args.clock_speedup,
+                           simulation_settings(seed=args.seed, clock_speedup=args.clock_speedup,
                                               hidden_errors=args.hidden_errors), base,
                            progress=progress,
                            strategy=args.strategy)

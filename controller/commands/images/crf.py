@@ -14,8 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from controller.commands._common import add_json_option, existing_file, output_file, print_json
 from controller.commands._numbers import Number
+from controller.commands.common import add_json_option, existing_file, output_file, print_json
 from controller.errors import InputError
 from controller.imaging.crf_io import fit_crf_file, read_sphere_csv, save_crf
 

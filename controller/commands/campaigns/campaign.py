@@ -22,20 +22,19 @@ import sys
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
-from controller.commands._campaign_list import list_campaigns
-from controller.commands._common import (
+from controller.commands._numbers import SEED, Number
+from controller.commands.campaigns._campaign_list import list_campaigns
+from controller.commands.campaigns._flags import flags_command
+from controller.commands.common import (
     add_config_option,
     add_field_change_option,
     add_hidden_errors_option,
     add_json_option,
-    check_camera,
+    campaign_heliostats,
     check_db_field,
     output_dir,
     print_json,
 )
-from controller.commands._flags import flags_command
-from controller.commands._numbers import SEED, Number
-from controller.errors import InputError
 
 SPEEDUP = Number(0, 1000, lo_open=True)  # the simulated plant clock's speedup (SimulationSettings)
 
@@ -124,26 +123,11 @@ def default_name(config: str) -> str:
     return f"{Path(config).stem}-{night}"
 
 
-def _ids(args, cfg) -> list[str]:
-    ids = [h.id for h in cfg.heliostats]
-    if args.heliostats is not None:
-        ids = [i.strip() for i in args.heliostats.split(",") if i.strip()]
-        if not ids:
-            raise InputError(f"--heliostats: no heliostat id in {args.heliostats!r} "
-                             "(give ids separated by commas)")
-        if len(set(ids)) != len(ids):
-            raise InputError(f"--heliostats: an id is given twice in {args.heliostats!r}")
-        for hid in ids:
-            cfg.heliostat(hid)
-    check_camera(cfg, args, f"campaign {args.campaign_command}")
-    return ids
-
-
 def run(args: argparse.Namespace) -> int:
     from controller.config import load_config
 
     cfg = load_config(args.config)
-    ids = _ids(args, cfg)
+    ids = campaign_heliostats(args, cfg)
     check_db_field(args.db, cfg, ids, args)  # the models in DB were fitted on this field
     name = args.name or default_name(args.config)
     quiet = args.json or not sys.stderr.isatty()
@@ -199,27 +183,20 @@ def _interrupted(args: argparse.Namespace, db: Path, name: str, cfg_lamps: bool)
 
 def _run(args, cfg, ids, name, quiet, db):
     if args.simulate:
-        from controller.commands.demo import simulated_campaign
-        from simplant.settings import SimulationSettings
+        from controller.commands.simulated import sim_dir, simulated_campaign, simulation_settings
 
-        settings = SimulationSettings(seed=args.seed, clock_speedup=args.clock_speedup,
+        settings = simulation_settings(seed=args.seed, clock_speedup=args.clock_speedup,
                                       hidden_errors=args.hidden_errors)
         summary, sim = simulated_campaign(cfg, args.config, sim_dir(db), db, ids, settings, name, quiet=quiet)
         return summary, sim.result
     return _run_field(cfg, args, ids, name, quiet)
 
 
-def sim_dir(db: Path) -> Path:
-    """Where ``--simulate`` keeps the simulated plant's files (ptys, library, frames) for ``db``:
-    shared by ``campaign run`` and every ``campaign night`` on it."""
-    return db.parent / f"{db.stem}-sim"
-
-
 def _run_field(cfg, args, ids, name, quiet):
     from controller.calibration.campaign.runner import Campaign, CampaignOptions
     from controller.calibration.night.planned import calibration_night
-    from controller.commands._field import open_store, real_field
     from controller.commands._progress import TerminalProgress
+    from controller.commands.field import open_store, real_field
     from controller.reports.summary import summarize
 
     store = open_store(args.db)
@@ -236,6 +213,6 @@ def _run_field(cfg, args, ids, name, quiet):
 
 
 def run_night_command(args: argparse.Namespace) -> int:
-    from controller.commands._night import run_night_cli
+    from controller.commands.campaigns._night import run_night_cli
 
     return run_night_cli(args)

@@ -17,8 +17,8 @@ from __future__ import annotations
 
 import argparse
 
-from controller.commands._common import add_json_option, existing_file, print_json
-from controller.commands.beam import no_beam
+from controller.commands.common import add_json_option, existing_file, print_json
+from controller.commands.devices.beam import no_beam
 from controller.errors import InputError, NoBeamError
 from controller.imaging.beam import check_image
 from controller.imaging.presence import detect_beam

@@ -1,10 +1,10 @@
-"""The one place that builds a :class:`controller.calibration.campaign.field.Field`: for the real plant
+"""The field of the real plant: the :class:`controller.calibration.campaign.field.Field` built
 from its configuration (drives through the link pool, each target's camera, the lamp panel,
-wall time), for the simulated plant from the devices ``simplant`` provides (firmware on ptys
-and Modbus TCP, simulated cameras, its lamp panel on Modbus TCP, the plant clock). Both keep
-records in the same store and frames in ``images/`` beside the database.
+wall time), and the record store it writes. The simulated plant's field is built in
+:mod:`controller.commands.simulated`; both keep records in the same store and frames in
+``images/`` beside the database.
 
-Used by ``heliocal campaign run|night``, ``heliocal demo`` and the console.
+Used by ``heliocal campaign run|night``, ``heliocal demo``, the console and OPC UA.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from controller.calibration.campaign.field import Field, PanelLamps
-from controller.commands._plant import cli_user
+from controller.commands.integration._plant import cli_user
 from controller.config import PlantConfig, config_sha256
 from controller.devices.factory import LinkPool, open_camera
 from controller.devices.plant_time import PlantTime
@@ -26,8 +26,6 @@ from controller.storage.audit import AuditTrail
 from controller.storage.db import CampaignStore
 from controller.storage.images import ImageArchive
 from controller.storage.nights import NightBook
-
-BUILD = object()  # simulated_field(library=BUILD): the simulated plant's own error library
 
 
 @dataclass
@@ -84,46 +82,6 @@ def _target_camera(cfg: PlantConfig, target: str):
         return open_camera(cfg.camera_of(target))
     except InputError as exc:
         raise InputError(f"target {target}: {exc}") from None
-
-
-@contextmanager
-def simulated_field(cfg: PlantConfig, config_path: str, store: CampaignStore, out: Path, ids: list[str],
-                    settings, *, night: int, library_dir: Path | None = None, clock_start: float = 0.0,
-                    progress=None, library: Any = BUILD) -> Iterator[FieldSession]:
-    """The embedded simulated plant in ``out`` on night ``night`` (its drift and repeatability
-    draws), its heliostats ``ids``. ``library``: the error library, or :data:`BUILD` (the
-    default): the simulated plant's own, built once into ``library_dir`` (default ``out``) and
-    reused."""
-    from simplant.harness import demo_library
-    from simplant.plant import SimulatedPlant, load_config_data
-
-    out.mkdir(parents=True, exist_ok=True)
-    lib = demo_library(cfg, config_path, library_dir or out, ids, settings.seed, progress) \
-        if library is BUILD else library
-    plant = SimulatedPlant(load_config_data(config_path), out / "plant", heliostat_ids=ids, settings=settings,
-                           source=str(config_path), clock_start=clock_start)
-    plant.set_night(night)
-    with plant, LinkPool(timeout_s=0.5, retries=2) as pool:
-        plant.start()
-        f = plant_field(plant, config_path, store, pool, library=lib, images=ImageArchive(out / "images"))
-        try:
-            yield FieldSession(f, NightBook(store), plant)
-        finally:
-            f.lamps.close()
-
-
-def plant_field(plant, config_path: str | Path, store, pool, *, library=None, images=None) -> Field:
-    """The :class:`Field` of a started simulated plant (``plant.start()`` done): its rewritten
-    configuration and links through ``pool``, its cameras, its lamp panel over Modbus TCP, its
-    clock. Close ``field.lamps`` when done."""
-    clock = plant.clock
-    time = PlantTime(now=clock, sleep=clock.sleep, utc=plant.utc, computing=clock.realtime)
-    s = plant.settings
-    meta = {"plant": "simulated", "seed": plant.seed, "clock_speedup": s.clock_speedup}
-    lamps = PanelLamps.open(plant.config.lamps, time)
-    field = Field(plant.config, str(config_path), config_sha256(config_path), store, pool, plant.cameras,
-                  time, lamps, images, library, meta=meta, label="simulated plant")
-    return plant_records(field)
 
 
 def plant_records(field: Field) -> Field:

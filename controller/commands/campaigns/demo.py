@@ -12,21 +12,20 @@ import argparse
 import sys
 from pathlib import Path
 
-from controller.commands._common import (
+from controller.commands._numbers import SEED, Number
+from controller.commands.campaigns._demo_coarse import (
+    UNCALIBRATED_MAX_MRAD,
+    centroid_only_twin,
+    print_uncalibrated,
+    uncalibrated_field,
+)
+from controller.commands.common import (
     add_config_option,
     add_hidden_errors_option,
     add_json_option,
     output_dir,
     print_json,
 )
-from controller.commands._demo_coarse import (
-    UNCALIBRATED_MAX_MRAD,
-    centroid_only_twin,
-    coarse_summary,
-    print_uncalibrated,
-    uncalibrated_field,
-)
-from controller.commands._numbers import SEED, Number
 from controller.config import load_config
 from controller.errors import InputError
 
@@ -60,7 +59,7 @@ def register(subparsers) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from controller.calibration.model.update import model_prior
-    from simplant.plant import field_selection
+    from controller.commands.simulated import field_selection
 
     output_dir(args.out)  # an existing file there is refused before any work
     cfg = load_config(args.config)
@@ -86,11 +85,11 @@ def run(args: argparse.Namespace) -> int:
         else:
             _print_aim(rows)
         return 0
-    from simplant.settings import SimulationSettings
+    from controller.commands.simulated import simulated_campaign, simulation_settings
 
     name = f"demo-n{len(ids)}-seed{args.seed}" + ("-sequential" if args.sequential else "")
     quiet = args.json or not sys.stderr.isatty()
-    settings = SimulationSettings(seed=args.seed, hidden_errors=args.hidden_errors)
+    settings = simulation_settings(seed=args.seed, hidden_errors=args.hidden_errors)
     summary, sim = simulated_campaign(cfg, args.config, Path(args.out), Path(args.out) / "campaign.db", ids,
                                       settings, name, sequential=args.sequential,
                                       quiet=quiet, library_dir=Path(args.out), nights=args.nights)
@@ -105,36 +104,6 @@ def run(args: argparse.Namespace) -> int:
     else:
         _print_summary(summary, sim)
     return sim.exit_code  # a partial night is not a finished demo (3), however the campaign ended
-
-
-def simulated_campaign(cfg, config_path: str, out: Path, db: Path, ids: list[str], settings, name: str, *,
-                       sequential: bool = False, quiet: bool = True, library_dir: Path | None = None,
-                       nights: int = 0):
-    """The calibration campaign (``campaign run --simulate``) and ``nights`` planned nights
-    (``campaign night --simulate``) on the simulated plant, and the morning report with the
-    plant's truth; returns (summary dict, :class:`controller.commands._simulate.SimulatedRun`)."""
-    from controller.commands._progress import TerminalProgress
-    from controller.commands._simulate import simulated_run
-    from controller.reports.campaign import write_report
-    from controller.reports.summary import summarize
-    from controller.storage.db import open_existing
-
-    sim = simulated_run(cfg, config_path, out, db, ids, settings=settings, name=name, sequential=sequential,
-                        library_dir=library_dir, observers=[] if quiet else [TerminalProgress()],
-                        progress=None if quiet else (lambda text: print(text, file=sys.stderr)),
-                        nights=nights)
-    with open_existing(db) as store:
-        report = write_report(store, out / "report", sim.result.campaign_id, truth=sim.truth)
-        summary = summarize(store, sim.result.campaign_id, truth=sim.truth)
-        summary["coarse_correction"] = coarse_summary(store, sim.result.campaign_id,
-                                                      cfg.calibration.coarse_correction)
-    summary["daytime_error_mrad"] = sim.daytime.to_json()
-    summary["daytime_error_predicted_mrad"] = sim.predicted.to_json()
-    summary["daytime_error_uncalibrated_mrad"] = sim.daytime_uncalibrated.to_json()
-    summary["nights"] = [r.to_json() for r in sim.nights]
-    summary["db"] = str(db)
-    summary["report"] = str(report)
-    return summary, sim
 
 
 def _print_aim(rows: list[dict]) -> None:

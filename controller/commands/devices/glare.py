@@ -18,8 +18,8 @@ from dataclasses import asdict
 
 import numpy as np
 
-from controller.commands._common import add_json_option, existing_file, output_file, print_json
 from controller.commands._numbers import DNI, POSITIVE_RATIO, SUN_ANGLE_MRAD, Number, fraction
+from controller.commands.common import add_json_option, existing_file, output_file, print_json
 from controller.errors import InputError
 from controller.flux import glare
 from controller.flux.phlux import SUN_ANGLE_RAD

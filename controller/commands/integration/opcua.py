@@ -22,9 +22,9 @@ import sys
 from pathlib import Path
 from urllib.parse import urlsplit
 
-from controller.commands._common import add_config_option
 from controller.commands._numbers import Number
-from controller.commands._plant import add_db_option, database, heliostat_ids
+from controller.commands.common import add_config_option
+from controller.commands.integration._plant import add_db_option, database, heliostat_ids
 from controller.errors import DeviceError, InputError
 
 DEFAULT_ENDPOINT = "opc.tcp://127.0.0.1:4840/heliocal"

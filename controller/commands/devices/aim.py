@@ -28,14 +28,14 @@ from datetime import UTC, datetime
 
 import numpy as np
 
-from controller.commands._common import (
+from controller.commands._numbers import Number
+from controller.commands.common import (
     add_config_option,
     add_field_change_option,
     add_json_option,
     check_store_field,
     print_json,
 )
-from controller.commands._numbers import Number
 from controller.errors import InputError
 
 NO_MODEL = 5  # exit status: no fitted model, the steps printed are the nominal kinematics
@@ -59,7 +59,7 @@ def register(subparsers) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from controller.calibration.cycle.pointing import steps_to_aim
-    from controller.commands.sun import parse_time
+    from controller.commands.devices.sun import parse_time
     from controller.config import load_config
     from controller.geometry.kinematics import HeliostatKinematics
     from controller.geometry.vectors import azel_to_vector

@@ -16,7 +16,7 @@ import argparse
 import json
 from pathlib import Path
 
-from controller.commands._common import (
+from controller.commands.common import (
     _plain,
     add_config_option,
     add_json_option,

@@ -32,7 +32,7 @@ from controller.calibration.night.passes import night_passes
 from controller.calibration.night.planned import NightSummary, PlannedNight
 from controller.calibration.night.planner import PlanItem, Unmeasurable
 from controller.calibration.records.runs import MeasurementRecord, RunRecord
-from controller.commands._field import open_store
+from controller.commands.field import open_store
 from controller.config import config_sha256
 from controller.errors import LimitError
 from controller.geometry.aiming import pointing_error_mrad, source_direction

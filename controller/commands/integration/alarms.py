@@ -16,8 +16,8 @@ Exit 0, 2 bad input (no such alarm, nothing to acknowledge, a bad duration).
 
 from __future__ import annotations
 
-from controller.commands._common import add_json_option, print_json
-from controller.commands._plant import add_db_option, cli_user, database
+from controller.commands.common import add_json_option, print_json
+from controller.commands.integration._plant import add_db_option, cli_user, database
 from controller.errors import InputError
 
 ACTIONS = ("list", "ack", "shelve", "unshelve")

@@ -1,4 +1,5 @@
-"""The coarse correction in ``heliocal demo``: its summary, the centroid-only twin of the runs it
+"""The coarse correction in ``heliocal demo`` (its summary:
+:func:`controller.reports.summary.coarse_summary`): the centroid-only twin of the runs it
 changed, and (``--uncalibrated MRAD``) the same comparison on a newly installed field.
 
 At the demo plant's own hidden-error scale every first spot is in the camera's view, and the
@@ -20,31 +21,6 @@ UNCALIBRATED_MAX_MRAD = 50.0  # the simulated plant's limit of its hidden-error 
 UNCALIBRATED_STANDBY_OFFSET_M = 16.0
 
 
-def coarse_summary(store, campaign_id: int, threshold: float | None) -> dict:
-    """The coarse correction in the campaign: ``threshold`` (config ``calibration.coarse_correction``),
-    ``applied`` (runs with a coarse move), ``iterations_mean`` (measurements per heliostat) over
-    all runs, and over the runs with and without a coarse move (``..._runs_with_coarse`` /
-    ``..._runs_without_coarse``: different heliostats, not a before/after);
-    ``corrections_mean`` (corrective moves per heliostat, each followed by one more capture:
-    it counts the looks at a clipped spot, which are not measurements) and ``clipped_first_looks``
-    (runs whose first capture showed a spot clipped by the view's edge: a correction before any
-    measurement); ``applied_heliostats`` names the runs with a coarse move. The before/after on
-    the same heliostats, ``iterations_centroid_only_mean``, is added by :func:`centroid_only_twin`."""
-    runs = store.runs(campaign_id)
-    moves = {r.id: store.corrections(r.id) for r in runs}
-    coarse = {r.id for r in runs if any(c.kind == "coarse" for c in moves[r.id])}
-
-    def mean(rs) -> float | None:
-        return round(float(sum(r.iterations for r in rs) / len(rs)), 3) if rs else None
-
-    return {"threshold": threshold, "applied": len(coarse), "iterations_mean": mean(runs),
-            "iterations_mean_runs_with_coarse": mean([r for r in runs if r.id in coarse]),
-            "iterations_mean_runs_without_coarse": mean([r for r in runs if r.id not in coarse]),
-            "applied_heliostats": [r.heliostat_id for r in runs if r.id in coarse],
-            "corrections_mean": round(sum(len(m) for m in moves.values()) / len(runs), 3) if runs else None,
-            "clipped_first_looks": sum(1 for m in moves.values() if m and m[0].iteration == 0)}
-
-
 def centroid_only_twin(coarse: dict, cfg, config: Path, out: Path, sim, args: argparse.Namespace) -> None:
     """Adds ``iterations_centroid_only_mean`` (and ``centroid_only_rerun``) to ``coarse``.
 
@@ -52,9 +28,8 @@ def centroid_only_twin(coarse: dict, cfg, config: Path, out: Path, sim, args: ar
     heliostats whose run made one are calibrated again, centroid only, on the same seed (each
     heliostat's hidden errors and noise come from its own generator, whoever else is in the run)
     into ``OUT/centroid-only/``; the mean is over both. No coarse move, no second campaign."""
-    from controller.commands.demo import simulated_campaign
+    from controller.commands.simulated import simulated_campaign, simulation_settings
     from controller.config import load_config
-    from simplant.settings import SimulationSettings
 
     coarse["iterations_centroid_only_mean"] = coarse["iterations_mean"]
     coarse["centroid_only_rerun"] = []
@@ -64,7 +39,7 @@ def centroid_only_twin(coarse: dict, cfg, config: Path, out: Path, sim, args: ar
     plain = config_copy(config, out / "centroid-only", coarse_correction=None)
     twin = plain.parent
     _, again = simulated_campaign(load_config(plain), str(plain), twin, twin / "campaign.db", list(redo),
-                                  SimulationSettings(seed=args.seed), f"{sim.result.name}-centroid-only",
+                                  simulation_settings(seed=args.seed), f"{sim.result.name}-centroid-only",
                                   sequential=args.sequential, library_dir=out)
     its = {r.heliostat_id: r.iterations for r in sim.result.runs}
     its.update({r.heliostat_id: r.iterations for r in again.result.runs})
@@ -102,9 +77,8 @@ def uncalibrated_field(config: Path, out: Path, ids: list[str], seed: int, scale
     ``corrections_mean`` / ``corrections_centroid_only_mean`` (corrective moves per heliostat),
     ``calibrated`` / ``calibrated_centroid_only``, ``error_after_mrad`` /
     ``error_after_centroid_only_mrad`` (mean, max)."""
-    from controller.commands.demo import simulated_campaign
+    from controller.commands.simulated import simulated_campaign, simulation_settings
     from controller.config import load_config
-    from simplant.settings import SimulationSettings
 
     base = load_config(config).calibration
     standby = max(base.standby_offset_m, UNCALIBRATED_STANDBY_OFFSET_M)
@@ -114,7 +88,7 @@ def uncalibrated_field(config: Path, out: Path, ids: list[str], seed: int, scale
         path = config_copy(config, out / "uncalibrated" / name, coarse_correction=threshold,
                            standby_offset_m=standby)
         s, _ = simulated_campaign(load_config(path), str(path), path.parent, path.parent / "campaign.db", ids,
-                                  SimulationSettings(seed=seed, tracking_error_mrad=scale_mrad),
+                                  simulation_settings(seed=seed, tracking_error_mrad=scale_mrad),
                                   f"uncalibrated-{name}-seed{seed}", library_dir=out)
         c = s["coarse_correction"]
         suffix = "" if name == "coarse" else "_centroid_only"
