@@ -324,7 +324,8 @@ MAX_FOLDER_MODULES = 20
 
 def test_no_package_folder_over_20_modules():
     folders = {p.parent for pkg in (*PRODUCT, "simplant") for p in (ROOT / pkg).rglob("*.py")}
-    big = {str(f.relative_to(ROOT)): n for f in folders if (n := len(list(f.glob("*.py")))) > MAX_FOLDER_MODULES}
+    big = {str(f.relative_to(ROOT)): n for f in folders
+           if (n := len(list(f.glob("*.py")))) > MAX_FOLDER_MODULES}
     assert not big, f"package folders over {MAX_FOLDER_MODULES} modules (split them by subject): {big}"
 
 
