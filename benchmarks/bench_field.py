@@ -27,7 +27,7 @@ What runs, in order, each timed:
    and counted, not run: 30,000 measurements do not fit 30 minutes of wall time. ``planned``
    and ``measured`` are the sample's; ``plan_total`` the whole field's;
 4. **refit** (``fit_s``): every heliostat's model refitted on all its measurements
-   (:func:`controller.calibration.model.refit.refit_models`, ``heliocal model refit``), in
+   (:func:`controller.calibration.night.refit.refit_models`, ``heliocal model refit``), in
    ``--workers`` processes; ``fit_same_as_serial`` checks 20 of them against a fit one at a
    time in this process;
 5. **morning report** (``report_s``): :func:`controller.reports.night.write_night_report` of the
@@ -63,10 +63,10 @@ import numpy as np
 import yaml
 
 from controller.calibration.campaign.queue_order import slew_time_s
-from controller.calibration.model.refit import refit_models
-from controller.calibration.model.update import fit_measurements
+from controller.calibration.cycle.model_update import fit_measurements
 from controller.calibration.night.passes import night_passes
 from controller.calibration.night.planner import plan_field
+from controller.calibration.night.refit import refit_models
 from controller.commands.sim.field import (
     OnTarget,
     night_zero,

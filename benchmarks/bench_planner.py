@@ -33,10 +33,10 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from controller.calibration.model.daytime import model_covariance, predicted_daytime, sun_path, tracking_steps
-from controller.calibration.model.update import fit_measurements
+from controller.calibration.cycle.model_update import fit_measurements
+from controller.calibration.night.daytime import model_covariance, predicted_daytime, sun_path, tracking_steps
 from controller.calibration.night.planner import Geometry, PlanItem, candidates, plan_night, planner_sun
-from controller.calibration.records.runs import MeasurementRecord
+from controller.calibration.records import MeasurementRecord
 from controller.config import parse_config
 from controller.geometry.aiming import angle_mrad, intersect_plane, reflected_beam, source_direction
 from controller.geometry.design import (

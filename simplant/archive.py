@@ -17,7 +17,7 @@ import shutil
 from datetime import datetime, timedelta
 from pathlib import Path
 
-from controller.calibration.records.runs import ImageRecord
+from controller.calibration.records import ImageRecord
 from controller.storage.db import CampaignStore, open_existing
 
 

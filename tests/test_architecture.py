@@ -61,7 +61,7 @@ SIMULATOR_USERS = ("controller.commands.simulated", "controller.commands.sim")
 ORCHESTRATION_OPERATIONS = ("controller.calibration.campaign.runner",
                             "controller.calibration.night.passes",
                             "controller.calibration.night.planned",
-                            "controller.calibration.night.lamp_change",
+                            "controller.calibration.campaign.lamp_change",
                             "controller.calibration.night.planner",
                             "controller.calibration.campaign.parallel",
                             "controller.calibration.cycle.machine")
@@ -164,7 +164,7 @@ def test_a_broken_layer_is_caught(graph, expected):
 def test_allowed_imports_pass():
     graph = {"controller.commands.simulated": [("simplant.plant", False),
                                           ("controller.calibration.campaign.runner", True)],
-             "controller.storage.db": [("controller.calibration.records.runs", True)],
+             "controller.storage.db": [("controller.calibration.records", True)],
              "controller.imaging.crf": [("controller.imaging.crf_yaml_io", False)],
              "controller.recognition.library_io": [("controller.io.images", True)]}
     assert violations(graph) == []
@@ -353,5 +353,5 @@ def test_the_simulated_plant_assembles_no_orchestration():
 
 @pytest.mark.parametrize("module", ORCHESTRATION_OPERATIONS)
 def test_a_plant_that_imports_orchestration_is_caught(module):
-    graph = {"simplant.harness": [(module, True), ("controller.calibration.records.observers", True)]}
+    graph = {"simplant.harness": [(module, True), ("controller.calibration.campaign.observers", True)]}
     assert plant_violations(graph) == [f"simplant.harness imports {module}"]

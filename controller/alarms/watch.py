@@ -27,8 +27,8 @@ from controller.alarms.conditions import (
     NO_BEAM_REPEATED,
 )
 from controller.alarms.sink import AlarmSink, AuditSink
-from controller.calibration.records.observers import CampaignObserver
-from controller.calibration.records.runs import RunRecord
+from controller.calibration.campaign.observers import CampaignObserver
+from controller.calibration.records import RunRecord
 
 LINK_FAULTS = ("LinkError",)  # controller.devices.drive.LinkError
 CAMERA_FAULTS = ("CameraError", "IncompleteFrame")  # controller.devices.camera, gige_device

@@ -1,15 +1,19 @@
 """Calibration orchestration: the measurement cycle of one heliostat, campaigns, planned nights,
-several beams on a target, tracking-model updates, archive reprocessing and the records they make.
+several beams on a target, archive reprocessing and the records they make.
 
-Sub-packages by subject (docs/architecture.md has the map):
+By subject, from the bottom up (each sub-package imports only those before it; docs/architecture.md
+has the map):
 
-* :mod:`~controller.calibration.cycle` — one heliostat's measurement cycle (the state machine);
-* :mod:`~controller.calibration.campaign` — a queue of cycles on a field, targets in parallel;
-* :mod:`~controller.calibration.night` — planned nights: the planner, passes, lamp changes;
-* :mod:`~controller.calibration.beams` — several beams on one target (gate, slots, identity);
-* :mod:`~controller.calibration.model` — tracking-model updates and daytime tracking;
-* :mod:`~controller.calibration.reprocess` — re-analysing the frame archive on Dask;
-* :mod:`~controller.calibration.records` — the records a calibration makes and its observers.
+* :mod:`~controller.calibration.records` — the record types a calibration creates;
+* :mod:`~controller.calibration.cycle` — one heliostat's measurement cycle (the state machine)
+  and the model update after its run;
+* :mod:`~controller.calibration.beams` — several beams on one target (slots, shared capture,
+  identity);
+* :mod:`~controller.calibration.campaign` — the field and a queue of cycles on it, targets in
+  parallel, lamp changes, lights out;
+* :mod:`~controller.calibration.night` — planned nights: the planner, passes, the field's refit
+  and daytime prediction over a process pool;
+* :mod:`~controller.calibration.reprocess` — re-analysing the frame archive on Dask.
 
 Orchestration imports the wire, the device drivers, the pure domain (and its ``*_io``
 modules) and ``controller.io``; never the interfaces (commands, storage, reports, console).

@@ -5,7 +5,7 @@ from __future__ import annotations
 import threading
 
 from controller.calibration.campaign.runner import CampaignObserver
-from controller.calibration.records.runs import RunRecord
+from controller.calibration.records import RunRecord
 
 _QUIET_STATES = ("preparing",)
 _FINAL_STATES = ("done", "stowed", "aborted")

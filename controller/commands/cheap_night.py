@@ -27,11 +27,11 @@ import numpy as np
 from controller.calibration.campaign.field import Field, PanelLamps
 from controller.calibration.campaign.outcome import CampaignResult
 from controller.calibration.cycle.pointing import steps_to_aim
-from controller.calibration.model.refit import refit_models
 from controller.calibration.night.passes import night_passes
 from controller.calibration.night.planned import NightSummary, PlannedNight
 from controller.calibration.night.planner import PlanItem, Unmeasurable
-from controller.calibration.records.runs import MeasurementRecord, RunRecord
+from controller.calibration.night.refit import refit_models
+from controller.calibration.records import MeasurementRecord, RunRecord
 from controller.commands.field import open_store
 from controller.config import config_sha256
 from controller.errors import LimitError
@@ -139,7 +139,7 @@ def calibrate_from_truth(cheap, name: str, *, noise_m: float = 0.02, seed: int =
     the calibration lamp, :func:`controller.calibration.cycle.pointing.steps_to_aim`), the spot the
     plant's truth puts on the target there (:meth:`CheapField.true_hit`) with ``noise_m`` of
     centroid noise per axis, the model the product fits to it
-    (:func:`controller.calibration.model.refit.refit_models`), recorded as the calibration campaign
+    (:func:`controller.calibration.night.refit.refit_models`), recorded as the calibration campaign
     and night 0 ``name`` (``heliostat_ids``: only these). Returns ``{"heliostats", "recorded",
     "unreachable", "fit_s", "record_s"}``."""
     cfg = cheap.cfg

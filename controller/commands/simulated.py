@@ -28,7 +28,7 @@ from typing import Any
 from controller.calibration.campaign.field import Field, PanelLamps
 from controller.calibration.campaign.outcome import CampaignResult
 from controller.calibration.campaign.runner import Campaign, CampaignOptions
-from controller.calibration.model.daytime import PredictedDaytime, predicted_daytime, sun_path
+from controller.calibration.night.daytime import PredictedDaytime, predicted_daytime, sun_path
 from controller.calibration.night.planned import NightSummary, PlannedNight, calibration_night, tonight
 from controller.commands.field import FieldSession, open_store, plant_records
 from controller.config import PlantConfig, config_sha256

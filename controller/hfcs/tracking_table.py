@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from controller.calibration.cycle.pointing import model_covariance, steps_to_aim
-from controller.calibration.records.runs import ModelRecord
+from controller.calibration.records import ModelRecord
 from controller.config import PlantConfig, Site
 from controller.errors import LimitError
 from controller.geometry.design import beam_jacobians

@@ -14,9 +14,9 @@ from contextlib import ExitStack
 from pathlib import Path
 
 from controller.calibration.campaign.field import Field, PanelLamps
+from controller.calibration.campaign.observers import CampaignObserver
 from controller.calibration.cycle.commissioning import Commissioning
 from controller.calibration.night.planned import PlannedNight, tonight
-from controller.calibration.records.observers import CampaignObserver
 from controller.config import PlantConfig
 from controller.devices.drive import DriveLimits
 from controller.devices.factory import LinkPool

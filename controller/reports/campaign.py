@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from controller.calibration.records.runs import CampaignRecord, RunRecord
+from controller.calibration.records import CampaignRecord, RunRecord
 from controller.errors import InputError
 from controller.io.images import pyplot, read_image, save_figure, write_atomic
 from controller.reports.confusion_plot import plot_confusion

@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from controller.calibration.model.daytime import predicted_daytime, sun_path, tracking_steps
-from controller.calibration.records.runs import CampaignRecord, MeasurementRecord, ModelRecord
+from controller.calibration.night.daytime import predicted_daytime, sun_path, tracking_steps
+from controller.calibration.records import CampaignRecord, MeasurementRecord, ModelRecord
 from controller.config import PlantConfig, load_config
 from controller.errors import HeliocalError
 from controller.geometry.aiming import aim_normal

@@ -32,7 +32,7 @@ import html
 import re
 from pathlib import Path
 
-from controller.calibration.records.runs import NightRecord
+from controller.calibration.records import NightRecord
 from controller.io.images import pyplot, save_figure, write_atomic
 from controller.reports.campaign import _inline, _write_csv, write_thumbnail
 from controller.reports.failures import failed_captures, flagged_lines

@@ -27,7 +27,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from urllib.parse import quote
 
-from controller.calibration.records.runs import (
+from controller.calibration.records import (
     CAMPAIGN_STATUSES,
     CampaignRecord,
     CorrectionRecord,

@@ -24,7 +24,7 @@ from __future__ import annotations
 import json
 import math
 
-from controller.calibration.records.runs import utc_now
+from controller.calibration.records import utc_now
 from controller.config import PlantConfig, config_sha256
 from controller.errors import InputError
 from controller.storage.checks import has_table, json_column

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import json
 
-from controller.calibration.records.runs import MeasurementRecord, ModelRecord, utc_now
+from controller.calibration.records import MeasurementRecord, ModelRecord, utc_now
 from controller.storage.db import CampaignStore
 from controller.storage.rows import measurement_from_row
 

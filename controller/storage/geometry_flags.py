@@ -11,7 +11,7 @@ the time they were cleared) as the history.
 
 from __future__ import annotations
 
-from controller.calibration.records.runs import utc_now
+from controller.calibration.records import utc_now
 from controller.errors import InputError
 from controller.storage.checks import has_table
 from controller.storage.db import CampaignStore

@@ -6,7 +6,7 @@ from __future__ import annotations
 import hashlib
 from pathlib import Path
 
-from controller.calibration.records.runs import ImageRecord
+from controller.calibration.records import ImageRecord
 from controller.io.images import write_atomic
 from controller.storage.checks import has_table, resolved_image_path, stored_image_path
 

@@ -14,7 +14,7 @@ the table has none (read-only readers get nothing).
 from __future__ import annotations
 
 from controller.calibration.campaign.field import LampEnd
-from controller.calibration.records.runs import utc_now
+from controller.calibration.records import utc_now
 from controller.storage.checks import has_table
 from controller.storage.db import CampaignStore
 

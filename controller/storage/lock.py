@@ -16,7 +16,7 @@ import os
 import socket
 from pathlib import Path
 
-from controller.calibration.records.runs import utc_now
+from controller.calibration.records import utc_now
 from controller.errors import InputError
 
 

@@ -12,7 +12,7 @@ import json
 
 from controller.calibration.campaign.field import LampEnd
 from controller.calibration.night.planner import PlanItem
-from controller.calibration.records.runs import CAMPAIGN_STATUSES, NIGHT_KINDS, NightRecord, utc_now
+from controller.calibration.records import CAMPAIGN_STATUSES, NIGHT_KINDS, NightRecord, utc_now
 from controller.config import PlantConfig
 from controller.storage.checks import enum_column, json_column
 from controller.storage.db import CampaignStore

@@ -6,7 +6,7 @@ from __future__ import annotations
 import sqlite3
 from pathlib import Path
 
-from controller.calibration.records.runs import (
+from controller.calibration.records import (
     CAMPAIGN_STATUSES,
     RUN_STATUSES,
     CampaignRecord,

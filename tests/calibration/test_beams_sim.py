@@ -12,8 +12,8 @@ from __future__ import annotations
 
 from contextlib import contextmanager
 
+from controller.calibration.campaign.observers import CampaignObserver
 from controller.calibration.campaign.runner import Campaign, CampaignOptions
-from controller.calibration.records.observers import CampaignObserver
 from controller.commands.simulated import plant_field
 from controller.devices.factory import LinkPool
 from controller.storage.db import CampaignStore

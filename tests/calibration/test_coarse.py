@@ -131,7 +131,7 @@ def test_bad_coarse_correction_threshold_is_refused_naming_the_key(tmp_path, cap
 def test_demo_coarse_summary_counts_runs_with_a_coarse_first_move():
     from types import SimpleNamespace as NS
 
-    from controller.calibration.records.runs import CorrectionRecord
+    from controller.calibration.records import CorrectionRecord
     from controller.reports.summary import coarse_summary
 
     runs = [NS(id=1, heliostat_id="H01", iterations=3), NS(id=2, heliostat_id="H02", iterations=1),

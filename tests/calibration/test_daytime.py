@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from controller.calibration.model.daytime import sun_path
+from controller.calibration.night.daytime import sun_path
 from controller.cli import main
 from controller.config import load_config
 from simplant.daytime import true_errors_mrad

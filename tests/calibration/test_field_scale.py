@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 import yaml
 
+from controller.calibration.cycle.model_update import fit_measurements
 from controller.calibration.cycle.pointing import PARK_MARGIN_M, GeometryPointing
-from controller.calibration.model import daytime
-from controller.calibration.model.daytime import model_covariance, predicted_daytime, sun_path
-from controller.calibration.model.refit import refit_models
-from controller.calibration.model.update import fit_measurements
+from controller.calibration.night import daytime
 from controller.calibration.night.candidates import FieldGeometry, evaluate, evaluate_many
+from controller.calibration.night.daytime import model_covariance, predicted_daytime, sun_path
 from controller.calibration.night.planner import aim_points, plan_field, plan_heliostat, planner_sun
+from controller.calibration.night.refit import refit_models
 from controller.config import parse_config
 from controller.errors import ConfigError
 from controller.geometry.kinematics import HeliostatKinematics

@@ -14,9 +14,9 @@ import pytest
 import yaml
 
 from controller.calibration.campaign.lights_out import LampNotDark
+from controller.calibration.campaign.observers import CampaignObserver
 from controller.calibration.campaign.runner import Campaign, CampaignOptions
 from controller.calibration.night.planned import PlannedNight, calibration_night
-from controller.calibration.records.observers import CampaignObserver
 from controller.commands.field import open_store
 from controller.commands.simulated import simulated_field
 from controller.config import load_config

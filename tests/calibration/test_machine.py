@@ -7,9 +7,9 @@ from pathlib import Path
 
 import numpy as np
 
-from controller.calibration.beams.gate import TargetGate
 from controller.calibration.campaign.runner import INTERRUPTED
 from controller.calibration.cycle.diagram import state_machine_markdown
+from controller.calibration.cycle.gate import TargetGate
 from controller.calibration.cycle.machine import FINAL_STATES, STATES, TRANSITIONS
 from controller.recognition.library import Match
 from simplant.clock import PlantClock

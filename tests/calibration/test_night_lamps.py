@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import pytest
 
+from controller.calibration.campaign.observers import CampaignObserver
 from controller.calibration.night.planned import PlannedNight
-from controller.calibration.records.observers import CampaignObserver
 from controller.commands.field import open_store
 from controller.commands.simulated import simulated_field
 from controller.config import load_config

@@ -13,12 +13,12 @@ from pathlib import Path
 import pytest
 import yaml
 
+from controller.calibration.campaign.observers import CampaignObserver
 from controller.calibration.campaign.outcome import CampaignResult
 from controller.calibration.campaign.runner import Campaign, CampaignOptions
-from controller.calibration.model.daytime import PredictedDaytime
+from controller.calibration.night.daytime import PredictedDaytime
 from controller.calibration.night.planned import NightSummary, PlannedNight, calibration_night
 from controller.calibration.night.planner import geometry_key
-from controller.calibration.records.observers import CampaignObserver
 from controller.commands.field import open_store
 from controller.commands.simulated import NightReport, SimulatedRun, simulated_field
 from controller.config import load_config

@@ -1,5 +1,5 @@
 """No beam on the target: the cycle records ``no_beam`` and never corrects from the frame, and a
-pass whose light source silently stays dark stops (controller/calibration/cycle/no_beam.py)."""
+pass whose light source silently stays dark stops (controller/calibration/campaign/no_beam.py)."""
 
 from __future__ import annotations
 
@@ -8,9 +8,9 @@ import itertools
 import pytest
 
 from controller.calibration.campaign.field import LampLit
+from controller.calibration.campaign.no_beam import NO_BEAM, STOP_AFTER, NoBeamWatch
 from controller.calibration.campaign.runner import Campaign, CampaignOptions
-from controller.calibration.cycle.no_beam import NO_BEAM, STOP_AFTER, NoBeamWatch
-from controller.calibration.records.runs import MeasurementRecord, RunRecord
+from controller.calibration.records import MeasurementRecord, RunRecord
 from controller.commands.simulated import plant_field
 from controller.devices.factory import LinkPool
 from controller.storage.db import CampaignStore

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from controller.calibration.campaign.outcome import CampaignResult, outcome
-from controller.calibration.records.runs import RunRecord
+from controller.calibration.records import RunRecord
 from controller.reports.campaign import write_report
 from controller.reports.summary import summarize
 from controller.storage.db import CampaignStore

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 import yaml
 
+from controller.calibration.campaign.lamp_change import LampChanger, Standby
 from controller.calibration.cycle.beam_safety import UnsafePath
-from controller.calibration.night.lamp_change import LampChanger, Standby
 from controller.calibration.night.planner import plan_night
 from controller.commands.cheap_night import cheap_field
 from controller.config import load_config

@@ -274,7 +274,7 @@ def test_pages_and_reading_endpoints(plant_console):
 
 
 def test_model_sigma_is_never_one_figure_over_two_units():
-    from controller.calibration.records.runs import ModelRecord
+    from controller.calibration.records import ModelRecord
     from controller.console.views import model_json
 
     m = model_json(ModelRecord({}, {"az_offset_mrad": 0.4, "tilt_east_mrad": 0.9, "position_e_mm": 30.0,

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from controller.calibration.model.daytime import sun_path
+from controller.calibration.night.daytime import sun_path
 from controller.config import Site
 from controller.errors import InputError, LimitError
 from controller.geometry.aiming import angle_mrad, intersect_plane, reflected_beam

@@ -225,7 +225,7 @@ def test_a_config_names_a_field_prior_relative_to_itself(tmp_path):
     model, cov = model_covariance(None, cfg.calibration.model)
     assert model.values == pytest.approx(mean) and np.diag(cov) == pytest.approx(sigma**2)
     shutil.copy(TOWERS, tmp_path / "priors" / "jülich.json")  # valid JSON, not a prior
-    from controller.calibration.model import update as model_update
+    from controller.calibration.cycle import model_update
     model_update._field_prior.cache_clear()
     with pytest.raises(InputError, match="jülich.json: not a heliocal field prior"):
         model_covariance(None, load_config(tmp_path / "c.yaml").calibration.model)

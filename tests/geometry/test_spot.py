@@ -125,8 +125,8 @@ def test_measurable_spots_are_whole_in_the_simulated_plants_view(tmp_path):
     every spot the planner calls measurable is drawn whole inside the camera's view, and the
     true centres fall within the predicted 3σ of the aim point as often as 3σ promises
     (the truth has effects no model term has: a few may fall outside)."""
-    from controller.calibration.model.daytime import model_covariance
     from controller.calibration.night.candidates import FieldGeometry, evaluate
+    from controller.calibration.night.daytime import model_covariance
     from controller.calibration.night.planner import aim_points, planner_sun
     from controller.commands.cheap_night import calibrate_from_truth
     from controller.storage.db import CampaignStore

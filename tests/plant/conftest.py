@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import yaml
 
-from controller.calibration.records.runs import ModelRecord, RunRecord
+from controller.calibration.records import ModelRecord, RunRecord
 from controller.config import config_sha256
 from controller.geometry.model.tracking import TERMS
 from controller.storage.db import CampaignStore

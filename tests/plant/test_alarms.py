@@ -12,7 +12,7 @@ from controller.alarm_config import AlarmLimits
 from controller.alarms.conditions import CONDITIONS
 from controller.alarms.states import parse_duration
 from controller.alarms.watch import FieldWatch, night_alarms
-from controller.calibration.records.runs import MeasurementRecord, ModelRecord, RunRecord
+from controller.calibration.records import MeasurementRecord, ModelRecord, RunRecord
 from controller.errors import InputError
 from controller.storage.alarms import AlarmBook
 from controller.storage.audit import audit_entries

@@ -26,7 +26,7 @@ from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
 from cryptography.x509.oid import ExtendedKeyUsageOID
 from starlette.testclient import TestClient
 
-from controller.calibration.records.runs import RunRecord
+from controller.calibration.records import RunRecord
 from controller.commands.simulated import plant_field
 from controller.config import config_sha256
 from controller.console.app import TOKEN_HEADER, create_app
@@ -406,7 +406,7 @@ def _any(events: _Events):
 
 def test_the_lights_out_at_the_end_of_a_night_raises_a_lamp_left_lit_and_clears_it_once_dark(plant, console):
     from controller.calibration.campaign.lights_out import lights_out_at_end
-    from controller.calibration.records.observers import Observers
+    from controller.calibration.campaign.observers import Observers
 
     sim, config, db, server = plant
     c, client = console

@@ -10,7 +10,7 @@ import sys
 import numpy as np
 import pytest
 
-from controller.calibration.records.runs import (
+from controller.calibration.records import (
     CorrectionRecord,
     ImageRecord,
     MeasurementRecord,

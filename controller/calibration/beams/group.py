@@ -1,6 +1,6 @@
 """One capture for several beams on a target, and whose spot is whose (``beams_per_target`` K > 1).
 
-The heliostats holding the target's slots (:class:`controller.calibration.beams.gate.TargetGate`)
+The heliostats holding the target's slots (:class:`controller.calibration.cycle.gate.TargetGate`)
 meet at a *round* (:meth:`SharedCapture.capture`, called by each one's cycle in *capturing*):
 
 1. the round forms when every heliostat on the target is settled at its slot and waits in

@@ -38,7 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from controller.calibration.cycle.pointing import model_covariance
-from controller.calibration.records.runs import ModelRecord
+from controller.calibration.records import ModelRecord
 from controller.config import PlantConfig
 from controller.geometry.kinematics import HeliostatKinematics
 from controller.geometry.pose_batch import aim_steps

@@ -28,7 +28,7 @@ from typing import Any, Protocol
 from controller.alarms.conditions import LAMP_NOT_DARK, LAMP_NOT_LIT
 from controller.alarms.lamps import lamp_alarms
 from controller.alarms.sink import NO_ALARMS, NO_AUDIT, AlarmSink, AuditSink
-from controller.calibration.records.runs import ModelRecord
+from controller.calibration.records import ModelRecord
 from controller.config import PlantConfig
 from controller.devices.drive import Drive, DriveLimits
 from controller.devices.lamp_drivers import open_lamp_panel

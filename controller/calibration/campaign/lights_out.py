@@ -5,7 +5,7 @@ operator interrupted it, an exception stopped it — :func:`lights_out_at_end` s
 channel of the field's lamp panel off (fiducials too), waits for each to confirm dark and reads
 every channel back. Each channel's end state goes into the store (``lamp_states``, through
 :class:`LampBook`), a lamp not confirmed dark is told to every observer
-(:meth:`controller.calibration.records.observers.CampaignObserver.lamp_not_dark`) and raised as the
+(:meth:`controller.calibration.campaign.observers.CampaignObserver.lamp_not_dark`) and raised as the
 alarm ``lamp_not_dark`` on the field's alarm list (:func:`controller.alarms.lamps.lights_out_alarms`),
 then stops the command with one line naming it (:class:`LampNotDark`, exit 1).
 Nothing about it is silent.
@@ -21,7 +21,7 @@ from typing import Protocol
 
 from controller.alarms.lamps import lights_out_alarms
 from controller.calibration.campaign.field import Field, LampEnd
-from controller.calibration.records.observers import CampaignObserver
+from controller.calibration.campaign.observers import CampaignObserver
 from controller.devices.lamp_panel import LampError
 
 

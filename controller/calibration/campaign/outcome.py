@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from controller.calibration.records.runs import RunRecord
+from controller.calibration.records import RunRecord
 
 
 @dataclass

@@ -36,23 +36,23 @@ from dataclasses import dataclass, field, replace
 from typing import Any, Protocol
 
 from controller.alarms.watch import FieldWatch
-from controller.calibration.beams.gate import TargetGate
 from controller.calibration.beams.group import SharedCapture, slot_parks
 from controller.calibration.beams.policy import beams_allowed
 from controller.calibration.beams.slots import assign_slots, slot_layout, spot_reach_m
 from controller.calibration.campaign.field import Field, LampLit
+from controller.calibration.campaign.lamp_change import clear_targets
+from controller.calibration.campaign.no_beam import NoBeamWatch, RefusalObserver
+from controller.calibration.campaign.observers import CampaignObserver, Observers
 from controller.calibration.campaign.outcome import CampaignResult, looked_and_failed, outcome
 from controller.calibration.campaign.queue_order import order_queue
 from controller.calibration.cycle.beam_chain import BeamChain
 from controller.calibration.cycle.context import CycleContext, CycleObserver
 from controller.calibration.cycle.exposure import capture_unsaturated
+from controller.calibration.cycle.gate import TargetGate
 from controller.calibration.cycle.machine import STATES, CalibrationCycle
-from controller.calibration.cycle.no_beam import NoBeamWatch, RefusalObserver
 from controller.calibration.cycle.pointing import GeometryPointing
 from controller.calibration.cycle.registration_step import register_chain
-from controller.calibration.night.lamp_change import clear_targets
-from controller.calibration.records.observers import CampaignObserver, Observers
-from controller.calibration.records.runs import (
+from controller.calibration.records import (
     CampaignRecord,
     ImageRecord,
     MeasurementRecord,

@@ -12,9 +12,9 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from controller.calibration.beams.gate import TargetGate
+from controller.calibration.cycle.gate import TargetGate
 from controller.calibration.cycle.observations import Observation, Step
-from controller.calibration.records.runs import MeasurementRecord, ModelRecord
+from controller.calibration.records import MeasurementRecord, ModelRecord
 from controller.devices.plant_time import WALL, PlantTime
 from controller.recognition.library import Match
 

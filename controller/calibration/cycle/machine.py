@@ -47,7 +47,7 @@ from controller.calibration.cycle.context import CycleContext, CycleObserver
 from controller.calibration.cycle.observations import BeamNotFound, NoBeam, Observation
 from controller.calibration.cycle.park import park
 from controller.calibration.cycle.shared_machine import shared_machine
-from controller.calibration.records.runs import CorrectionRecord, RunRecord, measurement_record
+from controller.calibration.records import CorrectionRecord, RunRecord, measurement_record
 from controller.devices.drive import DriveError, LinkError, MoveCancelled
 from controller.recognition.library import Match
 

@@ -2,7 +2,7 @@
 aims — the aim point and the standby point beside it, with its fitted model — and the
 corrections it moves by. The beam-safety geometry it checks every pose and slew with is
 :mod:`controller.calibration.cycle.beam_safety`; the model update after each run is
-:mod:`controller.calibration.model.update`."""
+:mod:`controller.calibration.cycle.model_update`."""
 
 from __future__ import annotations
 
@@ -14,9 +14,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from controller.calibration.cycle.beam_safety import BeamSafety, UnsafePath
+from controller.calibration.cycle.model_update import fit_measurements, model_prior
 from controller.calibration.cycle.observations import Step
-from controller.calibration.model.update import fit_measurements, model_prior
-from controller.calibration.records.runs import MeasurementRecord, ModelRecord
+from controller.calibration.records import MeasurementRecord, ModelRecord
 from controller.config import Heliostat, LampSource, ModelSettings, PersonZone, PlantConfig, Target
 from controller.errors import InputError, LimitError
 from controller.geometry.aiming import aim_normal, source_direction
@@ -268,7 +268,7 @@ def nominal_aims(cfg: PlantConfig, ids: list[str]) -> list[NominalAim]:
 def model_covariance(model: ModelRecord | None, settings: ModelSettings) -> tuple[TrackingModel, np.ndarray]:
     """(model, covariance SI²) of a stored model; without one (or one that predates
     covariances) the prior's model and covariance (``calibration.model``: the field's prior or
-    the documented one, :func:`controller.calibration.model.update.model_prior`)."""
+    the documented one, :func:`controller.calibration.cycle.model_update.model_prior`)."""
     cov = None if model is None else model.detail.get("covariance_si")
     if cov is None or len(cov) != len(TERMS):
         prior = model_prior(settings)

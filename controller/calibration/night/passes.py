@@ -10,7 +10,7 @@ each its passes in rank order. Each pass is a campaign named ``<night>/<lamp>/<k
 target) or ``<night>/<lamp>/<k>@<target>`` (several), so a night stopped by ``kill -9``
 resumes pass by pass: recorded heliostats are skipped, finished passes are not repeated.
 Before each lamp is lit, every heliostat of the night is made safe for it in the dark
-(:mod:`controller.calibration.night.lamp_change`): a standby pose is safe only for the lamp it was
+(:mod:`controller.calibration.campaign.lamp_change`): a standby pose is safe only for the lamp it was
 computed under.
 Measurements accumulate in the database across nights and every run refits the heliostat's
 model on all of them, weighted by age (``calibration.model.age_halflife_days``).
@@ -22,10 +22,10 @@ import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from controller.calibration.campaign.lamp_change import LampChange, Standby
 from controller.calibration.campaign.outcome import looked_and_failed
 from controller.calibration.campaign.parallel import run_per_target
 from controller.calibration.campaign.runner import CampaignResult
-from controller.calibration.night.lamp_change import LampChange, Standby
 from controller.calibration.night.planner import PlanItem, geometry_key
 
 
@@ -84,7 +84,7 @@ def run_night(plan: list[PlanItem], night: str, run_pass: Callable[[Pass], Campa
     their present pass, and no further lamp is lit. ``stop_all``: asks every running campaign
     to stop (Ctrl-C, :func:`run_per_target`). ``change_lamp(lamp, standbys)``: before each
     lamp's passes, switches every lamp off and makes the night's heliostats safe for ``lamp``
-    (a :class:`controller.calibration.night.lamp_change.LampChanger`); its LampChangeError ends the
+    (a :class:`controller.calibration.campaign.lamp_change.LampChanger`); its LampChangeError ends the
     night with the lamp dark. Without it the caller guarantees that no heliostat of the night
     can reflect the next lamp onto a target (a single-lamp night)."""
     results: list[CampaignResult] = []

@@ -10,7 +10,7 @@ On a :class:`controller.calibration.campaign.field.Field` (real or simulated, it
 3. plan from the models in the store (:func:`controller.calibration.night.planner.plan_night`), or
    reload the plan stored for this night when it is resumed;
 4. run the passes (:func:`controller.calibration.night.passes.run_night`): lamps changed in the dark
-   (:class:`controller.calibration.night.lamp_change.LampChanger`), the targets of a lamp in
+   (:class:`controller.calibration.campaign.lamp_change.LampChanger`), the targets of a lamp in
    parallel, each pass a :class:`controller.calibration.campaign.runner.Campaign` whose every run
    refits its heliostat's model; each lamp is confirmed lit before anything is measured under it;
 5. record and return the night's :class:`NightSummary`.
@@ -29,14 +29,14 @@ from typing import Protocol
 
 from controller.alarms.watch import night_ended
 from controller.calibration.campaign.field import Field, LampEnd
+from controller.calibration.campaign.lamp_change import LampChange, LampChangeError, LampChanger, Standby
 from controller.calibration.campaign.lights_out import lights_out_at_end, not_dark_message, require_dark
+from controller.calibration.campaign.observers import Observers
 from controller.calibration.campaign.runner import Campaign, CampaignObserver, CampaignOptions, CampaignResult
-from controller.calibration.model.daytime import DaytimeTally, predicted_daytime, sun_path
-from controller.calibration.night.lamp_change import LampChange, LampChangeError, LampChanger, Standby
+from controller.calibration.night.daytime import DaytimeTally, predicted_daytime, sun_path
 from controller.calibration.night.passes import Pass, failed_geometries, flagged_keys, run_night
 from controller.calibration.night.planner import PlanItem, plan_field
-from controller.calibration.records.observers import Observers
-from controller.calibration.records.runs import NightRecord
+from controller.calibration.records import NightRecord
 from controller.config import PlantConfig
 from controller.errors import HeliocalError
 

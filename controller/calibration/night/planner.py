@@ -42,7 +42,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from controller.calibration.model.daytime import model_covariance, sun_path
 from controller.calibration.night.candidates import (
     MAX_INCIDENCE_DEG,
     Candidates,
@@ -50,8 +49,9 @@ from controller.calibration.night.candidates import (
     evaluate,
     evaluate_many,
 )
+from controller.calibration.night.daytime import model_covariance, sun_path
 from controller.calibration.night.workers import map_chunks
-from controller.calibration.records.runs import ModelRecord
+from controller.calibration.records import ModelRecord
 from controller.config import PlantConfig
 from controller.geometry.design import fixed_design, greedy_design
 from controller.geometry.model.tracking import TrackingModel
@@ -150,7 +150,7 @@ def _geometries(c: Candidates, target: str) -> list[Geometry]:
 
 def planner_sun(cfg: PlantConfig) -> np.ndarray:
     """The sun directions the planner scores against: ``planner.sun_positions`` spread evenly
-    over the yearly evaluation path (:func:`controller.calibration.model.daytime.sun_path`)."""
+    over the yearly evaluation path (:func:`controller.calibration.night.daytime.sun_path`)."""
     d = sun_path(cfg.site).directions
     n = min(len(d), cfg.calibration.planner.sun_positions)
     return d[np.linspace(0, len(d) - 1, n).round().astype(int)]

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 
-from controller.calibration.records.runs import MeasurementRecord, ModelRecord
+from controller.calibration.records import MeasurementRecord, ModelRecord
 from controller.calibration.reprocess.tasks import ChainSpec, PairResult, PairSpec, RefitSpec
 from controller.config import PlantConfig, config_sha256, load_config
 from controller.errors import HeliocalError, InputError

@@ -24,7 +24,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any, Protocol
 
-from controller.calibration.records.runs import ModelRecord
+from controller.calibration.records import ModelRecord
 from controller.calibration.reprocess.plan import (
     Archive,
     Configs,

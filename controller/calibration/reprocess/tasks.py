@@ -26,10 +26,10 @@ from pathlib import Path
 import numpy as np
 
 from controller.calibration.cycle.beam_chain import BeamChain
+from controller.calibration.cycle.model_update import fit_measurements
 from controller.calibration.cycle.observations import BeamNotFound
-from controller.calibration.model.daytime import model_covariance, sun_path
-from controller.calibration.model.update import fit_measurements
-from controller.calibration.records.runs import MeasurementRecord, ModelRecord
+from controller.calibration.night.daytime import model_covariance, sun_path
+from controller.calibration.records import MeasurementRecord, ModelRecord
 from controller.calibration.reprocess.chain import registration_from_record
 from controller.config import PlantConfig, config_sha256, load_config
 from controller.devices.camera import FramePair

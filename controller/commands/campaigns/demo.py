@@ -58,7 +58,7 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from controller.calibration.model.update import model_prior
+    from controller.calibration.cycle.model_update import model_prior
     from controller.commands.simulated import field_selection
 
     output_dir(args.out)  # an existing file there is refused before any work

@@ -37,7 +37,7 @@ def register(subparsers) -> None:
 
 def run(args: argparse.Namespace) -> int:
 
-    from controller.calibration.model.refit import refit_models
+    from controller.calibration.night.refit import refit_models
     from controller.commands.common import print_json
     from controller.commands.field import open_store
     from controller.config import load_config

@@ -28,9 +28,9 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from controller.calibration.campaign.observers import CampaignObserver
 from controller.calibration.campaign.runner import Campaign, CampaignOptions
 from controller.calibration.night.planned import calibration_night
-from controller.calibration.records.observers import CampaignObserver
 from controller.commands._numbers import Number
 from controller.commands.cheap_night import WATCH_S, cheap_field
 from controller.commands.cheap_night import calibrate_from_truth as seed_from_truth

@@ -23,7 +23,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from controller.calibration.records.runs import CampaignRecord, MeasurementRecord
+from controller.calibration.records import CampaignRecord, MeasurementRecord
 from controller.errors import InputError
 from controller.geometry.frames import enu_to_wgs84
 from controller.io.images import write_atomic

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from controller.calibration.records.runs import utc_now
+from controller.calibration.records import utc_now
 from controller.config import PlantConfig, config_sha256, load_config, parse_config
 from controller.errors import InputError
 from controller.geometry.aiming import aim_normal

@@ -21,7 +21,7 @@ import os
 import sqlite3
 from pathlib import Path
 
-from controller.calibration.records.runs import MeasurementRecord, utc_now
+from controller.calibration.records import MeasurementRecord, utc_now
 from controller.calibration.reprocess.tasks import PairResult, RefitResult
 from controller.errors import InputError
 from controller.storage.db import CampaignStore

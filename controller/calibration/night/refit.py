@@ -1,6 +1,6 @@
 """Every heliostat's tracking model refitted on all its measurements, the field at once.
 
-A night's runs refit their heliostat's model as they go (:mod:`controller.calibration.model.update`).
+A night's runs refit their heliostat's model as they go (:mod:`controller.calibration.cycle.model_update`).
 Refitting the whole field is needed when what the fit depends on changes for every heliostat
 at once — the fit settings of ``calibration.model`` (noise, prior σ, age half-life, drift) —
 or to rebuild the models from the records. Each heliostat's fit depends on its own
@@ -13,9 +13,9 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 
-from controller.calibration.model.update import fit_measurements
+from controller.calibration.cycle.model_update import fit_measurements
 from controller.calibration.night.workers import map_chunks
-from controller.calibration.records.runs import MeasurementRecord, ModelRecord
+from controller.calibration.records import MeasurementRecord, ModelRecord
 from controller.config import ModelSettings, PlantConfig
 from controller.geometry.kinematics import HeliostatKinematics
 
@@ -32,7 +32,7 @@ class Refit:
 def refit_models(cfg: PlantConfig, history: dict[str, list[MeasurementRecord]], *,
                  workers: int | None = None) -> Refit:
     """The model of each heliostat of ``history`` (id -> its measurements, every night) fitted
-    with ``calibration.model`` (:func:`controller.calibration.model.update.fit_measurements`),
+    with ``calibration.model`` (:func:`controller.calibration.cycle.model_update.fit_measurements`),
     in ``workers`` processes (None: one per core for a large field)."""
     t0 = time.perf_counter()
     tasks = list(history.items())

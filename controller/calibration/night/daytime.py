@@ -16,7 +16,7 @@ import numpy as np
 
 from controller.calibration.cycle.pointing import model_covariance, steps_to_aim
 from controller.calibration.night.workers import map_chunks
-from controller.calibration.records.runs import ModelRecord
+from controller.calibration.records import ModelRecord
 from controller.config import Heliostat, Site
 from controller.errors import LimitError
 from controller.geometry.kinematics import HeliostatKinematics

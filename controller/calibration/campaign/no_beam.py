@@ -20,7 +20,7 @@ from typing import Any
 
 from controller.calibration.campaign.field import LampLit
 from controller.calibration.cycle.context import CycleObserver
-from controller.calibration.records.runs import MeasurementRecord, RunRecord
+from controller.calibration.records import MeasurementRecord, RunRecord
 
 NO_BEAM = "no_beam"  # RunRecord.status of a heliostat whose frames held no beam
 STOP_AFTER = 3  # consecutive no-beam heliostats that stop the pass

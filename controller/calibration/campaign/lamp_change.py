@@ -28,7 +28,7 @@ from controller.calibration.campaign.field import Field
 from controller.calibration.cycle.beam_safety import UnsafePath
 from controller.calibration.cycle.park import park
 from controller.calibration.cycle.pointing import GeometryPointing
-from controller.calibration.records.runs import ModelRecord
+from controller.calibration.records import ModelRecord
 from controller.devices.drive import Drive, DriveError
 from controller.devices.plant_time import PlantTime
 from controller.errors import HeliocalError, LimitError

@@ -8,7 +8,7 @@ from collections.abc import Sequence
 
 from controller.calibration.campaign.field import LampEnd
 from controller.calibration.cycle.context import CycleObserver
-from controller.calibration.records.runs import MeasurementRecord, RunRecord
+from controller.calibration.records import MeasurementRecord, RunRecord
 
 
 class CampaignObserver(CycleObserver):

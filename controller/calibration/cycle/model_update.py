@@ -9,7 +9,7 @@ from datetime import datetime
 
 import numpy as np
 
-from controller.calibration.records.runs import MeasurementRecord, ModelRecord
+from controller.calibration.records import MeasurementRecord, ModelRecord
 from controller.config import ModelSettings
 from controller.geometry.kinematics import HeliostatKinematics
 from controller.geometry.model.drift import RandomWalk
