@@ -54,8 +54,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from controller.commands._field import open_store  # noqa: E402
-from controller.commands._simulate import calibrate, planned_night  # noqa: E402
+from controller.commands.field import open_store  # noqa: E402
+from controller.commands.simulated import calibrate, planned_night  # noqa: E402
 from controller.config import load_config  # noqa: E402
 from simplant.far_lamps import FAR_LAMPS, far_lamp_config  # noqa: E402
 from simplant.settings import SimulationSettings  # noqa: E402

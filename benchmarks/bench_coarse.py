@@ -31,8 +31,8 @@ import cv2
 import numpy as np
 import yaml
 
-from controller.calibration.beam_chain import BeamChain
-from controller.commands.demo import simulated_campaign
+from controller.calibration.cycle.beam_chain import BeamChain
+from controller.commands.simulated import simulated_campaign
 from controller.config import load_config
 from controller.devices.camera import FramePair
 from controller.imaging.background import subtract_background

@@ -40,7 +40,7 @@ sys.path.insert(0, str(ROOT))
 
 import uvicorn  # noqa: E402
 
-from controller.commands._field import plant_field  # noqa: E402
+from controller.commands.simulated import plant_field  # noqa: E402
 from controller.console.app import create_app  # noqa: E402
 from controller.console.backend import STATUS_POLL_S, Console, PlantHooks  # noqa: E402
 from controller.devices.drive import DriveLimits  # noqa: E402

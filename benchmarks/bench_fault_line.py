@@ -1,7 +1,7 @@
 """Jogs through a noisy serial line: is any jog executed twice, or lost without a word?
 
 1,000 jogs (default) from a :class:`SerialDrive` to the simulated firmware through a
-:class:`simplant.noisy_line.NoisyLine` that flips, drops and duplicates 0.3 % of the bytes
+:class:`simplant.devices.noisy_line.NoisyLine` that flips, drops and duplicates 0.3 % of the bytes
 (each, per byte) and delays some chunks. After every jog the line is let drain, then the
 firmware's own log says how often that jog was executed. Prints JSON counts:
 
@@ -23,9 +23,9 @@ import time
 
 from controller.devices.drive import AxisLimits, DriveError, DriveLimits, LinkError
 from controller.devices.serial_drive import SerialBus, SerialDrive
+from simplant.devices.noisy_line import NoisyLine
 from simplant.firmware.physics import AxisParams, SimController
 from simplant.firmware.serial import SerialSimFirmware
-from simplant.noisy_line import NoisyLine
 
 LIMITS = DriveLimits(AxisLimits(500, 74800), AxisLimits(500, 68200))
 

@@ -12,14 +12,14 @@ What runs, in order, each timed:
 1. **night 0** (``seed_s``): the calibration night, made from the plant's truth rather than
    run closed loop (10,000 closed-loop runs would take hours of wall time): each heliostat's
    first capture at the calibration lamp, fitted by the product's model fit
-   (:func:`controller.commands._cheap_night.calibrate_from_truth`);
+   (:func:`controller.commands.cheap_night.calibrate_from_truth`);
 2. **planning** (``plan_s``): tonight's plan for the *whole* field from the models in the
-   database (:func:`controller.calibration.planner.plan_field`, as ``PlannedNight`` plans:
+   database (:func:`controller.calibration.night.planner.plan_field`, as ``PlannedNight`` plans:
    measurable geometries only, ``--workers`` processes); ``planner_ms_per_decision`` is its wall
    time per heliostat planned (one decision = one heliostat's geometries);
 3. **the night** (``night_wall_s``, ``plant_hours``): the product's night operation
-   (:func:`controller.commands._cheap_night.run_cheap_night` →
-   :class:`controller.calibration.night.PlannedNight`: lamp changes in the dark for every
+   (:func:`controller.commands.cheap_night.run_cheap_night` →
+   :class:`controller.calibration.night.planned.PlannedNight`: lamp changes in the dark for every
    heliostat of the field, one campaign per pass, the targets of a lamp in parallel, the
    state machine, gate, fit, SQLite store, frame archive) over the whole field. When the plan
    has more than ``--sample`` geometries, the night runs the plan of an evenly spread sample of
@@ -27,14 +27,14 @@ What runs, in order, each timed:
    and counted, not run: 30,000 measurements do not fit 30 minutes of wall time. ``planned``
    and ``measured`` are the sample's; ``plan_total`` the whole field's;
 4. **refit** (``fit_s``): every heliostat's model refitted on all its measurements
-   (:func:`controller.calibration.refit.refit_models`, ``heliocal model refit``), in
+   (:func:`controller.calibration.night.refit.refit_models`, ``heliocal model refit``), in
    ``--workers`` processes; ``fit_same_as_serial`` checks 20 of them against a fit one at a
    time in this process;
 5. **morning report** (``report_s``): :func:`controller.reports.night.write_night_report` of the
    night, for every heliostat of the field.
 
 ``second_beam_captures``: captures in which a target's camera saw more than one beam (the
-simulated truth: :attr:`simplant.cheap_camera.CheapCamera.beams_in_view`).
+simulated truth: :attr:`simplant.devices.cheap_camera.CheapCamera.beams_in_view`).
 ``controller_cpu_s``: CPU seconds of this process and its worker processes over steps 2-5 —
 the night's share includes the in-process simulated plant (its cameras and physics).
 
@@ -62,11 +62,11 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from controller.calibration.model_update import fit_measurements
-from controller.calibration.nights import night_passes
-from controller.calibration.planner import plan_field
-from controller.calibration.planning import slew_time_s
-from controller.calibration.refit import refit_models
+from controller.calibration.campaign.queue_order import slew_time_s
+from controller.calibration.cycle.model_update import fit_measurements
+from controller.calibration.night.passes import night_passes
+from controller.calibration.night.planner import plan_field
+from controller.calibration.night.refit import refit_models
 from controller.commands.sim.field import (
     OnTarget,
     night_zero,

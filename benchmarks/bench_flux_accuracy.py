@@ -1,7 +1,7 @@
 """PHLUX accuracy on synthetic truth and the time of one flux map; prints one JSON object.
 
 Renders (with the test renderers of tests/flux/conftest.py: limb-darkened Sun, Lambertian
-two-lobed beam, 8x8-supersampled footprints, simplant.sensor.SensorModel 8-bit) a sun
+two-lobed beam, 8x8-supersampled footprints, simplant.devices.sensor.SensorModel 8-bit) a sun
 image (DNI 900 W/m², ND 0.01) and target images at several distances / view angles, and
 reports the flux-map RMS error over the beam (pixels with truth >= 10 % of peak, RMS / mean),
 the error of the power in the frame, and the sun-radius error; then times find_sun_disc +

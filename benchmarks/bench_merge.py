@@ -22,8 +22,8 @@ import numpy as np
 
 from controller.imaging.crf import Crf
 from controller.imaging.hdr import HdrMerger
+from simplant.devices.sensor import SensorModel, knee_response
 from simplant.optics import MirrorSurface, TargetGrid, render_spot
-from simplant.sensor import SensorModel, knee_response
 
 
 def timings_ms(fn, runs: int) -> tuple[float, float]:

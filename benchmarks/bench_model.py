@@ -38,9 +38,8 @@ import numpy as np
 
 from controller.geometry.aiming import reflected_beam
 from controller.geometry.design import tangents
-from controller.geometry.model_fit import Sample, fit_model, measured_normal
-from controller.geometry.paint_io import kinematics_from_properties, read_heliostat_properties, read_towers
-from controller.geometry.tracking_model import (
+from controller.geometry.model.fit import Sample, fit_model, measured_normal
+from controller.geometry.model.tracking import (
     NAMES,
     PRIOR_SIGMA_SI,
     TrackingModel,
@@ -48,6 +47,7 @@ from controller.geometry.tracking_model import (
     model_mirror_center,
     model_normal,
 )
+from controller.geometry.paint_io import kinematics_from_properties, read_heliostat_properties, read_towers
 from controller.geometry.vectors import azel_to_vector, unit
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -153,7 +153,7 @@ def bench_aim(kin, towers, runs: int, demo_dir: Path, *, make_demo: bool = False
     if not db.is_file():
         out["cli"] = f"skipped: no campaign.db in {demo_dir} (run: heliocal demo --out DIR --json)"
         return out
-    from controller.commands._common import DEFAULT_CONFIG
+    from controller.commands.common import DEFAULT_CONFIG
     from controller.config import load_config
     from controller.storage.db import open_existing
 

@@ -34,7 +34,7 @@ import yaml
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from controller.calibration.daytime import sun_path  # noqa: E402
+from controller.calibration.night.daytime import sun_path  # noqa: E402
 from controller.cli import main as cli  # noqa: E402
 from controller.config import load_config  # noqa: E402
 from simplant.daytime import true_errors_mrad  # noqa: E402

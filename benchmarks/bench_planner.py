@@ -33,9 +33,9 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from controller.calibration.daytime import model_covariance, predicted_daytime, sun_path, tracking_steps
-from controller.calibration.model_update import fit_measurements
-from controller.calibration.planner import Geometry, PlanItem, candidates, plan_night, planner_sun
+from controller.calibration.cycle.model_update import fit_measurements
+from controller.calibration.night.daytime import model_covariance, predicted_daytime, sun_path, tracking_steps
+from controller.calibration.night.planner import Geometry, PlanItem, candidates, plan_night, planner_sun
 from controller.calibration.records import MeasurementRecord
 from controller.config import parse_config
 from controller.geometry.aiming import angle_mrad, intersect_plane, reflected_beam, source_direction
@@ -47,7 +47,7 @@ from controller.geometry.design import (
     posterior,
 )
 from controller.geometry.kinematics import HeliostatKinematics
-from controller.geometry.tracking_model import model_aim
+from controller.geometry.model.tracking import model_aim
 from simplant.plant import field_selection
 from simplant.truth import hidden_truth
 

@@ -15,7 +15,7 @@ Each heliostat's last 10 records are predicted from earlier ones, through the co
 The error of a record is the angle between the mirror normal its predicted focal spot implies and
 the one its measured UTIS spot implies, both from the heliostat's surveyed position; per heliostat
 the median, over the field the median of the heliostats' medians. The peer is a rigid rotation of
-the nominal normals fitted to the same records (Kabsch; ``controller.geometry.validation``); the
+the nominal normals fitted to the same records (Kabsch; ``controller.geometry.model.validation``); the
 floor the UTIS–HeliOS disagreement on the same records. Heliostats with at least 30 records (the
 rule of the held-out check) make ``field``; ``halves`` splits them in two fixed halves, to show
 the figure is not one lucky half.
@@ -43,10 +43,10 @@ sys.path.insert(0, str(ROOT))
 
 from controller.geometry.aiming import aim_normal, angle_mrad  # noqa: E402
 from controller.geometry.frames import wgs84_to_enu  # noqa: E402
-from controller.geometry.model_drift import PAINT_JUMP_RAD, RandomWalk  # noqa: E402
+from controller.geometry.model.drift import PAINT_JUMP_RAD, RandomWalk  # noqa: E402
+from controller.geometry.model.tracking import NAMES, PRIOR_SIGMA_SI, TrackingModel  # noqa: E402
+from controller.geometry.model.validation import Targets, held_out  # noqa: E402
 from controller.geometry.paint_io import read_paint_set, read_timestamps, read_towers  # noqa: E402
-from controller.geometry.tracking_model import NAMES, PRIOR_SIGMA_SI, TrackingModel  # noqa: E402
-from controller.geometry.validation import Targets, held_out  # noqa: E402
 
 FIELD = ROOT / "tests" / "data" / "real" / "paint-field"
 TOWERS = FIELD / "tower-measurements.json"
@@ -173,7 +173,7 @@ def main() -> int:
             cli("model", "fit", *records(h, timed), "--heliostat-properties",
                 FIELD / h / f"{h}_properties.json", "--towers", TOWERS, "--out", models[h],
                 "--timestamps", STAMPS)
-        from controller.geometry.field_prior_io import read_prior
+        from controller.geometry.model.field_prior_io import read_prior
 
         field_prior = {}
         for h in big:

@@ -26,7 +26,7 @@ import cv2
 import numpy as np
 from bench_merge import timings_ms  # this folder: the same timing for both benchmarks
 
-from controller.calibration.registration_step import CameraRegistration
+from controller.calibration.cycle.registration_step import CameraRegistration
 from controller.devices.camera import FramePair
 from controller.geometry.target_frame import TargetFrame
 from controller.imaging.beam import analyze
@@ -34,7 +34,7 @@ from controller.imaging.crf import Crf
 from controller.imaging.fiducials import detect_fiducials
 from controller.imaging.hdr import HdrMerger
 from controller.imaging.registration import CameraModel, rectification_maps, register, remap
-from simplant.sensor import SensorModel, knee_response
+from simplant.devices.sensor import SensorModel, knee_response
 
 SIZE = (1024, 768)
 CENTER = np.array([0.0, 0.0, 130.0])

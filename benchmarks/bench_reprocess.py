@@ -34,8 +34,7 @@ from pathlib import Path
 
 import yaml
 
-from controller.calibration.reprocess import analyse_chunk, refit_heliostat
-from controller.calibration.reprocess_plan import (
+from controller.calibration.reprocess.plan import (
     MAX_TASK_PAIRS,
     in_scope,
     load_configs,
@@ -43,11 +42,12 @@ from controller.calibration.reprocess_plan import (
     refit_specs,
     take_task,
 )
-from controller.calibration.reprocess_run import open_cluster, reprocess
-from controller.commands._common import PACKAGED_CONFIG
-from controller.storage.archive import fingerprint, read_archive
+from controller.calibration.reprocess.run import open_cluster, reprocess
+from controller.calibration.reprocess.tasks import analyse_chunk, refit_heliostat
+from controller.commands.common import PACKAGED_CONFIG
 from controller.storage.db import open_existing
-from controller.storage.reprocess_db import open_output
+from controller.storage.reprocess.archive import fingerprint, read_archive
+from controller.storage.reprocess.db import open_output
 from simplant.archive import replicate
 
 NIGHT_PAIRS = 30_000  # a 10,000-heliostat field, three measurements each (the figure)

@@ -38,12 +38,12 @@ import cv2
 import numpy as np
 
 import controller
-from controller.calibration.pointing import nominal_aims
+from controller.calibration.cycle.pointing import nominal_aims
 from controller.config import load_config
 from controller.geometry.vectors import unit
-from simplant.grids import camera_grid
+from simplant.devices.grids import camera_grid
+from simplant.devices.plant_camera import PlantCamera
 from simplant.plant import SimulatedPlant, field_selection, load_config_data
-from simplant.plant_camera import PlantCamera
 from simplant.truth import EAST, FACING_SOUTH, NORTH, UP, rodrigues
 
 DEMO = Path(controller.__file__).parent / "data" / "demo.yaml"

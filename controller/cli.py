@@ -1,6 +1,7 @@
 """The ``heliocal`` command line.
 
-Each sub-command lives in its own module in :mod:`controller.commands`. A module there
+Each sub-command lives in its own module in :mod:`controller.commands` (or one of its
+shelves, packages by subject: :func:`controller.commands._groups.command_modules`). A module
 defines ``register(subparsers)``, which adds its parser and sets ``func`` on it; ``func``
 receives the parsed namespace and returns the exit status. Modules are discovered, so adding
 a command never touches this file.
@@ -13,18 +14,17 @@ their exit code; argparse usage errors exit 2 as usual.
 from __future__ import annotations
 
 import argparse
-import importlib
 import json
 import os
-import pkgutil
 import re
 import signal
 import sys
 import threading
 
 from controller import __version__, commands
-from controller.commands._common import resolve_config
+from controller.commands._groups import command_modules
 from controller.commands._numbers import Number
+from controller.commands.common import resolve_config
 from controller.errors import HeliocalError
 
 
@@ -64,10 +64,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"heliocal {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):
-        if info.name.startswith("_"):
-            continue
-        module = importlib.import_module(f"{commands.__name__}.{info.name}")
+    for module in command_modules(commands):
         module.register(sub)
     _state_ranges(parser)
     return parser

@@ -1,10 +1,10 @@
 """A large simulated field with cheap optics: the devices of a planned night at field scale.
 
 :class:`CheapField` is a :class:`simplant.plant.SimulatedPlant` that is never started: its
-hidden heliostats are driven in-process (:class:`simplant.inproc.InProcPool`), seen by
-analytic-spot cameras (:class:`simplant.cheap_camera.CheapCamera`) and lit through an
-in-process lamp panel (:class:`simplant.inproc.InProcLampPanel`), on the plant clock. The
-product's night runs on it (``controller.commands._cheap_night``), as it runs on any field.
+hidden heliostats are driven in-process (:class:`simplant.devices.inproc.InProcPool`), seen by
+analytic-spot cameras (:class:`simplant.devices.cheap_camera.CheapCamera`) and lit through an
+in-process lamp panel (:class:`simplant.devices.inproc.InProcLampPanel`), on the plant clock. The
+product's night runs on it (``controller.commands.cheap_night``), as it runs on any field.
 Used by ``benchmarks/bench_field.py`` and its tests.
 """
 
@@ -21,8 +21,8 @@ import yaml
 
 from controller.config import load_config
 from controller.devices.plant_time import PlantTime
-from simplant.cheap_camera import BeamField, CheapCamera
-from simplant.inproc import InProcLampPanel, InProcPool
+from simplant.devices.cheap_camera import BeamField, CheapCamera
+from simplant.devices.inproc import InProcLampPanel, InProcPool
 from simplant.plant import SimulatedPlant
 from simplant.settings import SimulationSettings
 
@@ -51,7 +51,7 @@ def field_data(base: dict, n: int, targets: int, geometries: int = 3, span_deg: 
     lamp above the highest target), the planner at ``geometries`` per heliostat, standby
     points at least 12 m off the aim; a ``CAMERA_PX`` camera without registration (cheap
     optics). ``beams`` > 1 (``calibration.beams_per_target``): each target holds a grid of
-    ⌈√beams⌉ columns of such spots, one per slot (controller.calibration.slots), and is that
+    ⌈√beams⌉ columns of such spots, one per slot (controller.calibration.beams.slots), and is that
     many spot-heights tall and wide."""
     proto = base["heliostats"][0]
     data = copy.deepcopy(base)
@@ -161,7 +161,7 @@ class CheapField:
                  target: str) -> np.ndarray | None:
         """Where the hidden heliostat's beam under ``lamp`` lands on ``target``'s plane at the
         given steps tonight (m ENU; None when it does not meet the plane): the plant's truth, as
-        the cheap camera draws it (:class:`simplant.cheap_camera.BeamField`)."""
+        the cheap camera draws it (:class:`simplant.devices.cheap_camera.BeamField`)."""
         n = self.plant.true_normal_at(hid, az_steps, el_steps)
         c = self.plant.true_mirror_center(hid, az_steps, el_steps)
         s = np.asarray(self.cfg.light_source(lamp).position_enu_m, float) - c

@@ -1,8 +1,8 @@
 """Open-loop daytime error of calibrated heliostats, scored against the simulated plant's truth.
 
 For every heliostat and every sun position of the evaluation path
-(:func:`controller.calibration.daytime.sun_path`): the controller computes the steps with the
-heliostat's latest fitted model (:func:`controller.calibration.daytime.tracking_steps`, exactly
+(:func:`controller.calibration.night.daytime.sun_path`): the controller computes the steps with the
+heliostat's latest fitted model (:func:`controller.calibration.night.daytime.tracking_steps`, exactly
 what ``heliocal aim`` does); the plant's hidden heliostat at those steps reflects the sun
 about its true normal n from its true mirror centre c; the error is the angle between that
 reflected ray, r = 2 (s·n) n − s, and the direction from c to the target centre, in mrad.
@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from controller.calibration.daytime import SunPath, sun_path, tracking_steps
+from controller.calibration.night.daytime import SunPath, sun_path, tracking_steps
 from controller.calibration.records import ModelRecord
 from controller.config import PlantConfig
 from controller.geometry.aiming import angle_mrad

@@ -27,7 +27,7 @@ facet-split        left and right halves canted apart by ±2.5 mrad: a double sp
 
 Each view: the lamp-lit spot is ray traced onto a target-plane pixel grid
 (:func:`simplant.optics.render_spot`), exposed as a double-CCD pair by
-:class:`simplant.sensor.SensorModel` and merged by :class:`controller.imaging.hdr.HdrMerger`
+:class:`simplant.devices.sensor.SensorModel` and merged by :class:`controller.imaging.hdr.HdrMerger`
 into a float HDR image. Library views use the nominal framing; test views are perturbed
 deterministically from the seed by translation (grid centre ±0.3 m), scaling (pixel pitch
 x 0.8-1.25), rotation (grid axes turned about the target normal by 0-360°), exposure change
@@ -59,8 +59,8 @@ from controller.geometry.vectors import unit, vector_to_azel
 from controller.imaging.hdr import HdrMerger
 from controller.io.images import write_float_image, write_preview
 from controller.recognition.library_io import write_manifest
+from simplant.devices.sensor import SensorModel
 from simplant.optics import MirrorSurface, TargetGrid, render_spot
-from simplant.sensor import SensorModel
 
 Deformation = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
 

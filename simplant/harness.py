@@ -2,11 +2,11 @@
 plant's error library.
 
 The controller records what it measured (``controller.storage``); :class:`TruthRecorder`
-observes the product's campaigns (:class:`controller.calibration.observers.CampaignObserver`)
+observes the product's campaigns (:class:`controller.calibration.campaign.observers.CampaignObserver`)
 and writes the plant's truth into its own table ``sim_truth`` of the same database file: per
 recorded run, the injected error case and the true reflected-beam error at the first and the
 last measurement. Reports written by the simulation commands read it back (:func:`read_truth`).
-The simulated plant never runs a campaign or a night itself: ``controller.commands._simulate``
+The simulated plant never runs a campaign or a night itself: ``controller.commands.simulated``
 runs the product's on the simulated field.
 """
 
@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from controller.calibration.observers import CampaignObserver
+from controller.calibration.campaign.observers import CampaignObserver
 from controller.calibration.records import MeasurementRecord, RunRecord
 from controller.config import PlantConfig
 from controller.recognition.library import Library

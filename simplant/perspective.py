@@ -10,7 +10,7 @@ centre, ``camera.registration``'s focal length and lens distortion). The real on
 
 The intrinsics (focal length, principal point, distortion) are the configured ones: a lab
 calibration knows them. The scene is still rendered on the target-plane grid
-(:func:`simplant.grids.camera_grid`); :class:`PerspectiveView` warps it into each sensor's image
+(:func:`simplant.devices.grids.camera_grid`); :class:`PerspectiveView` warps it into each sensor's image
 through the true model (camera pixel → ray → target plane → grid pixel, one ``cv2.remap``
 with tables built once). Only this module knows the truth; the controller never reads it.
 """

@@ -4,12 +4,12 @@ What it runs, all in this process but reachable only through the real wire proto
 
 * one :class:`simplant.firmware.physics.SimController` per heliostat, on a **plant clock**
   (:class:`PlantClock`) that may run ``SimulationSettings.clock_speedup`` times faster than real time;
-* its drives on their wires (:mod:`simplant.plant_drives`): per serial bus of the config,
+* its drives on their wires (:mod:`simplant.devices.plant_drives`): per serial bus of the config,
   :class:`simplant.firmware.serial.SerialSimFirmware` on a pty,
   symlinked inside the run directory (the config's device paths are rewritten to it);
 * the Modbus TCP heliostats behind :class:`simplant.firmware.modbus.ModbusSimServer` on
   127.0.0.1, an ephemeral port (written back into the links); Modbus RTU on a pty;
-* the lamp panel (:class:`simplant.lamp_panel.SimLampPanel`) on 127.0.0.1, an ephemeral port
+* the lamp panel (:class:`simplant.devices.lamp_panel.SimLampPanel`) on 127.0.0.1, an ephemeral port
   (written into the config as its ``lamps:`` section): its coils switch the lamps the plant
   renders with, its discrete inputs report them;
 * a hidden heliostat per id (:mod:`simplant.truth`, written independently of the controller's
@@ -48,12 +48,12 @@ from controller.errors import ConfigError
 from controller.field_file import field_path
 from controller.geometry.vectors import unit
 from simplant.clock import PlantClock
+from simplant.devices.grids import camera_grid, coarse_grid
+from simplant.devices.plant_camera import RENDER_RAYS, PlantCamera
 from simplant.errorset import CASES
 from simplant.firmware.physics import SimController, axis_params_from_config
-from simplant.grids import camera_grid, coarse_grid
 from simplant.hidden import HiddenHeliostat
 from simplant.optics import MirrorSurface, TargetGrid, render_spot
-from simplant.plant_camera import RENDER_RAYS, PlantCamera
 from simplant.poses import true_pose
 from simplant.safety import BeamSafetyMonitor
 from simplant.settings import SimulationSettings
@@ -104,7 +104,7 @@ class SimulatedPlant:
         self.hidden: dict[str, HiddenHeliostat] = {}
         self.night = 0
         self._lit: tuple[str, ...] = (self.cfg.calibration.light_source,)  # in the order switched on
-        self.lamp_panel = None  # simplant.lamp_panel.SimLampPanel, from start()
+        self.lamp_panel = None  # simplant.devices.lamp_panel.SimLampPanel, from start()
         index = {h.id: i for i, h in enumerate(cfg.heliostats)}
         for hid in self.ids:
             h = cfg.heliostat(hid)
@@ -122,7 +122,7 @@ class SimulatedPlant:
                                 az=axis_params_from_config(h.axes.azimuth),
                                 el=axis_params_from_config(h.axes.elevation), clock=self.clock)
             self.hidden[hid] = HiddenHeliostat(hid, truth, case, mirror, ctl, (self.seed, 13, index[hid]))
-        self._drives = None  # simplant.plant_drives.Drives, from start()
+        self._drives = None  # simplant.devices.plant_drives.Drives, from start()
         self.serial: dict[str, object] = {}  # its serial firmware by configured device
         self.modbus = None  # its Modbus server
         self.safety = BeamSafetyMonitor(self)
@@ -134,7 +134,7 @@ class SimulatedPlant:
     # -- lifecycle -------------------------------------------------------------------------------
     def start(self) -> PlantConfig:
         """Start firmware and servers; return the config with links rewritten to them."""
-        from simplant.plant_drives import serve_drives
+        from simplant.devices.plant_drives import serve_drives
 
         self.run_dir.mkdir(parents=True, exist_ok=True)
         dev_dir = self.run_dir / "dev"
@@ -153,7 +153,7 @@ class SimulatedPlant:
 
     def _start_lamp_panel(self) -> None:
         """Serve the plant's lamp panel and write its ``lamps:`` section (replacing any)."""
-        from simplant.lamp_panel import SimLampPanel, panel_channels
+        from simplant.devices.lamp_panel import SimLampPanel, panel_channels
 
         channels = panel_channels(self.cfg)
         self.lamp_panel = SimLampPanel(self, channels)

@@ -7,15 +7,22 @@ for it, and most heliostats stand still most of the time: recomputing the hidden
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 
-if TYPE_CHECKING:  # the plant imports this module: a runtime import would be circular
-    from simplant.plant import SimulatedPlant
+from simplant.hidden import HiddenHeliostat
 
 
-def true_pose(plant: SimulatedPlant, hid: str) -> tuple[np.ndarray, np.ndarray]:
+class PlantTruth(Protocol):
+    """What the pose is read from: the plant's hidden heliostats and its night
+    (:class:`simplant.plant.SimulatedPlant`, which imports this module, is one)."""
+
+    hidden: dict[str, HiddenHeliostat]
+    night: int
+
+
+def true_pose(plant: PlantTruth, hid: str) -> tuple[np.ndarray, np.ndarray]:
     """(:meth:`SimulatedPlant.true_normal`, mirror centre) of ``hid`` at one read of its rods,
     kept in ``HiddenHeliostat.pose_cache`` while the rods, their repeatability draw and the
     night stay the same (the same values as computing them anew: same calls, same order)."""

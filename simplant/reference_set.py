@@ -9,11 +9,11 @@ import numpy as np
 
 from controller.geometry.kinematics import HeliostatKinematics
 from controller.geometry.vectors import unit
+from simplant.devices.plant_camera import PlantCamera
 from simplant.errorset import CASES, beam_error_deg, scene_from_config
 from simplant.firmware.physics import SimController
 from simplant.optics import MirrorSurface
 from simplant.plant import SimulatedPlant
-from simplant.plant_camera import PlantCamera
 from simplant.truth import hidden_truth
 
 

@@ -4,9 +4,9 @@ is on a real transport, and the configuration that points the product at it
 
 * the drives as the configuration's links say: the serial firmware on ptys, the Modbus
   heliostats behind a Modbus TCP server on 127.0.0.1 (or RTU on a pty)
-  (:mod:`simplant.plant_drives`);
-* the lamp panel on Modbus TCP, 127.0.0.1 (:mod:`simplant.lamp_panel`);
-* each target's double-CCD camera as two GigE Vision imagers (:mod:`simplant.gige_plant`),
+  (:mod:`simplant.devices.plant_drives`);
+* the lamp panel on Modbus TCP, 127.0.0.1 (:mod:`simplant.devices.lamp_panel`);
+* each target's double-CCD camera as two GigE Vision imagers (:mod:`simplant.devices.gige_plant`),
   rendering what the plant's heliostats do.
 
 :meth:`RehearsalPlant.start` serves them, waits until every device answers through the
@@ -31,10 +31,10 @@ import yaml
 from controller.config import PlantConfig, parse_config
 from controller.devices.drive import DriveLimits
 from controller.devices.factory import LinkPool
-from controller.devices.lamp_panel import open_lamp_panel
+from controller.devices.lamp_drivers import open_lamp_panel
 from controller.errors import DeviceError, InputError
-from simplant.gige_imager import aravis, discover
-from simplant.gige_plant import GigeCamera
+from simplant.devices.gige_imager import aravis, discover
+from simplant.devices.gige_plant import GigeCamera
 from simplant.plant import SimulatedPlant, load_config_data
 from simplant.settings import SimulationSettings
 
@@ -72,7 +72,7 @@ class RehearsalPlant:
         """Serve every device, wait until each answers, write ``out``; what serves where."""
         try:
             cfg = self.plant.start()
-        except ValueError as exc:  # a field the simulated plant cannot serve (simplant.plant_drives)
+        except ValueError as exc:  # a field the simulated plant cannot serve (simplant.devices.plant_drives)
             raise InputError(f"{self.config}: {exc}") from None
         data = self.plant.data
         shared = None  # the top-level camera section goes to the first target without its own

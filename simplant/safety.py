@@ -3,16 +3,26 @@
 from __future__ import annotations
 
 import threading
-from typing import TYPE_CHECKING
+from collections.abc import Callable
+from typing import Any, Protocol
 
 import numpy as np
 
 from controller.geometry.vectors import unit
-from simplant.grids import camera_grid
-from simplant.poses import true_pose
+from simplant.devices.grids import camera_grid
+from simplant.poses import PlantTruth, true_pose
 
-if TYPE_CHECKING:  # the plant owns its monitor: a runtime import would be circular
-    from simplant.plant import SimulatedPlant
+
+class WatchedPlant(PlantTruth, Protocol):
+    """What the monitor watches (:class:`simplant.plant.SimulatedPlant`, which owns its monitor,
+    is one): the configuration, the plant clock, the lit lamp and each heliostat's true normal."""
+
+    cfg: Any  # controller.config.PlantConfig
+    clock: Callable[[], float]
+
+    def lamp(self) -> Any: ...
+
+    def true_normal(self, hid: str) -> np.ndarray: ...
 
 
 class BeamSafetyMonitor:
@@ -25,7 +35,7 @@ class BeamSafetyMonitor:
     ``intervals`` lists, per target, the plant-clock spans (start, end, heliostat) during
     which one beam was on it."""
 
-    def __init__(self, plant: SimulatedPlant, period_s: float = 0.02) -> None:
+    def __init__(self, plant: WatchedPlant, period_s: float = 0.02) -> None:
         self.plant = plant
         self.period_s = period_s
         self.samples = 0

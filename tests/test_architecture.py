@@ -5,7 +5,8 @@ domain (``geometry``, ``imaging``, ``flux``, ``recognition``) → orchestration
 (``calibration``) → interfaces (``commands``, ``reports``, ``storage``, ``console``, ``cli``).
 Every import — at module level or inside a function — must point to the importer's own layer
 or one allowed below it. The simulated plant (``simplant``) sits outside: the product never
-imports it, except the commands that run the simulator.
+imports it, except the one command module that wires it (``controller.commands.simulated``) and
+``heliocal sim``. No import cycles anywhere, and no package folder over 20 modules.
 """
 
 from __future__ import annotations
@@ -49,22 +50,21 @@ ALLOWED: dict[str, set[str]] = {
 
 # A domain module may reach its own file handling only through a documented compatibility
 # entry point, imported lazily inside that function (a public contract older than the split).
-COMPAT_LAZY = {("controller.imaging.crf", "controller.imaging.crf_io")}
+COMPAT_LAZY = {("controller.imaging.crf", "controller.imaging.crf_yaml_io")}
 
-# The commands that run the simulated plant (they import it lazily, in their --simulate path).
-SIMULATOR_USERS = ("controller.commands.demo", "controller.commands._demo_coarse",
-                   "controller.commands._field", "controller.commands._simulate",
-                   "controller.commands._night",
-                   "controller.commands.campaign", "controller.commands.commission",
-                   "controller.commands.sim", "controller.commands.report.weighting",
-                   "controller.commands.console")
+# The one command module outside ``heliocal sim`` that wires the simulated plant (it imports it
+# lazily, in the --simulate paths); every other command asks it (docs/architecture.md).
+SIMULATOR_USERS = ("controller.commands.simulated", "controller.commands.sim")
 
 # The product's orchestration the simulated plant must never import: it provides devices and
 # truth (like ophyd.sim), it does not assemble campaigns, nights or lamp changes itself.
-ORCHESTRATION_OPERATIONS = ("controller.calibration.runner", "controller.calibration.nights",
-                            "controller.calibration.night", "controller.calibration.lamp_change",
-                            "controller.calibration.planner", "controller.calibration.parallel",
-                            "controller.calibration.machine")
+ORCHESTRATION_OPERATIONS = ("controller.calibration.campaign.runner",
+                            "controller.calibration.night.passes",
+                            "controller.calibration.night.planned",
+                            "controller.calibration.campaign.lamp_change",
+                            "controller.calibration.night.planner",
+                            "controller.calibration.campaign.parallel",
+                            "controller.calibration.cycle.machine")
 
 # Modules allowed over MAX_LINES, with the reason (one cohesive thing each).
 MAX_LINES = 400
@@ -147,11 +147,13 @@ def test_layers_only_import_downward():
 @pytest.mark.parametrize("graph, expected", [
     ({"controller.geometry.kinematics": [("controller.devices.drive", True)]}, "imports controller.devices"),
     ({"controller.imaging.hdr": [("controller.io.images", False)]}, "imports controller.io"),
-    ({"controller.devices.drive": [("controller.calibration.machine", True)]},
+    ({"controller.devices.drive": [("controller.calibration.cycle.machine", True)]},
      "imports controller.calibration"),
-    ({"controller.calibration.runner": [("controller.storage.db", True)]}, "imports controller.storage"),
-    ({"controller.calibration.runner": [("simplant.plant", False)]}, "imports the simulator"),
-    ({"controller.commands.demo": [("simplant.plant", True)]}, "at module level"),
+    ({"controller.calibration.campaign.runner": [("controller.storage.db", True)]},
+     "imports controller.storage"),
+    ({"controller.calibration.campaign.runner": [("simplant.plant", False)]}, "imports the simulator"),
+    ({"controller.commands.simulated": [("simplant.plant", True)]}, "at module level"),
+    ({"controller.commands.campaigns.demo": [("simplant.settings", False)]}, "imports the simulator"),
     ({"firmware_proto.codec": [("controller.devices.drive", True)]}, "imports controller.devices"),
 ])
 def test_a_broken_layer_is_caught(graph, expected):
@@ -160,9 +162,10 @@ def test_a_broken_layer_is_caught(graph, expected):
 
 
 def test_allowed_imports_pass():
-    graph = {"controller.commands.demo": [("simplant.plant", False), ("controller.calibration.runner", True)],
+    graph = {"controller.commands.simulated": [("simplant.plant", False),
+                                          ("controller.calibration.campaign.runner", True)],
              "controller.storage.db": [("controller.calibration.records", True)],
-             "controller.imaging.crf": [("controller.imaging.crf_io", False)],
+             "controller.imaging.crf": [("controller.imaging.crf_yaml_io", False)],
              "controller.recognition.library_io": [("controller.io.images", True)]}
     assert violations(graph) == []
 
@@ -174,6 +177,156 @@ def test_simulator_is_not_part_of_the_product_schema():
     cols = {row[1] for t in ("campaigns", "heliostat_runs", "measurements")
             for row in store._db.execute(f"PRAGMA table_info({t})").fetchall()}
     assert cols and not {c for c in cols if "true" in c or "truth" in c or c == "simulated"}
+
+
+def project_modules() -> dict[str, Path]:
+    """Every module of the product and the simulated plant, by dotted name."""
+    return {module_name(p): p for pkg in (*PRODUCT, "simplant") for p in sorted((ROOT / pkg).rglob("*.py"))}
+
+
+def module_graph(modules: dict[str, Path]) -> dict[str, set[str]]:
+    """module -> the project modules it imports: module level or in a function (under
+    TYPE_CHECKING too), absolute or relative; ``from pkg import name`` is an import of ``pkg``
+    (its ``__init__``) and, when ``pkg.name`` is a module, of that module too."""
+    def known(name: str) -> str | None:
+        parts = name.split(".")
+        while parts and ".".join(parts) not in modules:
+            parts.pop()
+        return ".".join(parts) or None
+
+    graph: dict[str, set[str]] = {}
+    for mod, path in modules.items():
+        package = mod if path.name == "__init__.py" else mod.rpartition(".")[0]
+        edges: set[str] = set()
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Import):
+                edges.update(filter(None, (known(a.name) for a in node.names)))
+            elif isinstance(node, ast.ImportFrom):
+                base = package.split(".")[: len(package.split(".")) - node.level + 1] if node.level else []
+                source = ".".join(base + ([node.module] if node.module else []))
+                edges.update(filter(None, [known(source)] + [f"{source}.{a.name}" for a in node.names
+                                                             if f"{source}.{a.name}" in modules]))
+        graph[mod] = edges - {mod}
+    return graph
+
+
+def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The import cycles of ``graph``: its strongly connected components of more than one module
+    (Tarjan), each sorted."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    found: list[list[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        for w in graph.get(v, ()):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while (w := stack.pop()) != v:
+                component.append(w)
+            if component:
+                found.append(sorted([v, *component]))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return found
+
+
+def test_no_import_cycles():
+    found = cycles(module_graph(project_modules()))
+    assert not found, "import cycles (move the shared piece down):\n" + "\n".join(map(" <-> ".join, found))
+
+
+@pytest.mark.parametrize("graph, cycle", [
+    ({"controller.imaging.crf": {"controller.imaging.crf_io"},
+      "controller.imaging.crf_io": {"controller.imaging.crf"}},
+     ["controller.imaging.crf", "controller.imaging.crf_io"]),
+    ({"simplant.plant": {"simplant.poses"}, "simplant.poses": {"simplant.safety"},
+      "simplant.safety": {"simplant.plant"}, "simplant.truth": set()},
+     ["simplant.plant", "simplant.poses", "simplant.safety"]),
+    ({"controller.commands.campaigns.demo": {"controller.commands.simulated"},
+      "controller.commands.simulated": {"controller.commands.campaigns._demo_coarse"},
+      "controller.commands.campaigns._demo_coarse": {"controller.commands.campaigns.demo"}},
+     ["controller.commands.campaigns._demo_coarse", "controller.commands.campaigns.demo",
+      "controller.commands.simulated"]),
+])
+def test_an_added_cycle_is_caught(graph, cycle):
+    assert cycles(graph) == [cycle]
+
+
+def test_an_added_cycle_in_the_code_is_caught(tmp_path):
+    """A function-level import back into the importer's importer, in real files, is a cycle."""
+    (tmp_path / "a.py").write_text("from controller.b import f\n")
+    (tmp_path / "b.py").write_text("def f():\n    from controller.a import g\n")
+    (tmp_path / "c.py").write_text("from . import a\n")
+    graph = module_graph({"controller.a": tmp_path / "a.py", "controller.b": tmp_path / "b.py",
+                          "controller.c": tmp_path / "c.py"})
+    assert graph["controller.c"] == {"controller.a"}
+    assert cycles(graph) == [["controller.a", "controller.b"]]
+
+
+def simulator_importers(graph: dict[str, set[str]]) -> list[str]:
+    """The command modules outside ``heliocal sim`` that import the simulated plant."""
+    return sorted(m for m, edges in graph.items()
+                  if m.startswith("controller.commands.")
+                  and not (m + ".").startswith("controller.commands.sim.")
+                  and any(e == "simplant" or e.startswith("simplant.") for e in edges))
+
+
+def test_the_simulated_field_is_wired_in_one_command_module():
+    assert simulator_importers(module_graph(project_modules())) == ["controller.commands.simulated"]
+
+
+def test_a_second_simulator_importer_is_caught():
+    graph = {"controller.commands.simulated": {"simplant.plant"},
+             "controller.commands.campaigns.demo": {"simplant.settings"},
+             "controller.commands.sim.plant": {"simplant.plant"}}
+    assert simulator_importers(graph) == ["controller.commands.campaigns.demo",
+                                          "controller.commands.simulated"]
+
+
+def private_command_imports(path: Path) -> list[str]:
+    """The ``controller.commands._*`` modules (private helpers) a file imports."""
+    out = []
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        names = [a.name for a in node.names] if isinstance(node, ast.Import) else \
+            [node.module, *(f"{node.module}.{a.name}" for a in node.names)] \
+            if isinstance(node, ast.ImportFrom) and node.module else []
+        out += [n for n in names if n.startswith("controller.commands.")
+                and any(part.startswith("_") for part in n.split(".")[2:])]
+    return out
+
+
+def test_benchmarks_use_public_entry_points_only():
+    bad = {p.name: found for p in sorted((ROOT / "benchmarks").glob("*.py"))
+           if (found := private_command_imports(p))}
+    assert not bad, f"benchmarks importing private command modules: {bad}"
+
+
+@pytest.mark.parametrize("source", ["from controller.commands._field import open_store\n",
+                                    "def f():\n    import controller.commands.campaigns._night\n",
+                                    "from controller.commands import _common\n"])
+def test_a_benchmark_importing_a_private_command_module_is_caught(tmp_path, source):
+    (tmp_path / "bench_x.py").write_text(source)
+    assert private_command_imports(tmp_path / "bench_x.py")
+
+
+MAX_FOLDER_MODULES = 20
+
+
+def test_no_package_folder_over_20_modules():
+    folders = {p.parent for pkg in (*PRODUCT, "simplant") for p in (ROOT / pkg).rglob("*.py")}
+    big = {str(f.relative_to(ROOT)): n for f in folders
+           if (n := len(list(f.glob("*.py")))) > MAX_FOLDER_MODULES}
+    assert not big, f"package folders over {MAX_FOLDER_MODULES} modules (split them by subject): {big}"
 
 
 def test_modules_are_short_or_one_cohesive_thing():
@@ -200,5 +353,5 @@ def test_the_simulated_plant_assembles_no_orchestration():
 
 @pytest.mark.parametrize("module", ORCHESTRATION_OPERATIONS)
 def test_a_plant_that_imports_orchestration_is_caught(module):
-    graph = {"simplant.harness": [(module, True), ("controller.calibration.observers", True)]}
+    graph = {"simplant.harness": [(module, True), ("controller.calibration.campaign.observers", True)]}
     assert plant_violations(graph) == [f"simplant.harness imports {module}"]

@@ -269,7 +269,7 @@ def valid(tmp_path_factory) -> dict[str, str]:
     """Valid files for the slots not under test; each is read successfully by its command."""
     import yaml
 
-    from controller.commands._common import PACKAGED_CONFIG
+    from controller.commands.common import PACKAGED_CONFIG
     from controller.imaging.crf import Crf
     from controller.imaging.crf_io import save_crf
     from controller.storage.db import CampaignStore

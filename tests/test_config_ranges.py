@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from controller.commands._common import PACKAGED_CONFIG
+from controller.commands.common import PACKAGED_CONFIG
 from controller.config import PlantConfig, parse_config
 from controller.config_rules import NumericKey, numeric_keys
 from controller.errors import ConfigError

@@ -37,7 +37,7 @@ REHEARSAL = {
 
 def _missing() -> str | None:
     from controller.errors import DeviceError
-    from simplant.gige_imager import aravis
+    from simplant.devices.gige_imager import aravis
 
     try:
         aravis()

@@ -86,7 +86,7 @@ def test_safety_monitor_sees_the_same_beams_on_every_target(plant):
 
 
 def _aim_steps(plant: SimulatedPlant, hid: str, target: str) -> tuple[int, int]:
-    from controller.calibration.pointing import nominal_aims
+    from controller.calibration.cycle.pointing import nominal_aims
 
     cfg = plant.cfg.for_target(target)
     return next((a.az_steps, a.el_steps) for a in nominal_aims(cfg, [hid]))
@@ -100,7 +100,7 @@ def test_mean_slope_kept_per_mirror(plant):
 @pytest.mark.parametrize("target", ["tower-target", "tower-lower"])
 def test_perspective_tables_from_the_lattice_match_every_pixel_traced(target):
     from controller.config import load_config
-    from simplant.grids import camera_grid
+    from simplant.devices.grids import camera_grid
     from simplant.perspective import PerspectiveView, true_camera
 
     cfg = load_config(DEMO).for_target(target)

@@ -27,7 +27,7 @@ def lamp_alarms(alarms: AlarmSink) -> Iterator[None]:
 
 def lights_out_alarms(alarms: AlarmSink, audit: AuditSink, session: str, ends) -> None:
     """After the lights out at the end of ``session``: ``ends`` (each lamp's
-    :class:`controller.calibration.field.LampEnd`) audited, ``lamp_not_dark`` raised for each
+    :class:`controller.calibration.campaign.field.LampEnd`) audited, ``lamp_not_dark`` raised for each
     lamp still lit or whose panel did not answer, cleared on every channel when all are dark."""
     bad = [e for e in ends if e.state in ("lit", "no_answer")]
     for e in bad:

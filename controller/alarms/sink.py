@@ -1,5 +1,5 @@
 """What orchestration raises alarms and records audited actions through. The interface layer
-hands them in on the :class:`controller.calibration.field.Field` (the record store's
+hands them in on the :class:`controller.calibration.campaign.field.Field` (the record store's
 :class:`controller.storage.alarms.AlarmBook` and :class:`controller.storage.audit.AuditTrail`);
 a field without them raises nothing and records nothing (:data:`NO_ALARMS`, :data:`NO_AUDIT`)."""
 

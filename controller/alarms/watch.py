@@ -7,7 +7,7 @@ and records each model the run changed. :func:`night_alarms` does the same for t
 night: a partial night, and each heliostat's predicted daytime error against the limit.
 
 A run's fault cause starts with the name of the error that caused it
-(:meth:`controller.calibration.machine.CalibrationCycle.run`: ``"LinkError: …"``); the fault
+(:meth:`controller.calibration.cycle.machine.CalibrationCycle.run`: ``"LinkError: …"``); the fault
 classes below are read from there.
 """
 
@@ -27,12 +27,12 @@ from controller.alarms.conditions import (
     NO_BEAM_REPEATED,
 )
 from controller.alarms.sink import AlarmSink, AuditSink
-from controller.calibration.observers import CampaignObserver
+from controller.calibration.campaign.observers import CampaignObserver
 from controller.calibration.records import RunRecord
 
 LINK_FAULTS = ("LinkError",)  # controller.devices.drive.LinkError
 CAMERA_FAULTS = ("CameraError", "IncompleteFrame")  # controller.devices.camera, gige_device
-SAFETY_FAULTS = ("UnsafePath",)  # controller.calibration.beam_safety.UnsafePath
+SAFETY_FAULTS = ("UnsafePath",)  # controller.calibration.cycle.beam_safety.UnsafePath
 NO_BEAMS_IN_A_ROW = 3
 
 
@@ -105,7 +105,7 @@ class FieldWatch(CampaignObserver):
 
 def night_ended(plant, name: str, status: str, cause: str | None, predicted: Mapping[str, float],
                 heliostats: Iterable[str]) -> None:
-    """The end of night ``name`` on ``plant`` (a :class:`controller.calibration.field.Field`):
+    """The end of night ``name`` on ``plant`` (a :class:`controller.calibration.campaign.field.Field`):
     audited, and its alarms (:func:`night_alarms`)."""
     plant.audit.record("night.end", name, status + (f": {cause}" if cause else ""))
     night_alarms(plant.alarms, plant.cfg.alarms, name, status, cause, predicted, heliostats)

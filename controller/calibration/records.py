@@ -84,7 +84,7 @@ class RunRecord:
 
     ``status``: ``calibrated`` (within tolerance), ``not_converged`` (max iterations reached),
     ``measured`` (an observation of a planned night: one measurement, no correction),
-    ``no_beam`` (a frame held no beam: nothing computed from it, controller.calibration.no_beam)
+    ``no_beam`` (a frame held no beam: nothing computed from it, controller.calibration.campaign.no_beam)
     or ``failed`` (fault; ``fault_cause`` says why, ``fault_state`` where). ``id`` and
     ``finished_utc`` are set when read back from the store."""
 

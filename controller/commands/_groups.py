@@ -7,6 +7,23 @@ from __future__ import annotations
 import argparse
 import importlib
 import pkgutil
+from types import ModuleType
+
+
+def command_modules(package: ModuleType) -> list[ModuleType]:
+    """Every top-level command module of ``package`` (:mod:`controller.commands`), sorted by name:
+    its public modules and groups, and the public modules of its shelves (packages without
+    ``register``); helpers (``_``) and the package's ``ENTRY_POINTS`` are not commands."""
+    found = []
+    for info in pkgutil.iter_modules(package.__path__):
+        if info.name.startswith("_") or info.name in getattr(package, "ENTRY_POINTS", ()):
+            continue
+        module = importlib.import_module(f"{package.__name__}.{info.name}")
+        if info.ispkg and not hasattr(module, "register"):
+            found.extend(command_modules(module))  # a shelf: its commands are top-level ones
+        else:
+            found.append(module)
+    return sorted(found, key=lambda m: m.__name__.rsplit(".", 1)[-1])
 
 
 def register_group(subparsers, package: str, help_text: str,

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import threading
 
+from controller.calibration.campaign.runner import CampaignObserver
 from controller.calibration.records import RunRecord
-from controller.calibration.runner import CampaignObserver
 
 _QUIET_STATES = ("preparing",)
 _FINAL_STATES = ("done", "stowed", "aborted")

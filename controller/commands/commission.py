@@ -16,8 +16,8 @@ import shlex
 import sys
 from pathlib import Path
 
-from controller.commands._common import add_config_option, add_json_option, check_camera, print_json
 from controller.commands._numbers import SEED, STEPS
+from controller.commands.common import add_config_option, add_json_option, check_camera, print_json
 from controller.errors import HeliocalError, InputError
 
 HELP = """steps:
@@ -119,14 +119,12 @@ def run(args: argparse.Namespace) -> int:
 def _with_simulated(cfg, args, steps, library) -> int:
     import tempfile
 
+    from controller.commands.simulated import simulated_plant
     from controller.devices.drive import DriveLimits
     from controller.devices.factory import LinkPool
-    from simplant.plant import SimulatedPlant, load_config_data
-    from simplant.settings import SimulationSettings
 
     run_dir = Path(args.run_dir) if args.run_dir else Path(tempfile.mkdtemp(prefix="heliocal-commission-"))
-    with SimulatedPlant(load_config_data(args.config), run_dir, heliostat_ids=[args.heliostat],
-                        settings=SimulationSettings(seed=args.seed), source=args.config) as plant:
+    with simulated_plant(args.config, run_dir, [args.heliostat], seed=args.seed) as plant:
         pcfg = plant.start()
         h = pcfg.heliostat(args.heliostat)
         with LinkPool() as pool:
@@ -161,7 +159,7 @@ def _do(c, name: str, params: tuple, args) -> dict:
 
 
 def _session(cfg, args, steps, drive, camera, library, fiducial_lamps=None) -> int:
-    from controller.calibration.commissioning import Commissioning
+    from controller.calibration.cycle.commissioning import Commissioning
 
     c = Commissioning(cfg, args.heliostat, drive, camera, library=library, fiducial_lamps=fiducial_lamps)
     results: dict = {}

@@ -20,13 +20,13 @@ import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 
-from controller.commands._common import (
+from controller.commands._numbers import SEED, Number
+from controller.commands.common import (
     add_config_option,
     add_field_change_option,
     check_camera,
     check_db_field,
 )
-from controller.commands._numbers import SEED, Number
 from controller.errors import InputError
 from controller.io.yaml_files import read_text
 
@@ -135,8 +135,8 @@ def run(args: argparse.Namespace) -> int:
 
 @contextmanager
 def _field(cfg, args, ids, store, library):
-    """The console's field (controller.commands._field) and its plant hooks."""
-    from controller.commands._field import real_field, simulated_field
+    """The console's field (controller.commands.field) and its plant hooks."""
+    from controller.commands.field import real_field
     from controller.console.backend import PlantHooks
 
     if not args.simulate:
@@ -144,10 +144,10 @@ def _field(cfg, args, ids, store, library):
             fs.field.library = library
             yield fs.field, PlantHooks()
         return
+    from controller.commands.simulated import simulated_field, simulation_settings
     from controller.storage.nights import NightBook
-    from simplant.settings import SimulationSettings
 
-    settings = SimulationSettings(seed=args.seed, clock_speedup=args.clock_speedup)
+    settings = simulation_settings(seed=args.seed, clock_speedup=args.clock_speedup)
     run_dir = Path(args.run_dir) if args.run_dir else Path(tempfile.mkdtemp(prefix="heliocal-console-"))
     with simulated_field(cfg, args.config, store, run_dir, ids, settings, night=NightBook(store).next_index(),
                          library=library) as fs:  # the console builds no library: --library or none

@@ -21,7 +21,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from controller.commands._common import (
+from controller.commands._numbers import Number
+from controller.commands.common import (
     add_field_change_option,
     add_json_option,
     check_store_field,
@@ -29,8 +30,7 @@ from controller.commands._common import (
     print_json,
     staged_output_dir,
 )
-from controller.commands._numbers import Number
-from controller.commands._plant import heliostat_ids
+from controller.commands.integration._plant import heliostat_ids
 from controller.errors import InputError
 
 WHAT = ("tracking-table", "models")
@@ -143,7 +143,7 @@ def _models(args: argparse.Namespace, fmt: str) -> int:
 
 def _paint(args: argparse.Namespace) -> int:
     from controller.storage.db import open_existing
-    from controller.storage.paint import export_paint
+    from controller.storage.paint.export import export_paint
 
     if args.out is None:
         raise InputError("export: --out DIR is required")

@@ -15,8 +15,8 @@ import sys
 
 import numpy as np
 
-from controller.commands._common import add_json_option, existing_file, output_file, print_json
 from controller.commands._numbers import EXPOSURE_S, Number
+from controller.commands.common import add_json_option, existing_file, output_file, print_json
 from controller.errors import InputError
 from controller.imaging.crf_io import load_crf
 from controller.imaging.hdr import HdrMerger, pair_bit_depth

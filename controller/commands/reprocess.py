@@ -21,8 +21,8 @@ import time
 from datetime import UTC, datetime
 from pathlib import Path
 
-from controller.commands._common import add_json_option
 from controller.commands._numbers import Number
+from controller.commands.common import add_json_option
 
 MAX_WORKERS = 256
 
@@ -61,8 +61,8 @@ def parse_since(text: str) -> datetime:
 
 def _check(args: argparse.Namespace) -> tuple[Path, Path, datetime | None, str | None, int]:
     """Every option checked before anything is opened or started."""
-    from controller.calibration.reprocess_run import check_scheduler_address
-    from controller.commands._common import output_file
+    from controller.calibration.reprocess.run import check_scheduler_address
+    from controller.commands.common import output_file
     from controller.errors import InputError
 
     if args.scheduler is not None and args.workers is not None:
@@ -86,13 +86,13 @@ def _check(args: argparse.Namespace) -> tuple[Path, Path, datetime | None, str |
 
 
 def run(args: argparse.Namespace) -> int:
-    from controller.calibration.reprocess_plan import in_scope, load_configs
-    from controller.calibration.reprocess_run import open_cluster, reprocess
-    from controller.commands._common import print_json
+    from controller.calibration.reprocess.plan import in_scope, load_configs
+    from controller.calibration.reprocess.run import open_cluster, reprocess
+    from controller.commands.common import print_json
     from controller.reports.reprocess import summary, write_report
-    from controller.storage.archive import fingerprint, read_archive
     from controller.storage.db import open_existing
-    from controller.storage.reprocess_db import open_output
+    from controller.storage.reprocess.archive import fingerprint, read_archive
+    from controller.storage.reprocess.db import open_output
 
     t0 = time.monotonic()
     db_path, out, since, images, workers = _check(args)

@@ -22,7 +22,7 @@ from starlette.responses import FileResponse, JSONResponse, RedirectResponse, Re
 from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
 
-from controller.calibration.beam_safety import UnsafePath
+from controller.calibration.cycle.beam_safety import UnsafePath
 from controller.console import views
 from controller.console.access import ConsoleAccess
 from controller.console.backend import Conflict, Console
@@ -183,7 +183,7 @@ def create_app(console: Console, *, token: str | None = None) -> Starlette:
     def api_campaign_action(request, body):
         action = request.path_params["action"]
         if action == "start":
-            from controller.commands.campaign import default_name
+            from controller.commands.campaigns.campaign import default_name
 
             c.field.audit = AuditTrail(c.store, request.state.who.name)  # the runs' model changes
             ids = body.get("heliostats")

@@ -3,7 +3,7 @@ campaign lock and the drive-status poller that feeds the live page.
 
 Safety rules (docs/console.md), enforced here for every request, whatever page sent it:
 
-* every move goes through :class:`controller.calibration.commissioning.Commissioning`, i.e.
+* every move goes through :class:`controller.calibration.cycle.commissioning.Commissioning`, i.e.
   ``Drive.move_and_wait`` (soft limits checked by the controller before sending; firmware
   refusals raised as :class:`NakError` and shown);
 * while a campaign runs, its state machine owns the heliostats and the camera: no manual
@@ -25,8 +25,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from controller.alarms.conditions import DRIVE_LINK_DOWN
-from controller.calibration.commissioning import Commissioning
-from controller.calibration.field import Field
+from controller.calibration.campaign.field import Field
+from controller.calibration.cycle.commissioning import Commissioning
 from controller.console.events import EventBus
 from controller.devices.drive import Drive, DriveError, DriveLimits, DriveStatus
 from controller.devices.lamp_panel import fiducial_hook
@@ -77,7 +77,7 @@ def status_json(st: DriveStatus) -> dict:
 
 
 class Console:
-    """The console's plant: the :class:`controller.calibration.field.Field` its campaigns, nights
+    """The console's plant: the :class:`controller.calibration.campaign.field.Field` its campaigns, nights
     and commissioning sessions run on (``field.cfg``: for a simulated plant, its rewritten copy;
     ``field.store``: the writer :class:`controller.storage.db.CampaignStore`); the calibration
     target's camera is the one commissioning looks through."""

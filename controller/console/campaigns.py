@@ -1,6 +1,6 @@
-"""A campaign started from the console: the CLI's runner (:class:`controller.calibration.runner.Campaign`)
-in a background thread, followed through its observer hooks and published as ``campaign``
-events.
+"""A campaign started from the console: the CLI's runner
+(:class:`controller.calibration.campaign.runner.Campaign`) in a background thread, followed
+through its observer hooks and published as ``campaign`` events.
 
 What the page shows: the queue with each heliostat's state, who is on the target, progress and
 ETA (wall time per recorded heliostat so far times those left), the beam-safety state (the
@@ -15,13 +15,13 @@ from __future__ import annotations
 import threading
 import time
 
-from controller.calibration.night import calibration_night
-from controller.calibration.runner import Campaign, CampaignObserver, CampaignOptions
+from controller.calibration.campaign.runner import Campaign, CampaignObserver, CampaignOptions
+from controller.calibration.night.planned import calibration_night
 from controller.console.backend import Conflict, Console
 from controller.errors import HeliocalError, InputError
 from controller.storage.nights import NightBook
 
-# States in which a cycle's beam is (or is moving) on the target (controller.calibration.machine).
+# States in which a cycle's beam is (or is moving) on the target (controller.calibration.cycle.machine).
 ON_TARGET = ("slewing", "settling", "capturing", "merging", "analysing", "matching", "verifying",
              "correcting")
 

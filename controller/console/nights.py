@@ -1,5 +1,5 @@
 """A planned night started from the console: the CLI's night
-(:class:`controller.calibration.night.PlannedNight`, as ``heliocal campaign night`` runs it) in
+(:class:`controller.calibration.night.planned.PlannedNight`, as ``heliocal campaign night`` runs it) in
 a background thread, followed through its progress and published as ``night`` events.
 
 What the page shows: tonight's night (index and name), the pass running and the lamp lit,
@@ -15,7 +15,7 @@ from __future__ import annotations
 import threading
 import time
 
-from controller.calibration.night import PlannedNight, tonight
+from controller.calibration.night.planned import PlannedNight, tonight
 from controller.console.backend import Conflict, Console
 from controller.errors import HeliocalError
 from controller.storage.nights import NightBook

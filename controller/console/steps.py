@@ -3,7 +3,7 @@ page (connect, home, limits check, first light on target, first measurement, fir
 correction, record) plus jog, move, park, stow, stop and clear-fault.
 
 Every step runs inside :meth:`Console.command` (safety rules there) through the
-:class:`~controller.calibration.commissioning.Commissioning` session of the heliostat, so the
+:class:`~controller.calibration.cycle.commissioning.Commissioning` session of the heliostat, so the
 moves are those of the CLI: ``Drive.move_and_wait`` with the soft limits checked before sending.
 """
 

@@ -13,7 +13,7 @@ import numpy as np
 
 from controller.console.backend import Console
 from controller.errors import InputError
-from controller.geometry.tracking_model import TERMS
+from controller.geometry.model.tracking import TERMS
 from controller.io.json_files import load_json
 from controller.storage.trends import heliostat_trends
 
@@ -122,7 +122,7 @@ def latest_image(c: Console, hid: str) -> BeamImage | None:
     for m in reversed(c.store.measurements(heliostat_id=hid)):
         imgs = {im.kind: im for im in c.store.images(m.id)}
         if "low" in imgs and "high" in imgs and all(Path(im.path).is_file() for im in imgs.values()):
-            from controller.calibration.beam_chain import BeamChain
+            from controller.calibration.cycle.beam_chain import BeamChain
             from controller.devices.camera import FramePair
             from controller.io.images import read_image
 
@@ -147,7 +147,7 @@ def overlay_png(c: Console, hid: str) -> bytes:
     heliostat has no image yet."""
     import cv2
 
-    from controller.calibration.beam_chain import BeamChain
+    from controller.calibration.cycle.beam_chain import BeamChain
 
     got = latest_image(c, hid)
     if got is None:

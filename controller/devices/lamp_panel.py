@@ -11,17 +11,17 @@ and :func:`lights_out` switch and then poll the confirmation on plant time, and 
 
 Drivers: :mod:`controller.devices.lamp_modbus` (Modbus TCP / RTU: coil N switches channel N,
 discrete input N confirms it) and :mod:`controller.devices.lamp_command` (the plant's own
-switch program). :func:`open_lamp_panel` opens the one the configuration names.
+switch program); :mod:`controller.devices.lamp_drivers` opens the one the configuration
+names (and the fiducial lamps' switch).
 """
 
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from collections.abc import Callable, Iterable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
-from controller.devices.plant_time import WALL, PlantTime
+from controller.devices.plant_time import PlantTime
 from controller.errors import DeviceError, InputError
 from controller.lamp_config import FIDUCIALS
 
@@ -97,17 +97,6 @@ class LampPanel(ABC):
         self.close()
 
 
-def open_lamp_panel(cfg) -> LampPanel:
-    """The panel the ``lamps:`` section ``cfg`` names (nothing is sent yet)."""
-    if cfg.driver == "command":
-        from controller.devices.lamp_command import CommandLampPanel
-
-        return CommandLampPanel(cfg.command, tuple(cfg.channels), cfg.timeout_s)
-    from controller.devices.lamp_modbus import ModbusLampPanel
-
-    return ModbusLampPanel.from_config(cfg)
-
-
 def _confirm(panel: LampPanel, channels: list[str], on: bool, time: PlantTime, timeout_s: float) -> None:
     if not time.wait_until(lambda: all(panel.confirmed(c) == on for c in channels), timeout_s):
         raise LampNotConfirmed([c for c in channels if panel.confirmed(c) != on], on, timeout_s)
@@ -155,25 +144,3 @@ def fiducial_hook(cfg) -> Callable[[bool], None] | None:
     (:func:`fiducial_switch` uses its panel channel or lamp command) when :func:`fiducials_wired`,
     else None (nobody can switch them: the camera is not registered)."""
     return _plant_switches_them if fiducials_wired(cfg) else None
-
-
-@contextmanager
-def fiducial_switch(cfg, hook: Callable[[bool], None],
-                    time: PlantTime = WALL) -> Iterator[Callable[[bool], None]]:
-    """``switch(on)`` for the fiducial lamps of ``cfg``'s calibration target (``cfg`` a
-    PlantConfig): through the panel's ``fiducials:<target>`` channel, confirmed, when the
-    ``lamps:`` section has one; else through ``camera.registration.lamp_command``; else
-    ``hook`` (the simulator's, an operator's). The panel is closed on leaving."""
-    from controller.devices.lamp_command import LAMP_COMMAND_TIMEOUT_S, fiducial_command_panel
-
-    channel = FIDUCIALS + cfg.calibration.target
-    reg = cfg.camera.registration
-    if cfg.lamps is not None and channel in cfg.lamps.channels:
-        panel, timeout_s = open_lamp_panel(cfg.lamps), cfg.lamps.confirm_timeout_s
-    elif reg is not None and reg.lamp_command:
-        (panel, channel), timeout_s = fiducial_command_panel(reg.lamp_command), LAMP_COMMAND_TIMEOUT_S
-    else:
-        yield hook
-        return
-    with panel:
-        yield lambda on: set_and_confirm(panel, channel, on, time=time, timeout_s=timeout_s)

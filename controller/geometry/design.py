@@ -1,7 +1,7 @@
 """Experimental design for the tracking model: which geometry to measure next.
 
 A measurement at motor steps (s_az, s_el) observes the two tangential components of the
-mirror normal n(p) (:mod:`controller.geometry.model_fit`, Eq. 1) with noise σ_n, so with
+mirror normal n(p) (:mod:`controller.geometry.model.fit`, Eq. 1) with noise σ_n, so with
 H = ∂(t₁·n, t₂·n)/∂p (2 × p) the posterior covariance of the model terms becomes
 
     Σ' = Σ − Σ Hᵀ (σ_n² I + H Σ Hᵀ)⁻¹ H Σ                                  (1)
@@ -39,8 +39,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from controller.geometry.kinematics import HeliostatKinematics
+from controller.geometry.model.tracking import TrackingModel
 from controller.geometry.pose_batch import STEP_SI, aim_steps, forward_jacobian, normal_and_center, perturbed
-from controller.geometry.tracking_model import TrackingModel
 from controller.geometry.vectors import unit
 
 

@@ -18,10 +18,10 @@ and the actual normal is n* = R* b, b = (0, −1, 0) (body frame). The parameter
 ====================  =====================================================================
 
 For this mount (elevation first, about East) τ_N is the same rotation as Δε, so pointing
-data see only their sum; the fit (:mod:`controller.geometry.model_fit`) keeps both with their
+data see only their sum; the fit (:mod:`controller.geometry.model.fit`) keeps both with their
 priors and its covariance carries the degeneracy. A mirror tilt about the mirror's own up axis
 is likewise Δα. These are the rigid-body terms of the tracking model
-(:mod:`controller.geometry.tracking_model`), which adds the actuators' terms.
+(:mod:`controller.geometry.model.tracking`), which adds the actuators' terms.
 
 References
 ----------

@@ -31,7 +31,7 @@ import numpy as np
 from controller.errors import InputError
 from controller.geometry.frames import paint_azimuth_to_north, wgs84_to_enu
 from controller.geometry.kinematics import HeliostatKinematics
-from controller.geometry.model_fit import Sample
+from controller.geometry.model.fit import Sample
 from controller.geometry.vectors import azel_to_vector
 from controller.io.json_files import parse_json
 from controller.io.yaml_files import read_text

@@ -1,6 +1,6 @@
 """The tracking model of one heliostat evaluated for many poses and many parameter sets at once.
 
-The same equations as :mod:`controller.geometry.tracking_model` (actuators Eq. 1-3 of
+The same equations as :mod:`controller.geometry.model.tracking` (actuators Eq. 1-3 of
 :mod:`controller.geometry.actuators`, the error rotation R* of
 :mod:`controller.geometry.error_model` Eq. 1, the mirror centre c* = x₀ + Δx + R* c of Eq. 4),
 written as array operations: parameter sets along a leading axis P, poses along an axis K.
@@ -25,7 +25,7 @@ import numpy as np
 
 from controller.geometry.actuators import LinearActuator
 from controller.geometry.kinematics import BODY_NORMAL, HeliostatKinematics
-from controller.geometry.tracking_model import NAMES
+from controller.geometry.model.tracking import NAMES
 
 _I = {n: i for i, n in enumerate(NAMES)}
 STEP_SI = 1e-6  # forward-difference step of the Jacobians (design._STEP): linear range, far above rounding
@@ -143,7 +143,7 @@ def steps_for_normals(kin: HeliostatKinematics, values: np.ndarray,
                       normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Whole motor steps (..., 2) whose actual normal is each of ``normals`` (..., 3) with model
     ``values`` (..., 14), broadcast, and whether each is inside the soft limits (...,) — the
-    batched :func:`controller.geometry.tracking_model.steps_for_normal`."""
+    batched :func:`controller.geometry.model.tracking.steps_for_normal`."""
     v = np.asarray(values, float)
     a, e = angles_for_normals(v, normals)
     sa = joint_steps(kin.azimuth, a, v[..., _I["az_stroke0"]], v[..., _I["az_pivot_radius"]])
@@ -160,7 +160,7 @@ def aim_steps(kin: HeliostatKinematics, values: np.ndarray, points: np.ndarray, 
     """Motor steps (..., K, 2) that reflect the source onto each of ``points`` (..., K, 3) m ENU
     with model ``values`` ((14,), or (..., 1, 14) for a stack of heliostats, :class:`KinStack`),
     and a mask (..., K) of those in reach — the batched
-    :func:`controller.geometry.tracking_model.model_aim`: the bisector from the mirror centre,
+    :func:`controller.geometry.model.tracking.model_aim`: the bisector from the mirror centre,
     re-evaluated ``iterations`` times as the centre moves with the pose. The source is a lamp
     at ``lamp`` ((3,) or (..., K, 3) m ENU; its direction taken from the mirror centre) or the
     directions ``source_dirs`` (..., K, 3), unit ENU towards the source. A pose out of reach in

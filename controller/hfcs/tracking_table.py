@@ -3,7 +3,7 @@ steps that put the sun's reflection on the calibration target's centre with the 
 latest model, and the error its model's uncertainty predicts there.
 
 The steps are those of ``heliocal aim --time`` (the same solar position, direction and
-:func:`controller.calibration.pointing.steps_to_aim`). The day is the
+:func:`controller.calibration.cycle.pointing.steps_to_aim`). The day is the
 site's mean solar day: from its local mean midnight, UTC − longitude/15 h rounded to the
 minute, every ``step`` minutes for 24 h; a row is written while the sun is up and the pose is
 within the soft limits. ``predicted_error_mrad`` is the reflected beam's RMS error that the
@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from controller.calibration.pointing import model_covariance, steps_to_aim
+from controller.calibration.cycle.pointing import model_covariance, steps_to_aim
 from controller.calibration.records import ModelRecord
 from controller.config import PlantConfig, Site
 from controller.errors import LimitError

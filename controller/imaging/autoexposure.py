@@ -3,7 +3,7 @@ ratio) until the longer exposure has useful signal and the shorter one is not sa
 beam core.
 
 Rule for one frame pair (pure, no I/O: :func:`next_exposures`; the capture loop around it is
-:func:`controller.calibration.exposure.auto_expose`):
+:func:`controller.calibration.cycle.exposure.auto_expose`):
 
 * LOW has more than ``max_saturated`` pixels at ``z_max`` (its beam core clips): divide both
   exposures by ``step``;

@@ -1,7 +1,8 @@
 """Camera response functions (CRF) of the two sensors: document format, linear default, fitting.
 
 Pure; the files are read and written by :mod:`controller.imaging.crf_io` (``Crf.load`` and
-``Crf.save`` remain as compatibility entry points that import it lazily).
+``Crf.save`` remain as compatibility entry points that import the YAML document's reader and
+writer, :mod:`controller.imaging.crf_yaml_io`, lazily).
 
 The CRF file (YAML) lists the sensors in image order, first = shorter exposure (LOW)::
 
@@ -112,11 +113,12 @@ class Crf:
     def load(cls, path: str | Path) -> Crf:
         """Read a CRF YAML file; InputError names the file and key on any problem.
 
-        A public entry point older than the split of file handling out of the domain: it
-        delegates to :func:`controller.imaging.crf_io.load_crf` (imported here, lazily)."""
-        from controller.imaging.crf_io import load_crf
+        A public entry point older than the split of file handling out of the domain: it reads
+        the document through :mod:`controller.imaging.crf_yaml_io` (imported here, lazily), as
+        :func:`controller.imaging.crf_io.load_crf` does."""
+        from controller.imaging.crf_yaml_io import read_crf_document
 
-        return load_crf(path)
+        return cls.from_mapping(read_crf_document(path), str(path))
 
     @classmethod
     def from_mapping(cls, data: object, source: str) -> Crf:
@@ -165,10 +167,11 @@ class Crf:
         """Write the CRF YAML atomically.
 
         Like :meth:`load`, a public entry point older than the split of file handling out of the
-        domain: it delegates to :func:`controller.imaging.crf_io.save_crf` (imported here, lazily)."""
-        from controller.imaging.crf_io import save_crf
+        domain: it writes through :mod:`controller.imaging.crf_yaml_io` (imported here, lazily), as
+        :func:`controller.imaging.crf_io.save_crf` does."""
+        from controller.imaging.crf_yaml_io import write_crf_document
 
-        save_crf(self, path)
+        write_crf_document(self.to_mapping(), path)
 
 
 def _bernstein(x: np.ndarray, degree: int) -> np.ndarray:

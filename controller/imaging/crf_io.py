@@ -7,12 +7,11 @@ import io
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from controller.errors import InputError
 from controller.imaging.crf import Crf, SensorFit, fit_crf
-from controller.io.images import write_atomic
-from controller.io.yaml_files import load_yaml, read_text
+from controller.imaging.crf_yaml_io import read_crf_document, write_crf_document
+from controller.io.yaml_files import read_text
 
 MAX_SPHERE_ROWS = 1_000_000
 MAX_CSV_BYTES = 64 << 20  # a million rows of "sensor,exposure_value,pixel_mean"
@@ -20,14 +19,12 @@ MAX_CSV_BYTES = 64 << 20  # a million rows of "sensor,exposure_value,pixel_mean"
 
 def load_crf(path: str | Path) -> Crf:
     """Read a CRF YAML file; InputError names the file and key on any problem."""
-    return Crf.from_mapping(load_yaml(path, "CRF file"), str(path))
+    return Crf.from_mapping(read_crf_document(path), str(path))
 
 
 def save_crf(crf: Crf, path: str | Path) -> None:
     """Write the CRF YAML atomically."""
-    text = "# sensors in image order: first = shorter exposure (LOW), second = HIGH\n"
-    text += yaml.safe_dump(crf.to_mapping(), sort_keys=False, default_flow_style=None, width=100)
-    write_atomic(path, lambda t: t.write_text(text, encoding="utf-8"))
+    write_crf_document(crf.to_mapping(), path)
 
 
 def read_sphere_csv(path: str | Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:

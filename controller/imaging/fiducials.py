@@ -1,7 +1,7 @@
 """Fiducials in a camera image, a camera's nominal pose, and a saturation-safe rectification.
 
 Pure functions (numpy in, numpy out) for the registration step
-(:mod:`controller.calibration.registration_step`); the camera model and its fit are in
+(:mod:`controller.calibration.cycle.registration_step`); the camera model and its fit are in
 :mod:`controller.imaging.registration`.
 
 Conventions: ENU metres; pixel (u, v) = (column, row), (0, 0) the centre of the top-left pixel;

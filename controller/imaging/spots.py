@@ -3,7 +3,7 @@ known step (``calibration.beams_per_target`` K > 1, docs/campaigns.md).
 
 **Windows.** Slot i's window is the rectangle of pixels ``windows[i] = (r0, r1, c0, c1)``
 (half-open) around its aim point, as large as a spot's reach plus the identity step
-(:mod:`controller.calibration.slots`, Eq. 1); the slot layout keeps the windows disjoint.
+(:mod:`controller.calibration.beams.slots`, Eq. 1); the slot layout keeps the windows disjoint.
 
 **Background and noise.** The image is smoothed by a Gaussian of σ = ``SMOOTH_PX`` pixels;
 the background b is the median and the noise σ_b 1.4826 × the median absolute deviation of
@@ -35,7 +35,7 @@ in both captures and that spot moved with i's step:
 moved with another heliostat's step — two heliostats whose spots were exchanged — is never
 confirmed. Anything else (a window empty in either capture, a spot that did not move as
 predicted) leaves i *unconfirmed*: it is measured again alone
-(:mod:`controller.calibration.group`). So is a confirmed spot that reaches its window's
+(:mod:`controller.calibration.beams.group`). So is a confirmed spot that reaches its window's
 border (:func:`spills`): isolating it would cut it.
 """
 

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 from asyncua import Node, Server, ua
 
 from controller.config import PlantConfig
-from controller.geometry.tracking_model import TERMS
+from controller.geometry.model.tracking import TERMS
 
 NAMESPACE = "urn:heliocal"
 ROOT = "Heliocal"

@@ -4,7 +4,7 @@ database's campaign lock, as the console and the CLI take it, so nothing drives 
 
 Opened on first use and closed at shutdown: a server that only publishes holds no drive, bus
 or camera. Every action records who asked in the audit trail (the field's lamps, the night's
-start and end through :class:`controller.calibration.field.Field`, a park here).
+start and end through :class:`controller.calibration.campaign.field.Field`, a park here).
 """
 
 from __future__ import annotations
@@ -13,10 +13,10 @@ import threading
 from contextlib import ExitStack
 from pathlib import Path
 
-from controller.calibration.commissioning import Commissioning
-from controller.calibration.field import Field, PanelLamps
-from controller.calibration.night import PlannedNight, tonight
-from controller.calibration.observers import CampaignObserver
+from controller.calibration.campaign.field import Field, PanelLamps
+from controller.calibration.campaign.observers import CampaignObserver
+from controller.calibration.cycle.commissioning import Commissioning
+from controller.calibration.night.planned import PlannedNight, tonight
 from controller.config import PlantConfig
 from controller.devices.drive import DriveLimits
 from controller.devices.factory import LinkPool
@@ -140,7 +140,7 @@ class OpcPlant:
 
     def _open_field(self) -> Field:
         if self._field is None:
-            from controller.commands._field import real_field
+            from controller.commands.field import real_field
 
             fs = self._stack.enter_context(real_field(self.cfg, self.config_path, self.store))
             self._field = fs.field

@@ -278,7 +278,7 @@ class HeliocalServer:
         self._models = dict(s.model_ids)
 
     async def _lamps(self) -> None:
-        from controller.devices.lamp_panel import open_lamp_panel
+        from controller.devices.lamp_drivers import open_lamp_panel
 
         try:
             if self._lamp_panel is None:

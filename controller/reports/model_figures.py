@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from controller.geometry.tracking_model import TERMS
+from controller.geometry.model.tracking import TERMS
 from controller.io.images import pyplot, save_figure
 
 

@@ -21,13 +21,13 @@ from pathlib import Path
 
 import numpy as np
 
-from controller.calibration.daytime import predicted_daytime, sun_path, tracking_steps
+from controller.calibration.night.daytime import predicted_daytime, sun_path, tracking_steps
 from controller.calibration.records import CampaignRecord, MeasurementRecord, ModelRecord
 from controller.config import PlantConfig, load_config
 from controller.errors import HeliocalError
 from controller.geometry.aiming import aim_normal
 from controller.geometry.kinematics import HeliostatKinematics
-from controller.geometry.tracking_model import TERMS
+from controller.geometry.model.tracking import TERMS
 from controller.geometry.vectors import vector_to_azel
 from controller.io.images import pyplot, save_figure, write_atomic
 from controller.storage.db import CampaignStore

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from controller.io.images import pyplot, save_figure, write_atomic
-from controller.storage.reprocess_db import ReprocessDb
+from controller.storage.reprocess.db import ReprocessDb
 
 STATUSES = ("ok", "no_beam", "missing", "unreadable")
 

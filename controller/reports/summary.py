@@ -65,3 +65,28 @@ def summarize(store: CampaignStore, campaign_id: int, *,
         "heliostats_per_hour": 3600.0 * len(calibrated) / span if span > 0 else None,
         "pipelined_speedup": seq / span if span > 0 else None,
     }
+
+
+def coarse_summary(store, campaign_id: int, threshold: float | None) -> dict:
+    """The coarse correction in the campaign: ``threshold`` (config ``calibration.coarse_correction``),
+    ``applied`` (runs with a coarse move), ``iterations_mean`` (measurements per heliostat) over
+    all runs, and over the runs with and without a coarse move (``..._runs_with_coarse`` /
+    ``..._runs_without_coarse``: different heliostats, not a before/after);
+    ``corrections_mean`` (corrective moves per heliostat, each followed by one more capture:
+    it counts the looks at a clipped spot, which are not measurements) and ``clipped_first_looks``
+    (runs whose first capture showed a spot clipped by the view's edge: a correction before any
+    measurement); ``applied_heliostats`` names the runs with a coarse move. The before/after on
+    the same heliostats, ``iterations_centroid_only_mean``, is added by :func:`centroid_only_twin`."""
+    runs = store.runs(campaign_id)
+    moves = {r.id: store.corrections(r.id) for r in runs}
+    coarse = {r.id for r in runs if any(c.kind == "coarse" for c in moves[r.id])}
+
+    def mean(rs) -> float | None:
+        return round(float(sum(r.iterations for r in rs) / len(rs)), 3) if rs else None
+
+    return {"threshold": threshold, "applied": len(coarse), "iterations_mean": mean(runs),
+            "iterations_mean_runs_with_coarse": mean([r for r in runs if r.id in coarse]),
+            "iterations_mean_runs_without_coarse": mean([r for r in runs if r.id not in coarse]),
+            "applied_heliostats": [r.heliostat_id for r in runs if r.id in coarse],
+            "corrections_mean": round(sum(len(m) for m in moves.values()) / len(runs), 3) if runs else None,
+            "clipped_first_looks": sum(1 for m in moves.values() if m and m[0].iteration == 0)}

@@ -2,7 +2,7 @@
 and the flags they raise (docs/nights.md, "Flagged geometries").
 
 A planned night records, per pass, each heliostat whose look at its geometry (lamp, target,
-aim grid cell) failed (:func:`controller.calibration.outcome.looked_and_failed`: no beam, a
+aim grid cell) failed (:func:`controller.calibration.campaign.outcome.looked_and_failed`: no beam, a
 spot clipped at the view's edge). A geometry that failed on :data:`FLAG_NIGHTS` nights is
 *flagged*: the planner does not plan it again, the report and the console show it, until it is
 cleared (:func:`clear_flags`, ``heliocal campaign flags --clear``), which keeps the rows (with

@@ -1,7 +1,7 @@
 """The ``lamp_states`` table: every lamp channel as each night or campaign left it
 (docs/lamps.md, "Lights out").
 
-One row per channel per end (:func:`controller.calibration.lights_out.lights_out_at_end`):
+One row per channel per end (:func:`controller.calibration.campaign.lights_out.lights_out_at_end`):
 the session (night or campaign name), how it ended, the channel, its ``state`` — ``dark``
 (confirmed by the panel), ``lit`` (still confirmed lit after it was switched off),
 ``no_answer`` (the panel could not tell), ``operator`` (no panel: the operator was asked) —
@@ -13,7 +13,7 @@ the table has none (read-only readers get nothing).
 
 from __future__ import annotations
 
-from controller.calibration.field import LampEnd
+from controller.calibration.campaign.field import LampEnd
 from controller.calibration.records import utc_now
 from controller.storage.checks import has_table
 from controller.storage.db import CampaignStore

@@ -17,12 +17,12 @@ from pathlib import Path
 import numpy as np
 
 from controller.errors import InputError
-from controller.geometry.field_prior import FieldPrior
 from controller.geometry.kinematics import HeliostatKinematics
-from controller.geometry.model_drift import DRIFTING, RandomWalk, offsets_at
-from controller.geometry.model_fit import ModelFit
+from controller.geometry.model.drift import DRIFTING, RandomWalk, offsets_at
+from controller.geometry.model.field_prior import FieldPrior
+from controller.geometry.model.fit import ModelFit
+from controller.geometry.model.tracking import NAMES, PRIOR_SIGMA_SI, TERMS, TrackingModel
 from controller.geometry.paint_io import check_heliostat_properties, kinematics_from_properties
-from controller.geometry.tracking_model import NAMES, PRIOR_SIGMA_SI, TERMS, TrackingModel
 from controller.io.images import write_atomic
 from controller.io.json_files import parse_json
 from controller.io.yaml_files import read_text
@@ -49,7 +49,7 @@ class ModelFile:
 
     def model_at(self, days: float | None) -> TrackingModel:
         """The model at time ``days`` (days since 1970 UTC): its references moved by the drift
-        the fit found then (:func:`controller.geometry.model_drift.offsets_at`); as fitted
+        the fit found then (:func:`controller.geometry.model.drift.offsets_at`); as fitted
         after its newest session, at an unknown time or without drift."""
         if self.session_days is None or days is None:
             return self.model

@@ -1,4 +1,4 @@
-"""The ``nights`` table and the night's plan: what :class:`controller.calibration.night.PlannedNight`
+"""The ``nights`` table and the night's plan: what :class:`controller.calibration.night.planned.PlannedNight`
 and ``heliocal campaign run`` keep of a night besides its campaigns.
 
 A field's calibration campaign is night 0; each planned night is the next index. A night that
@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import json
 
-from controller.calibration.field import LampEnd
-from controller.calibration.planner import PlanItem
+from controller.calibration.campaign.field import LampEnd
+from controller.calibration.night.planner import PlanItem
 from controller.calibration.records import CAMPAIGN_STATUSES, NIGHT_KINDS, NightRecord, utc_now
 from controller.config import PlantConfig
 from controller.storage.checks import enum_column, json_column

@@ -7,7 +7,7 @@ before and after it. A resumed night runs the plan stored for it, not a new one.
 
 from __future__ import annotations
 
-from controller.calibration.planner import Geometry, PlanItem
+from controller.calibration.night.planner import Geometry, PlanItem
 from controller.calibration.records import utc_now
 from controller.storage.db import CampaignStore
 

@@ -118,7 +118,7 @@ MIGRATIONS: tuple[str, ...] = (
     """
     ALTER TABLE model_params ADD COLUMN detail_json TEXT;
     """,
-    # v5: the nightly planner's choices and why (controller.calibration.planner).
+    # v5: the nightly planner's choices and why (controller.calibration.night.planner).
     """
     CREATE TABLE plan (
         id INTEGER PRIMARY KEY,

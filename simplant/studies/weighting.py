@@ -14,7 +14,7 @@ from controller.imaging.beam import analyze
 from controller.imaging.hdr import HdrMerger
 from controller.imaging.weights import NAMES
 from controller.io.images import pyplot, save_figure, write_atomic
-from simplant.camera import SimulatedCamera
+from simplant.devices.camera import SimulatedCamera
 from simplant.optics import MirrorSurface, TargetGrid, render_spot
 
 THRESHOLDS = tuple(round(0.45 + 0.05 * i, 2) for i in range(10))

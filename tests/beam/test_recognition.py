@@ -258,8 +258,8 @@ def test_library_save_load_round_trip_keeps_matches(tmp_path):
 def test_beam_chain_match_is_the_library_match_one_type():
     from pathlib import Path
 
-    from controller.calibration.beam_chain import BeamChain
-    from controller.calibration.machine import Match
+    from controller.calibration.cycle.beam_chain import BeamChain
+    from controller.calibration.cycle.machine import Match
     from controller.config import load_config
     from controller.imaging.beam import analyze
     from controller.recognition.library import build_library
@@ -268,7 +268,7 @@ def test_beam_chain_match_is_the_library_match_one_type():
     images, labels = _three_shapes()
     lib = build_library(images, labels, kind="log-hu")
     lib.entries[2].correction = {"az_deg": -0.1, "el_deg": 0.03}
-    from controller.calibration.observations import Observation
+    from controller.calibration.cycle.observations import Observation
 
     hu = analyze(gaussian((100, 120), 50, 45, 5, 15, amp=50.0), threshold=lib.threshold).hu
     obs = Observation((50.0, 45.0), (0.0, 0.0, 0.0), hu, 50.0)

@@ -21,10 +21,10 @@ import numpy as np
 import pytest
 import yaml
 
-from controller.calibration.context import CycleContext, CycleObserver
-from controller.calibration.gate import TargetGate
-from controller.calibration.machine import CalibrationCycle
-from controller.calibration.observations import Observation, Step
+from controller.calibration.cycle.context import CycleContext, CycleObserver
+from controller.calibration.cycle.gate import TargetGate
+from controller.calibration.cycle.machine import CalibrationCycle
+from controller.calibration.cycle.observations import Observation, Step
 from controller.calibration.records import ModelRecord
 from controller.devices.camera import CameraError, FramePair
 from controller.devices.drive import Drive, DriveLimits, DriveStatus, FirmwareInfo, LinkError, NakError
@@ -276,10 +276,10 @@ def calibrated_record(cfg, hid: str, observations: int = 3) -> ModelRecord:
     """The model record of ``hid`` as a closed-loop calibration leaves it: the nominal model
     with the prior covariance updated by ``observations`` measurements at the calibration lamp
     and the calibration target's centre (Eq. 1 of controller.geometry.design)."""
-    from controller.calibration.daytime import model_covariance
+    from controller.calibration.night.daytime import model_covariance
     from controller.geometry.design import normal_jacobian, posterior
     from controller.geometry.kinematics import HeliostatKinematics
-    from controller.geometry.tracking_model import model_aim
+    from controller.geometry.model.tracking import model_aim
 
     cal = cfg.calibration
     model, cov = model_covariance(None, cal.model)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from controller.calibration.approach import MARGIN_STEPS, approach_path
+from controller.calibration.cycle.approach import MARGIN_STEPS, approach_path
 from controller.devices.drive import AxisLimits, DriveLimits
 
 LIM = DriveLimits(AxisLimits(500, 74800), AxisLimits(500, 68200))

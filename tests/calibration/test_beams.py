@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 import yaml
 
-from controller.calibration import slots
-from controller.calibration.beams import beams_allowed
-from controller.calibration.gate import TargetGate
-from controller.calibration.identity import identity_step
-from controller.calibration.slots import GAP_M, IDENTITY_STEP_M, slot_layout, spot_reach_m, target_frame
+from controller.calibration.beams import slots
+from controller.calibration.beams.identity import identity_step
+from controller.calibration.beams.policy import beams_allowed
+from controller.calibration.beams.slots import GAP_M, IDENTITY_STEP_M, slot_layout, spot_reach_m, target_frame
+from controller.calibration.cycle.gate import TargetGate
 from controller.config import load_config
 from controller.errors import ConfigError, InputError
 from controller.imaging.spots import confirm_by_step, isolate, spills, window_shifts, window_spots

@@ -12,9 +12,9 @@ from __future__ import annotations
 
 from contextlib import contextmanager
 
-from controller.calibration.observers import CampaignObserver
-from controller.calibration.runner import Campaign, CampaignOptions
-from controller.commands._field import plant_field
+from controller.calibration.campaign.observers import CampaignObserver
+from controller.calibration.campaign.runner import Campaign, CampaignOptions
+from controller.commands.simulated import plant_field
 from controller.devices.factory import LinkPool
 from controller.storage.db import CampaignStore
 from simplant.far_lamps import far_lamp_config

@@ -17,8 +17,8 @@ import threading
 import time
 from pathlib import Path
 
-from controller.calibration.runner import Campaign, CampaignObserver, CampaignOptions
-from controller.commands._field import plant_field
+from controller.calibration.campaign.runner import Campaign, CampaignObserver, CampaignOptions
+from controller.commands.simulated import plant_field
 from controller.config import load_config
 from controller.devices.factory import LinkPool
 from controller.storage.db import CampaignStore
@@ -53,8 +53,8 @@ def _wait_for_rows(p: subprocess.Popen, db: Path, sql: str, seconds: float) -> l
 
 
 def test_campaign_end_to_end(small_config, tmp_path):
-    from controller.commands.demo import simulated_campaign
-    from controller.storage.paint import export_paint
+    from controller.commands.simulated import simulated_campaign
+    from controller.storage.paint.export import export_paint
 
     cfg = load_config(small_config)
     db = tmp_path / "c.db"

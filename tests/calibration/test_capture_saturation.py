@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from controller.calibration.exposure import RECAPTURES, capture_unsaturated, saturated_both
+from controller.calibration.cycle.exposure import RECAPTURES, capture_unsaturated, saturated_both
 from controller.devices.camera import DoubleCcdCamera, FramePair
 
 

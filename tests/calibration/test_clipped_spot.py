@@ -7,7 +7,7 @@ import cv2
 import numpy as np
 import pytest
 
-from controller.calibration.observations import Observation
+from controller.calibration.cycle.observations import Observation
 from controller.imaging.centroid import energy_centroid
 from controller.imaging.clipped_spot import BEYOND, CORE_CUT, clipped_centre
 
@@ -137,7 +137,7 @@ def test_an_unconfident_clipped_centre_is_not_applied(make_cycle):
 
 
 def test_the_beam_chain_gives_a_clipped_spot_its_centre_on_the_target():
-    from controller.calibration.beam_chain import BeamChain
+    from controller.calibration.cycle.beam_chain import BeamChain
     from controller.config import load_config
 
     from .conftest import REPO

@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from controller.calibration.coarse import clipped_applies, correction_step
-from controller.calibration.observations import Observation
+from controller.calibration.cycle.coarse import clipped_applies, correction_step
+from controller.calibration.cycle.observations import Observation
 from controller.config import load_config
 from controller.recognition.library import Match
 
@@ -26,7 +26,7 @@ class _Pointing:
         self.asked = []
 
     def fine_correction(self, az, el, offset_enu):
-        from controller.calibration.observations import Step
+        from controller.calibration.cycle.observations import Step
         self.asked.append(np.asarray(offset_enu, float))
         return Step(0.0, 0.0, int(round(-1000 * offset_enu[0])), int(round(-1000 * offset_enu[2])))
 
@@ -132,7 +132,7 @@ def test_demo_coarse_summary_counts_runs_with_a_coarse_first_move():
     from types import SimpleNamespace as NS
 
     from controller.calibration.records import CorrectionRecord
-    from controller.commands._demo_coarse import coarse_summary
+    from controller.reports.summary import coarse_summary
 
     runs = [NS(id=1, heliostat_id="H01", iterations=3), NS(id=2, heliostat_id="H02", iterations=1),
             NS(id=3, heliostat_id="H03", iterations=2)]
@@ -152,8 +152,8 @@ def test_demo_recalibrates_only_the_heliostats_with_a_coarse_move_centroid_only(
     from argparse import Namespace
     from types import SimpleNamespace as NS
 
-    import controller.commands._demo_coarse as demo_coarse
-    import controller.commands.demo as demo
+    import controller.commands.campaigns._demo_coarse as demo_coarse
+    import controller.commands.simulated as demo
 
     from .conftest import REPO
 
@@ -191,8 +191,8 @@ def test_demo_recalibrates_only_the_heliostats_with_a_coarse_move_centroid_only(
 def test_demo_uncalibrated_field_runs_the_same_heliostats_with_and_without_the_coarse_correction(tmp_path,
                                                                                                  monkeypatch):
 
-    import controller.commands._demo_coarse as demo_coarse
-    import controller.commands.demo as demo
+    import controller.commands.campaigns._demo_coarse as demo_coarse
+    import controller.commands.simulated as demo
 
     from .conftest import REPO
 

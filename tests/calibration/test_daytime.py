@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from controller.calibration.daytime import sun_path
+from controller.calibration.night.daytime import sun_path
 from controller.cli import main
 from controller.config import load_config
 from simplant.daytime import true_errors_mrad
@@ -29,7 +29,7 @@ def test_sun_path_is_four_days_of_daylight():
 
 
 def test_aim_contract_scored_independently_matches_the_reported_daytime_error(small_config, tmp_path, capsys):
-    from controller.commands.demo import simulated_campaign
+    from controller.commands.simulated import simulated_campaign
 
     cfg = load_config(small_config)
     settings = SimulationSettings(clock_speedup=FAST.clock_speedup, seed=4)

@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 import yaml
 
-from controller.commands._cheap_night import run_cheap_night
+from controller.commands.cheap_night import run_cheap_night
 from controller.commands.sim.field import OnTarget, run_planned_night, seed_from_truth, strays
 from controller.devices.drive import AxisLimits, DriveLimits
 from controller.errors import LimitError
 from controller.storage.db import CampaignStore
 from simplant.cheap_night import CheapField, field_data
-from simplant.inproc import InProcPool
+from simplant.devices.inproc import InProcPool
 
 ROOT = Path(__file__).resolve().parents[2]
 

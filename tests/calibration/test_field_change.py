@@ -14,9 +14,10 @@ import sqlite3
 import pytest
 import yaml
 
-from controller.calibration.night import calibration_night
-from controller.calibration.runner import Campaign, CampaignOptions
-from controller.commands._field import open_store, simulated_field
+from controller.calibration.campaign.runner import Campaign, CampaignOptions
+from controller.calibration.night.planned import calibration_night
+from controller.commands.field import open_store
+from controller.commands.simulated import simulated_field
 from controller.config import load_config
 from simplant.settings import SimulationSettings
 from tests.calibration.conftest import FAST, REPO

@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 import yaml
 
-from controller.calibration import daytime
-from controller.calibration.candidates import FieldGeometry, evaluate, evaluate_many
-from controller.calibration.daytime import model_covariance, predicted_daytime, sun_path
-from controller.calibration.model_update import fit_measurements
-from controller.calibration.planner import aim_points, plan_field, plan_heliostat, planner_sun
-from controller.calibration.pointing import PARK_MARGIN_M, GeometryPointing
-from controller.calibration.refit import refit_models
+from controller.calibration.cycle.model_update import fit_measurements
+from controller.calibration.cycle.pointing import PARK_MARGIN_M, GeometryPointing
+from controller.calibration.night import daytime
+from controller.calibration.night.candidates import FieldGeometry, evaluate, evaluate_many
+from controller.calibration.night.daytime import model_covariance, predicted_daytime, sun_path
+from controller.calibration.night.planner import aim_points, plan_field, plan_heliostat, planner_sun
+from controller.calibration.night.refit import refit_models
 from controller.config import parse_config
 from controller.errors import ConfigError
 from controller.geometry.kinematics import HeliostatKinematics
@@ -98,7 +98,7 @@ def test_planning_in_worker_processes_equals_one_at_a_time(large):
 
 
 def test_refits_in_worker_processes_equal_one_at_a_time(tmp_path, base):
-    from controller.commands._cheap_night import calibrate_from_truth
+    from controller.commands.cheap_night import calibrate_from_truth
     from controller.storage.db import CampaignStore
     from controller.storage.field_records import measurements_by_heliostat, record_models
     from simplant.cheap_night import CheapField
@@ -185,7 +185,7 @@ def test_model_refit_command_refits_every_heliostat_as_one_at_a_time(tmp_path, b
     import subprocess
     import sys
 
-    from controller.commands._cheap_night import calibrate_from_truth
+    from controller.commands.cheap_night import calibrate_from_truth
     from controller.storage.db import CampaignStore
     from controller.storage.field_records import measurements_by_heliostat
     from simplant.cheap_night import CheapField

@@ -9,14 +9,14 @@ import time
 
 import pytest
 
-from controller.calibration.reprocess_plan import (
+from controller.calibration.cycle.shared_machine import Deadlines
+from controller.calibration.reprocess.plan import (
     FIRST_TASK_PAIRS,
     MAX_TASK_PAIRS,
     TASK_S,
     TaskSizer,
     take_task,
 )
-from controller.calibration.shared_machine import Deadlines
 from tests.conftest import scaled_s
 
 

@@ -1,4 +1,4 @@
-"""Lamp changes of a night (controller.calibration.lamp_change): a standby pose is safe only
+"""Lamp changes of a night (controller.calibration.campaign.lamp_change): a standby pose is safe only
 for the lamp it was computed under, so before the next lamp is lit every heliostat is made safe
 for it in the dark. Checked against the plant's truth (its beams, its safety monitor) over the
 in-process drives of simplant.cheap_night."""
@@ -11,9 +11,9 @@ from pathlib import Path
 import pytest
 import yaml
 
-from controller.calibration.lamp_change import LampChangeError, LampChanger, Standby, clear_targets
-from controller.calibration.planner import plan_night
-from controller.commands._cheap_night import calibrate_from_truth, cheap_field, run_cheap_night
+from controller.calibration.campaign.lamp_change import LampChangeError, LampChanger, Standby, clear_targets
+from controller.calibration.night.planner import plan_night
+from controller.commands.cheap_night import calibrate_from_truth, cheap_field, run_cheap_night
 from controller.errors import LimitError
 from controller.storage.db import CampaignStore
 from simplant.cheap_night import CheapField, field_data

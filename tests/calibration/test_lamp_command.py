@@ -10,13 +10,13 @@ import sys
 
 import pytest
 
-from controller.calibration.beam_chain import BeamChain
-from controller.calibration.registration_step import register_camera
+from controller.calibration.cycle.beam_chain import BeamChain
+from controller.calibration.cycle.registration_step import register_camera
 from controller.config import parse_config
 from controller.devices.lamp_command import LampCommandError
 from controller.errors import ConfigError
+from simplant.devices.plant_camera import PlantCamera
 from simplant.plant import SimulatedPlant, load_config_data
-from simplant.plant_camera import PlantCamera
 from tests.calibration.conftest import REPO
 
 SWITCH = "import pathlib, sys\nwith open(sys.argv[1], 'a') as f:\n    f.write(sys.argv[2] + '\\n')\n"

@@ -13,11 +13,12 @@ import subprocess
 import pytest
 import yaml
 
-from controller.calibration.lights_out import LampNotDark
-from controller.calibration.night import PlannedNight, calibration_night
-from controller.calibration.observers import CampaignObserver
-from controller.calibration.runner import Campaign, CampaignOptions
-from controller.commands._field import open_store, simulated_field
+from controller.calibration.campaign.lights_out import LampNotDark
+from controller.calibration.campaign.observers import CampaignObserver
+from controller.calibration.campaign.runner import Campaign, CampaignOptions
+from controller.calibration.night.planned import PlannedNight, calibration_night
+from controller.commands.field import open_store
+from controller.commands.simulated import simulated_field
 from controller.config import load_config
 from controller.storage.lamp_states import lamp_states, lamps_not_dark
 from controller.storage.nights import NightBook

@@ -7,10 +7,10 @@ from pathlib import Path
 
 import numpy as np
 
-from controller.calibration.diagram import state_machine_markdown
-from controller.calibration.gate import TargetGate
-from controller.calibration.machine import FINAL_STATES, STATES, TRANSITIONS
-from controller.calibration.runner import INTERRUPTED
+from controller.calibration.campaign.runner import INTERRUPTED
+from controller.calibration.cycle.diagram import state_machine_markdown
+from controller.calibration.cycle.gate import TargetGate
+from controller.calibration.cycle.machine import FINAL_STATES, STATES, TRANSITIONS
 from controller.recognition.library import Match
 from simplant.clock import PlantClock
 from tests.calibration.conftest import SPEEDUP
@@ -29,7 +29,7 @@ def run_in_thread(fn):
 
 def test_diagram_doc_is_current():
     doc = (REPO / "docs" / "state-machine.md").read_text(encoding="utf-8")
-    assert doc == state_machine_markdown(), "regenerate: python -m controller.calibration.diagram"
+    assert doc == state_machine_markdown(), "regenerate: python -m controller.calibration.cycle.diagram"
     assert "stateDiagram-v2" in doc
 
 
@@ -288,7 +288,7 @@ def test_a_clipped_spot_is_corrected_towards_and_not_recorded(make_cycle):
 def test_a_spot_that_stays_clipped_faults(make_cycle):
     from dataclasses import replace
 
-    from controller.calibration.machine import CLIPPED_LOOKS
+    from controller.calibration.cycle.machine import CLIPPED_LOOKS
 
     cyc, plant, drive = make_cycle()
     real = cyc.ctx.analyze

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from controller.calibration.daytime import sun_path
+from controller.calibration.night.daytime import sun_path
 from controller.config import load_config
 from simplant.daytime import true_errors_mrad
 from simplant.plant import SimulatedPlant, load_config_data

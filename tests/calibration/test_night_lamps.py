@@ -6,9 +6,10 @@ from __future__ import annotations
 
 import pytest
 
-from controller.calibration.night import PlannedNight
-from controller.calibration.observers import CampaignObserver
-from controller.commands._field import open_store, simulated_field
+from controller.calibration.campaign.observers import CampaignObserver
+from controller.calibration.night.planned import PlannedNight
+from controller.commands.field import open_store
+from controller.commands.simulated import simulated_field
 from controller.config import load_config
 from controller.storage.nights import NightBook
 from simplant.settings import SimulationSettings

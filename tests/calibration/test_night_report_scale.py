@@ -11,8 +11,8 @@ import sqlite3
 import pytest
 import yaml
 
-from controller.calibration.planner import plan_field
-from controller.commands._cheap_night import calibrate_from_truth, run_cheap_night
+from controller.calibration.night.planner import plan_field
+from controller.commands.cheap_night import calibrate_from_truth, run_cheap_night
 from controller.reports import night as night_report
 from controller.storage.db import CampaignStore
 from controller.storage.nights import NightBook

@@ -13,14 +13,14 @@ from pathlib import Path
 import pytest
 import yaml
 
-from controller.calibration.daytime import PredictedDaytime
-from controller.calibration.night import NightSummary, PlannedNight, calibration_night
-from controller.calibration.observers import CampaignObserver
-from controller.calibration.outcome import CampaignResult
-from controller.calibration.planner import geometry_key
-from controller.calibration.runner import Campaign, CampaignOptions
-from controller.commands._field import open_store, simulated_field
-from controller.commands._simulate import NightReport, SimulatedRun
+from controller.calibration.campaign.observers import CampaignObserver
+from controller.calibration.campaign.outcome import CampaignResult
+from controller.calibration.campaign.runner import Campaign, CampaignOptions
+from controller.calibration.night.daytime import PredictedDaytime
+from controller.calibration.night.planned import NightSummary, PlannedNight, calibration_night
+from controller.calibration.night.planner import geometry_key
+from controller.commands.field import open_store
+from controller.commands.simulated import NightReport, SimulatedRun, simulated_field
 from controller.config import load_config
 from controller.reports.night import write_night_report
 from controller.storage.nights import NightBook

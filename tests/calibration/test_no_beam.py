@@ -1,5 +1,5 @@
 """No beam on the target: the cycle records ``no_beam`` and never corrects from the frame, and a
-pass whose light source silently stays dark stops (controller/calibration/no_beam.py)."""
+pass whose light source silently stays dark stops (controller/calibration/campaign/no_beam.py)."""
 
 from __future__ import annotations
 
@@ -7,11 +7,11 @@ import itertools
 
 import pytest
 
-from controller.calibration.field import LampLit
-from controller.calibration.no_beam import NO_BEAM, STOP_AFTER, NoBeamWatch
+from controller.calibration.campaign.field import LampLit
+from controller.calibration.campaign.no_beam import NO_BEAM, STOP_AFTER, NoBeamWatch
+from controller.calibration.campaign.runner import Campaign, CampaignOptions
 from controller.calibration.records import MeasurementRecord, RunRecord
-from controller.calibration.runner import Campaign, CampaignOptions
-from controller.commands._field import plant_field
+from controller.commands.simulated import plant_field
 from controller.devices.factory import LinkPool
 from controller.storage.db import CampaignStore
 from simplant.plant import SimulatedPlant, load_config_data

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from controller.calibration.outcome import CampaignResult, outcome
+from controller.calibration.campaign.outcome import CampaignResult, outcome
 from controller.calibration.records import RunRecord
 from controller.reports.campaign import write_report
 from controller.reports.summary import summarize

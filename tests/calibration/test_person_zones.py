@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 import yaml
 
-from controller.calibration.beam_safety import UnsafePath
-from controller.calibration.lamp_change import LampChanger, Standby
-from controller.calibration.planner import plan_night
-from controller.commands._cheap_night import cheap_field
+from controller.calibration.campaign.lamp_change import LampChanger, Standby
+from controller.calibration.cycle.beam_safety import UnsafePath
+from controller.calibration.night.planner import plan_night
+from controller.commands.cheap_night import cheap_field
 from controller.config import load_config
 from controller.errors import ConfigError, LimitError
 from controller.storage.db import CampaignStore

@@ -6,14 +6,14 @@ import numpy as np
 import pytest
 import yaml
 
-from controller.calibration.model_update import age_weights
-from controller.calibration.nights import night_passes
-from controller.calibration.planner import candidates, plan_heliostat, plan_night, planner_sun
+from controller.calibration.cycle.model_update import age_weights
+from controller.calibration.night.passes import night_passes
+from controller.calibration.night.planner import candidates, plan_heliostat, plan_night, planner_sun
 from controller.calibration.records import ModelRecord
 from controller.config import parse_config
 from controller.errors import ConfigError
 from controller.geometry.design import daytime_variance, posterior
-from controller.geometry.tracking_model import TERMS, TrackingModel
+from controller.geometry.model.tracking import TERMS, TrackingModel
 from tests.calibration.conftest import REPO, calibrated_record
 
 
@@ -54,7 +54,7 @@ def test_design_beats_round_robin_on_predicted_daytime_error(cfg):
 
 def test_greedy_gain_matches_the_covariance_update(cfg):
     """The planner's reported 'after' is the posterior of Eq. (1) propagated by Eq. (2)."""
-    from controller.calibration.daytime import model_covariance
+    from controller.calibration.night.daytime import model_covariance
     from controller.geometry.design import beam_jacobians, normal_jacobian
     from controller.geometry.kinematics import HeliostatKinematics
 

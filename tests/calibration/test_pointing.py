@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from controller.calibration.beam_safety import UnsafePath
-from controller.calibration.planning import order_queue, slew_time_s
-from controller.calibration.pointing import GeometryPointing
+from controller.calibration.campaign.queue_order import order_queue, slew_time_s
+from controller.calibration.cycle.beam_safety import UnsafePath
+from controller.calibration.cycle.pointing import GeometryPointing
 from controller.config import load_config
 from controller.geometry.target_frame import TargetFrame
 from simplant.optics import TargetGrid
@@ -116,7 +116,7 @@ def test_with_several_beams_the_queue_groups_like_slews_and_ends_with_the_quicke
 def test_beam_chain_matches_with_a_multi_threshold_library(small_config):
     """The default ``library build`` features (``multi-hu``) need Hu moments at several
     thresholds: the chain's observation carries what its library matches on."""
-    from controller.calibration.beam_chain import BeamChain
+    from controller.calibration.cycle.beam_chain import BeamChain
     from controller.config import load_config
     from controller.recognition.library import build_library
 

@@ -9,9 +9,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from controller.calibration.registration_step import RegistrationError, nominal_camera
-from controller.calibration.runner import Campaign, CampaignObserver, CampaignOptions
-from controller.commands._field import plant_field
+from controller.calibration.campaign.runner import Campaign, CampaignObserver, CampaignOptions
+from controller.calibration.cycle.registration_step import RegistrationError, nominal_camera
+from controller.commands.simulated import plant_field
 from controller.devices.factory import LinkPool
 from controller.imaging.registration import CameraModel
 from controller.storage.db import CampaignStore

@@ -3,7 +3,7 @@
 The plant camera sees the target through a perspective camera whose pose differs from the
 nominal one the controller is told (a few mrad, a few cm), with lens distortion and the HIGH
 sensor misregistered against LOW (0.3 px, 0.5 mrad). The controller registers each sensor on
-a fiducial frame (controller.calibration.registration_step); these tests hold the result
+a fiducial frame (controller.calibration.cycle.registration_step); these tests hold the result
 against the simulator's true camera, which the controller never reads.
 """
 
@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 import yaml
 
-from controller.calibration.beam_chain import BeamChain
-from controller.calibration.registration_step import (
+from controller.calibration.cycle.beam_chain import BeamChain
+from controller.calibration.cycle.registration_step import (
     CameraRegistration,
     RegistrationError,
     nominal_camera,
@@ -23,8 +23,8 @@ from controller.calibration.registration_step import (
 from controller.imaging.beam import analyze
 from controller.imaging.fiducials import rectify_sensor
 from controller.imaging.registration import Registration, rectification_maps
+from simplant.devices.plant_camera import PlantCamera
 from simplant.plant import SimulatedPlant, load_config_data
-from simplant.plant_camera import PlantCamera
 from tests.calibration.conftest import REPO
 
 SPOT_ENU = np.array([1.3, 0.0, 31.1])  # on the target plane (y = 0), off centre

@@ -9,7 +9,7 @@ import yaml
 from matplotlib.figure import Figure
 from matplotlib.text import Text
 
-from controller.commands._cheap_night import calibrate_from_truth, run_cheap_night
+from controller.commands.cheap_night import calibrate_from_truth, run_cheap_night
 from controller.reports import field_figures
 from controller.reports.campaign import write_report
 from controller.reports.night import write_night_report

@@ -23,8 +23,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from controller.commands._common import PACKAGED_CONFIG
-from controller.storage.archive import fingerprint
+from controller.commands.common import PACKAGED_CONFIG
+from controller.storage.reprocess.archive import fingerprint
 from simplant.archive import replicate
 from tests.conftest import scaled_s
 

@@ -13,11 +13,11 @@ import numpy as np
 import pytest
 import yaml
 
-from controller.calibration.beam_safety import UnsafePath
-from controller.calibration.nights import run_night
-from controller.calibration.planner import plan_night
-from controller.calibration.pointing import GeometryPointing
-from controller.calibration.runner import CampaignResult
+from controller.calibration.campaign.runner import CampaignResult
+from controller.calibration.cycle.beam_safety import UnsafePath
+from controller.calibration.cycle.pointing import GeometryPointing
+from controller.calibration.night.passes import run_night
+from controller.calibration.night.planner import plan_night
 from controller.config import load_config, parse_config
 from controller.errors import ConfigError
 from controller.geometry.aiming import source_direction
@@ -187,7 +187,7 @@ def _overlap(a, b) -> bool:
 
 
 def test_two_targets_work_in_parallel_on_the_simulated_plant(small_config, tmp_path):
-    from controller.commands._simulate import simulated_run
+    from controller.commands.simulated import simulated_run
     from simplant.settings import SimulationSettings
     from tests.calibration.conftest import FAST
 
@@ -227,7 +227,7 @@ def test_two_targets_work_in_parallel_on_the_simulated_plant(small_config, tmp_p
 def test_ctrl_c_asks_every_target_to_stop_and_waits_for_them():
     import _thread
 
-    from controller.calibration.parallel import run_per_target
+    from controller.calibration.campaign.parallel import run_per_target
 
     stop = threading.Event()
     ended: list[str] = []

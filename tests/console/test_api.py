@@ -10,7 +10,7 @@ import time
 import pytest
 from starlette.testclient import TestClient
 
-from controller.commands._field import plant_field
+from controller.commands.simulated import plant_field
 from controller.console.app import TOKEN_HEADER, create_app
 from controller.console.backend import Console, PlantHooks
 from controller.console.events import EventBus

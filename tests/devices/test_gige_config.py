@@ -11,7 +11,7 @@ import pytest
 import yaml
 
 from controller.cli import main
-from controller.commands._common import PACKAGED_CONFIG
+from controller.commands.common import PACKAGED_CONFIG
 from controller.config import load_config
 from controller.devices.factory import open_camera
 from controller.devices.gige import GigeCamera

@@ -10,11 +10,11 @@ import pytest
 
 from controller.config import CommandLamps
 from controller.devices.lamp_command import LampCommandError
+from controller.devices.lamp_drivers import open_lamp_panel
 from controller.devices.lamp_panel import (
     LampNotConfirmed,
     light_only,
     lights_out,
-    open_lamp_panel,
     set_and_confirm,
 )
 from controller.devices.plant_time import PlantTime

@@ -15,17 +15,17 @@ import pytest
 from controller.config import ModbusRtuLamps, ModbusTcpLamps
 from controller.devices.drive import DriveLimits
 from controller.devices.factory import LinkPool
+from controller.devices.lamp_drivers import open_lamp_panel
 from controller.devices.lamp_panel import (
     LampError,
     LampNotConfirmed,
     light_only,
     lights_out,
-    open_lamp_panel,
     set_and_confirm,
 )
 from controller.devices.plant_time import PlantTime
 from controller.errors import InputError
-from simplant.lamp_panel import SimLampPanel
+from simplant.devices.lamp_panel import SimLampPanel
 from simplant.plant import SimulatedPlant, load_config_data
 from tests.calibration.conftest import REPO
 from tests.conftest import scaled_s

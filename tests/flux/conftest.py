@@ -1,5 +1,5 @@
 """Synthetic truth for the flux tests: a limb-darkened Sun and a Lambertian target rendered
-through the camera model (simplant.sensor.SensorModel).
+through the camera model (simplant.devices.sensor.SensorModel).
 
 Camera radiometry used by the renderers: a pixel collects K · T · L̄ · Ω_px counts per second,
 with K the camera constant, T the ND transmittance, L̄ the scene radiance averaged over the
@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from simplant.sensor import SensorModel
+from simplant.devices.sensor import SensorModel
 
 GAMMA = 9.3e-3
 SUPER = 8

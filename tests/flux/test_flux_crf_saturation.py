@@ -13,7 +13,7 @@ import pytest
 from controller.cli import main
 from controller.imaging.crf import Crf
 from controller.imaging.crf_io import save_crf
-from simplant.sensor import knee_response
+from simplant.devices.sensor import knee_response
 
 DNI, RHO, T_SUN, T_EXP = 900.0, 0.85, 0.01, 1e-3
 

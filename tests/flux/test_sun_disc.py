@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from controller.flux.sun_disc import SunDiscError, find_sun_disc, saturation_level_for
-from simplant.sensor import SensorModel
+from simplant.devices.sensor import SensorModel
 
 
 def _image(disc_renderer, rng, shape, center, radius, peak=200.0, u=0.6):

@@ -12,7 +12,7 @@ import pytest
 
 from controller.cli import main
 from controller.geometry.frames import enu_to_wgs84, wgs84_to_enu
-from controller.geometry.tracking_model import TERMS
+from controller.geometry.model.tracking import TERMS
 
 AA39 = Path(__file__).resolve().parents[1] / "data" / "real" / "aa39"
 PROPS = str(AA39 / "AA39-heliostat-properties.json")

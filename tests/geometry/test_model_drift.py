@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from controller.geometry.model_drift import RandomWalk, chain_precision, sessions
+from controller.geometry.model.drift import RandomWalk, chain_precision, sessions
 
 
 def test_sessions_split_at_gaps_and_unknown_times_join_the_newest():

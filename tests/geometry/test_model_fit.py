@@ -9,14 +9,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from controller.calibration.daytime import sun_path
+from controller.calibration.night.daytime import sun_path
 from controller.config import Site
 from controller.errors import InputError, LimitError
 from controller.geometry.aiming import angle_mrad, intersect_plane, reflected_beam
-from controller.geometry.model_drift import RandomWalk
-from controller.geometry.model_fit import NotIdentifiable, Sample, fit_model, predicted_error
-from controller.geometry.paint_io import kinematics_from_properties, read_heliostat_properties, read_towers
-from controller.geometry.tracking_model import (
+from controller.geometry.model.drift import RandomWalk
+from controller.geometry.model.fit import NotIdentifiable, Sample, fit_model, predicted_error
+from controller.geometry.model.tracking import (
     NAMES,
     TERMS,
     TrackingModel,
@@ -24,6 +23,7 @@ from controller.geometry.tracking_model import (
     model_mirror_center,
     model_normal,
 )
+from controller.geometry.paint_io import kinematics_from_properties, read_heliostat_properties, read_towers
 from controller.geometry.vectors import azel_to_vector, unit
 from simplant.truth import draw_truth
 
@@ -269,7 +269,7 @@ def test_predicted_daytime_error_matches_the_true_one_on_independent_truths():
 
 
 def test_a_fit_that_runs_out_of_steps_says_so(aa39, monkeypatch):
-    import controller.geometry.model_fit as mf
+    import controller.geometry.model.fit as mf
 
     samples = synthetic(aa39, TRUE, 20, 0.1 * D, np.random.default_rng(5))
     assert fit_model(aa39, samples, noise_mrad=0.1).converged

@@ -204,12 +204,12 @@ def test_a_config_names_a_field_prior_relative_to_itself(tmp_path):
     naming it, before any work."""
     import yaml
 
-    from controller.calibration.pointing import model_covariance
+    from controller.calibration.cycle.pointing import model_covariance
     from controller.config import load_config
     from controller.errors import InputError
-    from controller.geometry.field_prior import FieldPrior
-    from controller.geometry.field_prior_io import prior_document, write_prior
-    from controller.geometry.tracking_model import NAMES, PRIOR_SIGMA_SI
+    from controller.geometry.model.field_prior import FieldPrior
+    from controller.geometry.model.field_prior_io import prior_document, write_prior
+    from controller.geometry.model.tracking import NAMES, PRIOR_SIGMA_SI
 
     mean = np.zeros(len(NAMES))
     mean[NAMES.index("mirror_offset")] = 11e-3
@@ -225,8 +225,7 @@ def test_a_config_names_a_field_prior_relative_to_itself(tmp_path):
     model, cov = model_covariance(None, cfg.calibration.model)
     assert model.values == pytest.approx(mean) and np.diag(cov) == pytest.approx(sigma**2)
     shutil.copy(TOWERS, tmp_path / "priors" / "jülich.json")  # valid JSON, not a prior
-    from controller.calibration import model_update
-
+    from controller.calibration.cycle import model_update
     model_update._field_prior.cache_clear()
     with pytest.raises(InputError, match="jülich.json: not a heliocal field prior"):
         model_covariance(None, load_config(tmp_path / "c.yaml").calibration.model)

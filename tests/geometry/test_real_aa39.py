@@ -13,8 +13,8 @@ import pytest
 
 from controller.geometry.aiming import aim_normal, angle_mrad
 from controller.geometry.kinematics import angles_from_normal
-from controller.geometry.model_fit import Sample, fit_model
-from controller.geometry.validation import leave_one_out
+from controller.geometry.model.fit import Sample, fit_model
+from controller.geometry.model.validation import leave_one_out
 
 
 def _measured_normal(kin, r, spot="spot"):

@@ -14,6 +14,13 @@ from controller.config import parse_config
 from controller.errors import LimitError
 from controller.geometry import pose_batch
 from controller.geometry.kinematics import HeliostatKinematics
+from controller.geometry.model.tracking import (
+    PRIOR_SIGMA_SI,
+    TrackingModel,
+    model_aim,
+    model_mirror_center,
+    model_normal,
+)
 from controller.geometry.spot import (
     MirrorOptics,
     PredictedSpot,
@@ -22,13 +29,6 @@ from controller.geometry.spot import (
     standby_clearance_m,
 )
 from controller.geometry.target_frame import TargetFrame
-from controller.geometry.tracking_model import (
-    PRIOR_SIGMA_SI,
-    TrackingModel,
-    model_aim,
-    model_mirror_center,
-    model_normal,
-)
 from tests.calibration.conftest import REPO
 
 N, U, V = np.array([0.0, 1.0, 0.0]), np.array([-1.0, 0.0, 0.0]), np.array([0.0, 0.0, -1.0])
@@ -120,19 +120,19 @@ def test_position_uncertainty_follows_the_covariance_and_distance(cfg):
 
 
 def test_measurable_spots_are_whole_in_the_simulated_plants_view(tmp_path):
-    """Against the simulated plant's own optics (simplant.cheap_camera draws each spot from the
+    """Against the simulated plant's own optics (simplant.devices.cheap_camera draws each spot from the
     hidden heliostat's true beam, with its own spot model): on a field calibrated at night 0,
     every spot the planner calls measurable is drawn whole inside the camera's view, and the
     true centres fall within the predicted 3σ of the aim point as often as 3σ promises
     (the truth has effects no model term has: a few may fall outside)."""
-    from controller.calibration.candidates import FieldGeometry, evaluate
-    from controller.calibration.daytime import model_covariance
-    from controller.calibration.planner import aim_points, planner_sun
-    from controller.commands._cheap_night import calibrate_from_truth
+    from controller.calibration.night.candidates import FieldGeometry, evaluate
+    from controller.calibration.night.daytime import model_covariance
+    from controller.calibration.night.planner import aim_points, planner_sun
+    from controller.commands.cheap_night import calibrate_from_truth
     from controller.storage.db import CampaignStore
-    from simplant.cheap_camera import SPOT_EXTENT_SIGMA
-    from simplant.cheap_camera import spot_covariance as true_spot
     from simplant.cheap_night import CheapField, field_data
+    from simplant.devices.cheap_camera import SPOT_EXTENT_SIGMA
+    from simplant.devices.cheap_camera import spot_covariance as true_spot
 
     base = yaml.safe_load((REPO / "configs" / "demo.yaml").read_text())
     field = CheapField(field_data(base, 30, 1, 3), tmp_path)

@@ -10,7 +10,7 @@ import pytest
 from controller.errors import InputError, LimitError
 from controller.geometry.aiming import angle_mrad, reflected_beam
 from controller.geometry.kinematics import normal_from_angles
-from controller.geometry.tracking_model import (
+from controller.geometry.model.tracking import (
     NAMES,
     PRIOR_SIGMA_SI,
     TERMS,

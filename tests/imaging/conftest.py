@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from controller.imaging.crf import Crf
-from simplant.sensor import SensorModel, knee_response
+from simplant.devices.sensor import SensorModel, knee_response
 
 
 def synthetic_scene(h: int = 256, w: int = 256, peak: float = 60000.0) -> np.ndarray:

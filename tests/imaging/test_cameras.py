@@ -4,13 +4,13 @@ import cv2
 import numpy as np
 import pytest
 
-from controller.calibration.exposure import auto_expose
+from controller.calibration.cycle.exposure import auto_expose
 from controller.config import Camera
 from controller.devices.camera import CameraError
 from controller.devices.file_camera import FileCamera
 from controller.errors import InputError
 from controller.imaging.autoexposure import next_exposures
-from simplant.camera import SimulatedCamera
+from simplant.devices.camera import SimulatedCamera
 
 
 def camera_cfg(t=(0.010, 0.020), gains=(1.0, 1.03)):

@@ -34,8 +34,8 @@ def test_nothing_above_threshold_gives_nan():
 
 def test_noise_only_frame_is_no_beam_not_a_clipped_one():
     """The heliostat at stow leaves only noise: the chain says there is no beam, with figures."""
-    from controller.calibration.beam_chain import BeamChain
-    from controller.calibration.observations import NoBeam
+    from controller.calibration.cycle.beam_chain import BeamChain
+    from controller.calibration.cycle.observations import NoBeam
     from controller.config import load_config
 
     chain = BeamChain(load_config(REPO / "configs" / "demo.yaml"))
@@ -52,8 +52,8 @@ def test_noise_only_frame_is_no_beam_not_a_clipped_one():
 
 def test_beam_chain_centroid_is_the_energy_centroid_of_both_lobes():
     """A dim detached lobe (canting error) is outside analyze()'s main region but pulls the aim."""
-    from controller.calibration.beam_chain import BeamChain
-    from controller.calibration.observations import BeamNotFound
+    from controller.calibration.cycle.beam_chain import BeamChain
+    from controller.calibration.cycle.observations import BeamNotFound
     from controller.config import load_config
     from controller.imaging.background import subtract_background
     from controller.imaging.beam import analyze

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from controller.cli import main
-from simplant.sensor import SensorModel, knee_response
+from simplant.devices.sensor import SensorModel, knee_response
 
 DEMO = str(Path(__file__).resolve().parents[2] / "configs" / "demo.yaml")
 

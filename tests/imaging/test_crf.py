@@ -6,7 +6,7 @@ import pytest
 from controller.errors import InputError
 from controller.imaging.crf import Crf
 from controller.imaging.crf_io import fit_crf_file as fit_crf
-from simplant.sensor import SensorModel, knee_response
+from simplant.devices.sensor import SensorModel, knee_response
 
 
 def sphere_csv(path, sensors, rng, noise=0.3):

@@ -7,7 +7,7 @@ from controller.errors import InputError
 from controller.imaging import weights as W
 from controller.imaging.crf import Crf
 from controller.imaging.hdr import HdrMerger, estimate_noise_model
-from simplant.sensor import SensorModel, knee_response
+from simplant.devices.sensor import SensorModel, knee_response
 
 
 def plain_eq1(z1, z2, t1, t2, inv1, inv2, wname, dark=8.0):

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from simplant.sensor import SensorModel, knee_response, shot_law
+from simplant.devices.sensor import SensorModel, knee_response, shot_law
 
 
 def test_mean_and_variance_follow_photon_transfer():
@@ -47,7 +47,7 @@ def test_knee_response_and_its_inverse():
 
 
 def _exact_counts(s: SensorModel, electrons_mean: float, n: int, rng: np.random.Generator) -> np.ndarray:
-    """The sensor pipeline of simplant.sensor's docstring written out with Poisson shot noise
+    """The sensor pipeline of simplant.devices.sensor's docstring written out with Poisson shot noise
     (an independent reference for the Gaussian approximation)."""
     e = np.minimum(rng.poisson(electrons_mean, n), s.full_well)
     z = s.dark_offset + s.span * s.response(e / s.full_well) + rng.normal(0.0, s.read_noise, n)

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from controller.commands._common import PACKAGED_CONFIG
+from controller.commands.common import PACKAGED_CONFIG
 from controller.config import load_config
 from controller.errors import ConfigError, InputError
 from controller.io.files import read_bytes

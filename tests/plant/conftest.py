@@ -11,7 +11,7 @@ import yaml
 
 from controller.calibration.records import ModelRecord, RunRecord
 from controller.config import config_sha256
-from controller.geometry.tracking_model import TERMS
+from controller.geometry.model.tracking import TERMS
 from controller.storage.db import CampaignStore
 
 REPO = Path(__file__).resolve().parents[2]

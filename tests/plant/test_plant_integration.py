@@ -27,12 +27,13 @@ from cryptography.x509.oid import ExtendedKeyUsageOID
 from starlette.testclient import TestClient
 
 from controller.calibration.records import RunRecord
-from controller.commands._field import plant_field
+from controller.commands.simulated import plant_field
 from controller.config import config_sha256
 from controller.console.app import TOKEN_HEADER, create_app
 from controller.console.backend import Console
 from controller.devices.factory import LinkPool
-from controller.devices.lamp_panel import open_lamp_panel, set_and_confirm
+from controller.devices.lamp_drivers import open_lamp_panel
+from controller.devices.lamp_panel import set_and_confirm
 from controller.devices.plant_time import WALL
 from controller.storage.db import CampaignStore
 from controller.storage.nights import NightBook
@@ -404,8 +405,8 @@ def _any(events: _Events):
 
 
 def test_the_lights_out_at_the_end_of_a_night_raises_a_lamp_left_lit_and_clears_it_once_dark(plant, console):
-    from controller.calibration.lights_out import lights_out_at_end
-    from controller.calibration.observers import Observers
+    from controller.calibration.campaign.lights_out import lights_out_at_end
+    from controller.calibration.campaign.observers import Observers
 
     sim, config, db, server = plant
     c, client = console

@@ -10,9 +10,9 @@ from pathlib import Path
 import pytest
 
 from controller.devices.drive import AxisLimits, DriveLimits
+from simplant.devices.noisy_line import NoisyLine
 from simplant.firmware.physics import AxisParams, SimController
 from simplant.firmware.serial import SerialSimFirmware
-from simplant.noisy_line import NoisyLine
 
 VECTORS = Path(__file__).resolve().parents[2] / "firmware_proto" / "vectors" / "frames.json"
 SPEEDUP = 100.0  # plant clock vs. wall clock: a 10,000-step move takes ~0.07 s

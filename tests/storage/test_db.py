@@ -20,7 +20,7 @@ from controller.calibration.records import (
 from controller.errors import InputError
 from controller.geometry.frames import wgs84_to_enu
 from controller.storage.db import CampaignStore
-from controller.storage.paint import export_paint, paint_azimuth
+from controller.storage.paint.export import export_paint, paint_azimuth
 from controller.storage.schema import MIGRATIONS, SCHEMA_VERSION
 
 

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from controller.calibration.planner import plan_field
+from controller.calibration.night.planner import plan_field
 from controller.config import load_config
 from controller.geometry.aiming import aim_normal
 from controller.geometry.frames import wgs84_to_enu

@@ -23,7 +23,7 @@ import argparse
 
 
 def register(subparsers) -> None:
-    from controller.commands._common import add_json_option
+    from controller.commands.common import add_json_option
 
     p = subparsers.add_parser("paint", help="a PAINT folder's calibration records into a database",
                               description=__doc__.split("\n\n")[0])
@@ -38,8 +38,8 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from controller.commands._common import print_json
-    from controller.storage.paint_import import import_paint
+    from controller.commands.common import print_json
+    from controller.storage.paint.import_records import import_paint
 
     r = import_paint(args.dir, args.db, config=args.config, timestamps=args.timestamps)
     if args.json:

@@ -15,8 +15,8 @@ from controller.errors import InputError
 def loo_report(args: argparse.Namespace) -> dict:
     """Leave-one-out on the records of one heliostat, printed unless ``--json``; the JSON dict."""
     from controller.geometry.aiming import aim_normal, angle_mrad
+    from controller.geometry.model.validation import leave_one_out
     from controller.geometry.paint_io import read_paint_set
-    from controller.geometry.validation import leave_one_out
 
     if not args.heliostat_properties or not args.towers:
         raise InputError("model validate: records need --heliostat-properties and --towers")
@@ -54,7 +54,7 @@ def paint_sets(args: argparse.Namespace) -> list:
     """The heliostats to validate: one from its records, or every one (``--heliostats``) of a
     PAINT folder, each with its records' times when there are timestamps."""
     from controller.geometry.paint_io import read_paint_set, read_timestamps
-    from controller.storage.paint_folder import heliostat_folders
+    from controller.storage.paint.folder import heliostat_folders
 
     if args.paint_dir:
         root = Path(args.paint_dir)
@@ -92,9 +92,9 @@ def _floor(records, position: np.ndarray) -> float | None:
 
 def heliostat_row(ps, split: str, args: argparse.Namespace, prior, walk) -> dict:
     """One heliostat's row of the split table (or its reason for having none)."""
-    from controller.geometry.splits import split as split_records
-    from controller.geometry.tracking_model import TrackingModel
-    from controller.geometry.validation import Targets, held_out
+    from controller.geometry.model.splits import split as split_records
+    from controller.geometry.model.tracking import TrackingModel
+    from controller.geometry.model.validation import Targets, held_out
 
     recs = ps.records
     times = [r.sample.time_days for r in recs]
@@ -130,8 +130,8 @@ def heliostat_row(ps, split: str, args: argparse.Namespace, prior, walk) -> dict
 def field_report(sets: list, split: str, args: argparse.Namespace) -> dict:
     """The split table of every heliostat in ``sets`` and the field's medians of their medians."""
     from controller.commands.model.fit import DRIFT_MRAD
-    from controller.geometry.field_prior_io import read_prior
-    from controller.geometry.model_drift import PAINT_JUMP_RAD, RandomWalk
+    from controller.geometry.model.drift import PAINT_JUMP_RAD, RandomWalk
+    from controller.geometry.model.field_prior_io import read_prior
 
     prior = read_prior(args.prior) if args.prior else None
     walk = RandomWalk(DRIFT_MRAD * 1e-3, PAINT_JUMP_RAD)
@@ -156,8 +156,8 @@ def full_fits(sets: list, args: argparse.Namespace) -> dict:
     """Each heliostat's model fitted to all its records (for the term and drift figures); a
     heliostat the fit refuses is left out."""
     from controller.commands.model.fit import DRIFT_MRAD
-    from controller.geometry.model_drift import PAINT_JUMP_RAD, RandomWalk
-    from controller.geometry.model_fit import fit_model
+    from controller.geometry.model.drift import PAINT_JUMP_RAD, RandomWalk
+    from controller.geometry.model.fit import fit_model
 
     walk = RandomWalk(DRIFT_MRAD * 1e-3, PAINT_JUMP_RAD)
     fits = {}

@@ -48,12 +48,12 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from controller.commands._common import output_file, print_json
-    from controller.geometry.field_prior_io import read_prior
-    from controller.geometry.model_drift import PAINT_JUMP_RAD, RandomWalk
-    from controller.geometry.model_fit import fit_model
+    from controller.commands.common import output_file, print_json
+    from controller.geometry.model.drift import PAINT_JUMP_RAD, RandomWalk
+    from controller.geometry.model.field_prior_io import read_prior
+    from controller.geometry.model.fit import fit_model
+    from controller.geometry.model.tracking import TERMS, TrackingModel
     from controller.geometry.paint_io import read_paint_set, read_timestamps
-    from controller.geometry.tracking_model import TERMS, TrackingModel
     from controller.storage.model_file import model_document, write_model
 
     out = output_file(args.out)

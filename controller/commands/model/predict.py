@@ -37,7 +37,7 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from controller.commands._common import print_json
+    from controller.commands.common import print_json
     from controller.geometry.paint_io import read_record, read_timestamps, read_towers, record_times
     from controller.storage.model_file import read_model
 
@@ -75,7 +75,7 @@ def _predict(mf, towers, rec, days: float | None) -> dict:
     """The prediction object of one record at time ``days`` (module docstring), or one with
     ``error``."""
     from controller.geometry.frames import enu_to_wgs84
-    from controller.geometry.tracking_model import model_normal, model_spot
+    from controller.geometry.model.tracking import model_normal, model_spot
 
     kin, s, model = mf.kinematics(), rec.sample, mf.model_at(days)
     out = {"record": rec.source, "target": rec.target.name, "heliostat": mf.heliostat_id,

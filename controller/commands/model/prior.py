@@ -27,11 +27,11 @@ def register(subparsers) -> None:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from controller.commands._common import output_file, print_json
+    from controller.commands.common import output_file, print_json
     from controller.errors import InputError
-    from controller.geometry.field_prior import field_prior
-    from controller.geometry.field_prior_io import prior_document, write_prior
-    from controller.geometry.tracking_model import NAMES, TERMS
+    from controller.geometry.model.field_prior import field_prior
+    from controller.geometry.model.field_prior_io import prior_document, write_prior
+    from controller.geometry.model.tracking import NAMES, TERMS
     from controller.storage.model_file import read_model
 
     out = output_file(args.out)

@@ -22,7 +22,7 @@ from controller.commands._numbers import Number
 
 
 def register(subparsers) -> None:
-    from controller.commands._common import add_config_option, add_json_option
+    from controller.commands.common import add_config_option, add_json_option
 
     p = subparsers.add_parser("refit", help="refit every heliostat's model on all its measurements",
                               description=__doc__.split("\n\n")[0])
@@ -37,9 +37,9 @@ def register(subparsers) -> None:
 
 def run(args: argparse.Namespace) -> int:
 
-    from controller.calibration.refit import refit_models
-    from controller.commands._common import print_json
-    from controller.commands._field import open_store
+    from controller.calibration.night.refit import refit_models
+    from controller.commands.common import print_json
+    from controller.commands.field import open_store
     from controller.config import load_config
     from controller.storage.db import open_existing
     from controller.storage.field_records import measurements_by_heliostat, record_models

@@ -54,7 +54,7 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from controller.commands._common import print_json
+    from controller.commands.common import print_json
     from controller.commands.model._validation import (
         field_report,
         full_fits,

@@ -7,7 +7,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from controller.commands._common import (
+from controller.commands.common import (
     add_field_change_option,
     add_json_option,
     print_json,

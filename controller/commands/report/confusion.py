@@ -22,8 +22,8 @@ import io
 import json
 from pathlib import Path
 
-from controller.commands._common import _plain, add_json_option, existing_file, output_dir, print_json
-from controller.commands.library import progress
+from controller.commands.common import _plain, add_json_option, existing_file, output_dir, print_json
+from controller.commands.images.library import progress
 from controller.errors import InputError
 from controller.io.images import read_image, write_atomic
 from controller.recognition.confusion import (

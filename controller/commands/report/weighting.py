@@ -31,8 +31,8 @@ from __future__ import annotations
 
 import sys
 
-from controller.commands._common import add_config_option, add_json_option, output_dir, print_json
 from controller.commands._numbers import SEED, Number
+from controller.commands.common import add_config_option, add_json_option, output_dir, print_json
 from controller.errors import InputError
 
 
@@ -54,8 +54,10 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
+    from controller.commands.simulated import weighting_study
     from controller.config import load_config
-    from simplant.studies.weighting import LOW_PEAK_FRACTION, run_study, write_csv, write_plots
+
+    weighting = weighting_study()
 
     if not 2 <= args.pairs <= 1000:
         raise InputError(f"--pairs must be in 2..1000, got {args.pairs}")
@@ -67,21 +69,21 @@ def run(args) -> int:
         cfg.heliostat(args.heliostat)
     if args.source and args.source not in {s.id for s in cfg.light_sources}:
         raise InputError(f"--source {args.source!r}: no such light source in {args.config}")
-    low_peak = LOW_PEAK_FRACTION if args.low_peak is None else args.low_peak
+    low_peak = weighting.LOW_PEAK_FRACTION if args.low_peak is None else args.low_peak
     interactive = sys.stderr.isatty() and not args.json
     if interactive:
         from rich.progress import Progress
 
         with Progress(transient=True) as prog:
             task = prog.add_task("capturing and merging pairs", total=args.pairs)
-            study = run_study(cfg, args.pairs, args.seed, args.heliostat, lambda: prog.advance(task),
-                              args.source, low_peak)
+            study = weighting.run_study(cfg, args.pairs, args.seed, args.heliostat,
+                                        lambda: prog.advance(task), args.source, low_peak)
     else:
-        study = run_study(cfg, args.pairs, args.seed, args.heliostat, source_id=args.source,
-                          low_peak=low_peak)
+        study = weighting.run_study(cfg, args.pairs, args.seed, args.heliostat, source_id=args.source,
+                                    low_peak=low_peak)
     out.mkdir(parents=True, exist_ok=True)
-    write_csv(out, study)
-    write_plots(out, study)
+    weighting.write_csv(out, study)
+    weighting.write_plots(out, study)
     result = {"thresholds": study.thresholds, "rms_px": study.rms_px}
     if args.json:
         print_json(result)

@@ -14,15 +14,15 @@ from __future__ import annotations
 
 import argparse
 
-from controller.commands._common import (
+from controller.commands._numbers import SEED, Number
+from controller.commands.common import (
     add_config_option,
     add_json_option,
     existing_file,
     output_dir,
     print_json,
 )
-from controller.commands._numbers import SEED, Number
-from controller.commands.library import progress
+from controller.commands.images.library import progress
 from controller.config import load_config
 from controller.errors import InputError
 

@@ -28,15 +28,15 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from controller.calibration.night import calibration_night
-from controller.calibration.observers import CampaignObserver
-from controller.calibration.runner import Campaign, CampaignOptions
-from controller.commands._cheap_night import WATCH_S, cheap_field
-from controller.commands._cheap_night import calibrate_from_truth as seed_from_truth
-from controller.commands._cheap_night import run_cheap_night as run_planned_night
-from controller.commands._common import add_json_option, print_json
-from controller.commands._field import open_store
+from controller.calibration.campaign.observers import CampaignObserver
+from controller.calibration.campaign.runner import Campaign, CampaignOptions
+from controller.calibration.night.planned import calibration_night
 from controller.commands._numbers import Number
+from controller.commands.cheap_night import WATCH_S, cheap_field
+from controller.commands.cheap_night import calibrate_from_truth as seed_from_truth
+from controller.commands.cheap_night import run_cheap_night as run_planned_night
+from controller.commands.common import add_json_option, print_json
+from controller.commands.field import open_store
 from controller.errors import InputError
 from controller.storage.nights import NightBook
 
@@ -168,7 +168,7 @@ def register(subparsers) -> None:
 def run(args) -> int:
     import yaml
 
-    from controller.commands._common import PACKAGED_CONFIG
+    from controller.commands.common import PACKAGED_CONFIG
     from simplant.cheap_night import CheapField, field_data
 
     out = Path(args.out)

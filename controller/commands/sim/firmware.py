@@ -9,7 +9,7 @@ Contract::
 It prints one line when it is ready (JSON with ``--json``: ``{"ok": true, "link": ...,
 "device": ..., "port": ..., "units": [...]}``), serves until SIGINT/SIGTERM and then removes
 the symlink PATH. Each unit's axes come from the configuration by the rule of
-:mod:`controller.commands._links`.
+:mod:`controller.commands.devices._links`.
 """
 
 from __future__ import annotations
@@ -17,21 +17,21 @@ from __future__ import annotations
 import time
 from types import SimpleNamespace
 
-from controller.commands._common import (
+from controller.commands._numbers import Number
+from controller.commands.common import (
     DEFAULT_CONFIG,
     add_json_option,
     print_json,
     serve_until,
     stop_on_signals,
 )
-from controller.commands._links import (
+from controller.commands.devices._links import (
     add_link_options,
     heliostat_for,
     host_port,
     load_plant,
     parse_units,
 )
-from controller.commands._numbers import Number
 from controller.errors import HeliocalError, InputError
 
 

@@ -13,14 +13,14 @@ lamp lighting when its coil is written on; prints one line (``--json``: ``{"ok":
 
 from __future__ import annotations
 
-from controller.commands._common import (
+from controller.commands._numbers import Number
+from controller.commands.common import (
     add_config_option,
     add_json_option,
     print_json,
     serve_until,
     stop_on_signals,
 )
-from controller.commands._numbers import Number
 from controller.errors import InputError
 
 
@@ -36,7 +36,7 @@ def register(subparsers) -> None:
 
 def run(args) -> int:
     from controller.config import load_config
-    from simplant.lamp_panel import PanelLamps, SimLampPanel, panel_channels
+    from simplant.devices.lamp_panel import PanelLamps, SimLampPanel, panel_channels
 
     channels = panel_channels(load_config(args.config))
     if not channels:

@@ -19,14 +19,14 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from controller.commands._common import (
+from controller.commands._numbers import SEED, Number
+from controller.commands.common import (
     add_config_option,
     add_json_option,
     print_json,
     serve_until,
     stop_on_signals,
 )
-from controller.commands._numbers import SEED, Number
 from controller.errors import InputError
 
 

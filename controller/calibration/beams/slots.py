@@ -1,0 +1,134 @@
+"""Slots: the aim points of the K heliostats measured in one capture on a target.
+
+With ``calibration.beams_per_target`` K > 1 (lamps at night, :mod:`controller.calibration.beams.policy`)
+each heliostat of a capture is aimed at its own *slot*: K points on a grid centred on the
+target, far enough apart that the predicted spots (:mod:`controller.geometry.spot`: the spot's
+3σ extent plus 3σ of its position from the model's covariance) never overlap, even while each
+is stepped by :data:`IDENTITY_STEP_M` to confirm whose spot is whose, and close enough that
+every one stays inside the camera's view, ``planner.view_margin_m`` from its edge. Along each
+axis, with r the largest reach of a spot (k (σ_spot + σ_pos), k = 3, Eq. 4 of spot.py) plus
+the step:
+
+    spacing ≥ 2 r + GAP_M,     |o_slot| + r + margin ≤ H                           (1)
+
+When K slots do not fit the view, fewer do: the layout is the largest K' ≤ K that satisfies
+(1), down to one slot at the target's centre. The slots keep the closest spacing
+s = 2 r + GAP_M: spread farther apart, the slots on one side of the target left no slew to
+their standby point that keeps the beam off the targets, and their heliostats had to take the
+target alone.
+
+A spot is looked for in its *window*, r each side of its slot, and registered and measured in
+its *cell* (everything else flattened to the background,
+:func:`controller.imaging.spots.isolate`): up to ``GAP_M``/2 from the midline to the next slot
+along each axis, or the view's edge on a side that faces no other slot,
+
+    cell = [o − s/2 + GAP/2  or  −H,   o + s/2 − GAP/2  or  +H]  along each axis     (2)
+
+Real spots are often larger than predicted — a canting error splits one in two, a wind load
+streaks it over metres — and the cell keeps what reaches beyond the window towards the
+view's edge.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from controller.calibration.cycle.pointing import model_covariance
+from controller.calibration.records import ModelRecord
+from controller.config import PlantConfig
+from controller.geometry.kinematics import HeliostatKinematics
+from controller.geometry.pose_batch import aim_steps
+from controller.geometry.spot import SIGMAS, MirrorOptics, predict_spots
+from controller.geometry.target_frame import TargetFrame
+
+IDENTITY_STEP_M = 0.3  # how far a heliostat's known step moves its spot on the target, m
+GAP_M = 0.2  # clear space between two slots' 3σ footprints, m
+
+
+@dataclass(frozen=True, eq=False)  # numpy fields
+class SlotLayout:
+    """K slot aim points: offsets (K, 2) m from the target centre along the view's (u, v), the
+    aim points (K, 3) m ENU, the spot reach (2,) m they were spaced for (Eq. 1, without the
+    step) and each slot's cell (K, 4) m, (u0, u1, v0, v1) from the target centre (Eq. 2)."""
+
+    offsets_m: np.ndarray
+    aims_enu: np.ndarray
+    reach_m: np.ndarray
+    cells_m: np.ndarray
+
+    @property
+    def k(self) -> int:
+        return len(self.offsets_m)
+
+    def aim(self, slot: int) -> tuple[float, float, float]:
+        return tuple(float(x) for x in self.aims_enu[slot % self.k])
+
+
+def spot_reach_m(cfg: PlantConfig, target_id: str, lamp_id: str, heliostats: dict[str, ModelRecord | None],
+                 at_enu) -> np.ndarray:
+    """The largest k-σ reach (spot extent plus position uncertainty, (2,) m along u, v) of the
+    spots of ``heliostats`` (id → latest model) aimed at ``at_enu`` on ``target_id`` under lamp
+    ``lamp_id`` (:func:`controller.geometry.spot.predict_spots`)."""
+    frame = target_frame(cfg, target_id)
+    lamp = cfg.light_source(lamp_id)
+    reach = np.zeros(2)
+    aims = np.asarray(at_enu, float)[None]
+    for hid, rec in heliostats.items():
+        h = cfg.heliostat(hid)
+        kin = HeliostatKinematics.from_config(h)
+        model, cov = model_covariance(rec, cfg.calibration.model)
+        steps, _ = aim_steps(kin, model.values, aims, lamp=np.asarray(lamp.position_enu_m, float))
+        sp = predict_spots(kin, MirrorOptics.from_config(h.mirror), model.values, cov, steps, aims, frame,
+                           lamp=np.asarray(lamp.position_enu_m, float), lamp_diameter_m=lamp.diameter_m,
+                           lamp_image=True)
+        reach = np.maximum(reach, np.max(SIGMAS * (sp.sigma_m + sp.position_sigma_m), axis=0))
+    return reach
+
+
+def target_frame(cfg: PlantConfig, target_id: str) -> TargetFrame:
+    cam = cfg.camera_of(target_id)
+    return TargetFrame.from_config(cfg.target(target_id), (cam.height_px, cam.width_px))
+
+
+def slot_layout(frame: TargetFrame, k: int, reach_m, margin_m: float, step_m: float = IDENTITY_STEP_M
+                ) -> SlotLayout:
+    """The largest layout of at most ``k`` slots satisfying Eq. (1) in ``frame``'s view for spots
+    of reach ``reach_m`` (2,) m, each stepped by up to ``step_m``; a grid of ⌈√K⌉ columns."""
+    r = np.asarray(reach_m, float) + step_m
+    half = np.array([frame.width_m, frame.height_m]) / 2.0
+    spacing = 2.0 * r + GAP_M
+    for n in range(k, 0, -1):
+        cols = math.ceil(math.sqrt(n))
+        rows = math.ceil(n / cols)
+        cu = (np.arange(cols) - (cols - 1) / 2.0) * spacing[0]
+        cv = (np.arange(rows) - (rows - 1) / 2.0) * spacing[1]
+        offsets = np.array([(u, v) for v in cv for u in cu][:n])
+        if n == 1 or np.all(np.abs(offsets) + r + margin_m <= half):
+            lo = np.where(offsets <= offsets.min(axis=0), -half, offsets - spacing / 2 + GAP_M / 2)  # Eq. (2)
+            hi = np.where(offsets >= offsets.max(axis=0), half, offsets + spacing / 2 - GAP_M / 2)
+            cells = np.stack([lo[:, 0], hi[:, 0], lo[:, 1], hi[:, 1]], axis=1)
+            aims = frame.center + offsets[:, :1] * frame.u + offsets[:, 1:] * frame.v
+            return SlotLayout(offsets, aims, np.asarray(reach_m, float), cells)
+    raise AssertionError("unreachable: one slot always fits")
+
+
+def assign_slots(n: int, k: int, fits: Callable[[int, int], bool]) -> list[int | None]:
+    """The slot of each of ``n`` tickets in queue order (None: no slot fits it, it takes the
+    target alone), ``fits(ticket, slot)`` telling whether a slot's pose suits the ticket's
+    heliostat (:func:`controller.calibration.beams.group.slot_parks`). Each ticket takes, of the
+    slots that fit it, the one left longest ago: tickets that every slot fits get 0, 1, …,
+    K − 1, 0, 1, … (ticket t waits for t − K, the rounds stay full), and a heliostat that one
+    slot does not suit takes the next instead of the target to itself, the ticket after it
+    taking the slot it skipped. ``fits`` is asked in that order and no further than needed."""
+    last = dict.fromkeys(range(k), -1)
+    out: list[int | None] = []
+    for t in range(n):
+        slot = next((s for s in sorted(last, key=lambda s: (last[s], s)) if fits(t, s)), None)
+        if slot is not None:
+            last[slot] = t
+        out.append(slot)
+    return out

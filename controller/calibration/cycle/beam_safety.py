@@ -1,0 +1,160 @@
+"""Beam safety of one heliostat: where its reflected central ray lands at a pose (on its target,
+on another target, into a person zone) and slews that keep it off them (docs/campaigns.md,
+"Beam safety"). Every standby pose, slew, approach and lamp change is checked here before
+anything moves.
+
+The ray is traced with the heliostat's tracking model when it has one (the poses are computed
+with it: a heliostat of a large field 10 mrad off nominal puts its beam 15 m from where the
+nominal kinematics would, at 370 m), else with the nominal kinematics; the target is grown by
+a margin for the spot's radius and the model's error. Many poses are traced at once (a slew's
+samples) through :mod:`controller.geometry.pose_batch`."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from controller.config import Heliostat, PersonZone, Target
+from controller.errors import HeliocalError
+from controller.geometry.kinematics import HeliostatKinematics
+from controller.geometry.model.tracking import TrackingModel
+from controller.geometry.pose_batch import normal_and_center
+from controller.geometry.target_frame import TargetFrame
+from controller.geometry.zones import rays_enter_any, zone_boxes, zone_entered
+
+
+class UnsafePath(HeliocalError):
+    """No slew keeps the beam off the target (beam safety); nothing was sent."""
+
+
+class BeamSafety:
+    """The beam-safety geometry of ``heliostat`` under a source in direction ``source_dir``
+    (unit ENU, towards the source) with its ``target`` (its ``frame``); ``others``: the plant's
+    other targets, which slews must never cross either (their beams belong to other pipelines
+    that run at the same time); ``zones``: the person zones the beam must never enter;
+    ``model``: the heliostat's tracking model (None: the nominal kinematics)."""
+
+    def __init__(self, heliostat: Heliostat, source_dir: np.ndarray, target: Target, frame: TargetFrame,
+                 others: tuple[Target, ...] = (), zones: tuple[PersonZone, ...] = (),
+                 model: TrackingModel | None = None) -> None:
+        self.heliostat = heliostat
+        self.kin = HeliostatKinematics.from_config(heliostat)
+        self.source_dir = source_dir
+        self.target = target
+        self.frame = frame
+        self.others = tuple((np.asarray(t.center_enu_m, float), TargetFrame.from_config(t, (1, 1)), t)
+                            for t in others if t.id != target.id)
+        self.zones, self.zone_ids = zone_boxes(zones), [z.id for z in zones]
+        self.ray_model = (model or TrackingModel.zero()).values
+
+    def rays(self, poses) -> tuple[np.ndarray, np.ndarray]:
+        """Mirror centres and unit reflected beams (N, 3) at ``poses`` (N, 2) motor steps."""
+        n, c = normal_and_center(self.kin, self.ray_model, np.asarray(poses, float).reshape(-1, 2))
+        s = np.asarray(self.source_dir, float)
+        return c, 2.0 * (n @ s)[:, None] * n - s
+
+    def beam_on_target(self, az_steps: float, el_steps: float, margin_m: float = 2.0) -> bool:
+        """Whether the reflected central ray lands on the target grown by ``margin_m``
+        (spot radius plus model error)."""
+        return bool(self.on_target([(az_steps, el_steps)], margin_m)[0])
+
+    def beam_on_other_target(self, az_steps: float, el_steps: float, margin_m: float = 2.0) -> bool:
+        """Whether the reflected central ray lands on one of the ``others`` targets grown by
+        ``margin_m``."""
+        return bool(self.on_other_target([(az_steps, el_steps)], margin_m)[0])
+
+    def on_target(self, poses, margin_m: float = 2.0) -> np.ndarray:
+        """:meth:`beam_on_target` at each of ``poses`` (N, 2): (N,) bool."""
+        return self._lands_on(*self.rays(poses), self.frame.center, self.frame, self.target, margin_m)
+
+    def on_other_target(self, poses, margin_m: float = 2.0) -> np.ndarray:
+        """:meth:`beam_on_other_target` at each of ``poses`` (N, 2): (N,) bool."""
+        c, b = self.rays(poses)
+        out = np.zeros(len(c), bool)
+        for centre, f, t in self.others:
+            out |= self._lands_on(c, b, centre, f, t, margin_m)
+        return out
+
+    def off_targets(self, az_steps: float, el_steps: float, margin_m: float = 2.0) -> bool:
+        """Whether the ray at this pose lands on neither the target nor any of ``others`` (each
+        grown by ``margin_m``) and enters no person zone: :meth:`beam_on_target`,
+        :meth:`beam_on_other_target` and :meth:`beam_in_zone` on one trace of the ray."""
+        c, b = self.rays([(az_steps, el_steps)])
+        if self._lands_on(c, b, self.frame.center, self.frame, self.target, margin_m)[0]:
+            return False
+        if any(self._lands_on(c, b, centre, f, t, margin_m)[0] for centre, f, t in self.others):
+            return False
+        return not self.zone_ids or zone_entered(c[0], b[0], self.zones, self._stop(c, b)[0]) is None
+
+    def beam_in_zone(self, az_steps: float, el_steps: float) -> str | None:
+        """The id of the person zone the reflected central ray enters at this pose, or None; a
+        beam that lands on the target ends there."""
+        if not self.zone_ids:
+            return None
+        c, b = self.rays([(az_steps, el_steps)])
+        stop = self._stop(c, b)[0]
+        k = zone_entered(c[0], b[0], self.zones, stop)
+        return None if k is None else self.zone_ids[k]
+
+    def in_zone(self, poses) -> np.ndarray:
+        """Whether the ray enters a person zone at each of ``poses`` (N, 2): (N,) bool."""
+        if not self.zone_ids:
+            return np.zeros(len(np.asarray(poses).reshape(-1, 2)), bool)
+        c, b = self.rays(poses)
+        return rays_enter_any(c, b, self.zones, self._stop(c, b))
+
+    def _stop(self, c: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """Where each ray ends: on the target (distance along the ray), else never."""
+        on = self._lands_on(c, b, self.frame.center, self.frame, self.target, 0.0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = ((self.frame.center - c) @ self.frame.normal) / (b @ self.frame.normal)
+        return np.where(on, t, np.inf)
+
+    def _sweep(self, a: tuple[float, float], b: tuple[float, float], samples: int = 120) -> np.ndarray:
+        """Poses (az, el steps) along a slew from ``a`` to ``b``, each axis moving at its
+        configured speed (acceleration ignored): (samples, 2) (one pose for no move)."""
+        ax = self.heliostat.axes
+        speed = np.array([ax.azimuth.speed_steps_per_s, ax.elevation.speed_steps_per_s])
+        a_, b_ = np.asarray(a, float), np.asarray(b, float)
+        dur = np.abs(b_ - a_) / speed
+        total = float(dur.max())
+        t = np.linspace(0.0, total, samples if total > 0 else 1)[:, None]
+        frac = np.where(dur > 0, np.minimum(1.0, t / np.where(dur > 0, dur, 1.0)), 1.0)
+        return a_ + frac * (b_ - a_)
+
+    @staticmethod
+    def _lands_on(c: np.ndarray, b: np.ndarray, center: np.ndarray, frame: TargetFrame, target: Target,
+                  margin_m: float) -> np.ndarray:
+        """Whether the rays from ``c`` along ``b`` (N, 3) land on ``target`` grown by ``margin_m``
+        (a ray pointing away from its plane does not)."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = ((center - c) @ frame.normal) / (b @ frame.normal)
+        hit = c + t[:, None] * b - center
+        ok = np.isfinite(t) & (t >= 0.0)
+        return (ok & (np.abs(hit @ frame.u) <= target.width_m / 2 + margin_m)
+                & (np.abs(hit @ frame.v) <= target.height_m / 2 + margin_m))
+
+    def path_to(self, start: tuple[int, int], end: tuple[int, int]) -> list[tuple[int, int]]:
+        """Waypoints from ``start`` to ``end`` (a point off the target) along which the beam
+        never crosses the target nor any of the ``others``: both axes together, else elevation
+        first, else azimuth first.
+        The motion model moves each axis at its configured speed (acceleration ignored).
+        Nor does it enter a person zone (a beam that starts in one may leave it).
+        Raises :class:`UnsafePath` when no such path exists."""
+
+        def never_back(flags: np.ndarray) -> bool:
+            # A beam that starts on a target (in a zone) may leave it; once off it must never enter.
+            off = np.flatnonzero(~flags)
+            return not len(off) or not flags[off[0]:].any()
+
+        def clear(plan: list[tuple[int, int]]) -> bool:
+            poses = np.vstack([self._sweep(a, b) for a, b in zip([start] + plan[:-1], plan, strict=True)])
+            poses = np.vstack([np.asarray(start, float)[None], poses])
+            return (never_back(self.on_target(poses)) and never_back(self.on_other_target(poses))
+                    and never_back(self.in_zone(poses)))
+
+        plans = ([end], [(start[0], end[1]), end], [(end[0], start[1]), end])
+        for plan in plans:
+            if clear(plan):
+                return [p for p in plan if p != start]
+        raise UnsafePath(f"{self.heliostat.id}: no slew from {start} to standby {end} keeps the beam "
+                         "off the targets")

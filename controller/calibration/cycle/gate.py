@@ -1,0 +1,162 @@
+"""Beams on the target: handed out in queue order, one at a time — or, under a lamp at night
+with ``calibration.beams_per_target`` K > 1, up to K at once, each at its own slot."""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable, Sequence
+
+
+class TargetGate:
+    """Hands the target to heliostats in queue order (tickets 0, 1, 2, …), ``beams`` at a time.
+
+    ``acquire(ticket)`` with K = 1 blocks until every smaller ticket acquired the target and
+    released it (or was skipped): one beam at a time, in queue order. With ``beams`` K > 1
+    ticket t uses its slot (:meth:`slot`: ``slots[t]``, by default ``t mod K``), which only one
+    beam holds at a time: it waits only for the ticket before it at that slot to release it
+    (and for no holder to be at that slot, should that one have been skipped), so a heliostat
+    still slewing to standby holds up its own slot, not the others. ``acquire_alone(ticket)``: for a heliostat
+    measured again alone (its spot could not be told from the others): waits until no other
+    beam holds the target and keeps every other ticket off it until released; it goes before
+    tickets not yet admitted.
+    A ticket in ``solo`` (its slot None: no slot's pose suits its heliostat) is admitted only
+    onto an empty target and keeps every other ticket off it while it holds it.
+    ``together``: the first round's tickets (the first at each slot) are admitted only once
+    each of them waits at standby (or ended): their beams then go onto the target at the same
+    time instead of the first ones waiting there, their beams on it, for the last to come.
+    ``held``: while True (a round's captures are being taken) no ticket is admitted, so no
+    beam slews across the target during an exposure.
+    ``vacate(ticket)`` (K > 1 only): the ticket's beam, on its way to standby, has left the
+    target (:meth:`controller.calibration.cycle.machine.CalibrationCycle.do_standby`): its slot goes to
+    ticket t + K at once while it goes on parking; until it is parked it is ``leaving``, and no
+    round is captured nor anyone taken alone meanwhile.
+    ``blocked`` becomes True when a beam may have been left on the target, after which nobody
+    gets the target again.
+    """
+
+    def __init__(self, beams: int = 1, together: bool = False, slots: Sequence[int | None] = ()) -> None:
+        if beams < 1:
+            raise ValueError(f"beams per target must be at least 1, got {beams}")
+        self.beams = beams
+        self.cv = threading.Condition()
+        self._next = 0  # the next ticket to admit, in queue order
+        self._done: set[int] = set()
+        self.holders: set[int] = set()
+        self.alone: int | None = None  # the ticket measured alone now
+        self._alone_waiting: set[int] = set()
+        self.waiting: set[int] = set()  # tickets blocked in acquire
+        self.solo = {t for t, s in enumerate(slots) if s is None}  # no slot fits them: the target alone
+        self._slots = list(slots)
+        self._before: dict[int, int] = {}  # ticket -> the ticket before it at its slot (−1: none)
+        last: dict[int, int] = {}
+        for t, s in enumerate(self._slots):
+            if s is not None:
+                self._before[t], last[s] = last.get(s, -1), t
+        self.held = False
+        self.blocked = False
+        self._vacated: set[int] = set()
+        first = [t for t, b in self._before.items() if b < 0] if self._slots else range(beams)
+        self._together = set(first) if together else set()
+
+    @property
+    def holder(self) -> int | None:
+        """The one holder (K = 1), or None."""
+        return next(iter(self.holders), None) if len(self.holders) == 1 else None
+
+    def slot(self, ticket: int) -> int:
+        """The slot (0 … K − 1) of ``ticket``: its aim point on the target."""
+        s = self._slots[ticket] if ticket < len(self._slots) else None
+        return ticket % self.beams if s is None else s
+
+    def admissible(self, ticket: int) -> bool:
+        """Could ``ticket`` take the target now (the caller holds ``cv``)?"""
+        if self.blocked or self.held or self.alone is not None or self._alone_waiting \
+                or self.holders & self.solo:
+            return False
+        if ticket in self._together and not all(t in self.waiting or t in self._done or t in self.holders
+                                                for t in self._together):
+            return False
+        if ticket in self.solo:  # its capture is taken as it arrives: every other beam parked
+            return not self.holders and not self.leaving
+        before = self._before.get(ticket, ticket - self.beams)
+        return ((self.beams > 1 or self._next == ticket) and len(self.holders) < self.beams
+                and (before < 0 or before in self._done or before in self._vacated)
+                # the one before may have been skipped while the one before it still holds the slot
+                and all(self.slot(h) != self.slot(ticket) for h in self.holders))
+
+    @property
+    def leaving(self) -> set[int]:
+        """Tickets whose beam left the target (:meth:`vacate`) and that are not parked yet."""
+        return self._vacated - self._done
+
+    def acquire(self, ticket: int, cancelled: Callable[[], bool], poll_s: float = 0.05) -> bool:
+        with self.cv:
+            self.waiting.add(ticket)
+            self.cv.notify_all()  # a first-round ticket may wait for this one
+            try:
+                while not self.admissible(ticket):
+                    if cancelled() or self.blocked:
+                        return False
+                    self.cv.wait(poll_s)
+                self.holders.add(ticket)
+                self._next += 1
+                while self._next in self._done:
+                    self._next += 1
+                self.cv.notify_all()
+                return True
+            finally:
+                self.waiting.discard(ticket)
+
+    def acquire_alone(self, ticket: int, cancelled: Callable[[], bool], poll_s: float = 0.05) -> bool:
+        """Take the target with no other beam on it (module docstring); the ticket must have
+        given its slot back first (:meth:`give_back`)."""
+        with self.cv:
+            self._alone_waiting.add(ticket)
+            try:
+                while (self.holders - {ticket} or self.leaving or self.alone is not None
+                       or min(self._alone_waiting) != ticket):
+                    if cancelled() or self.blocked:
+                        return False
+                    self.cv.wait(poll_s)
+                self.alone = ticket
+                return True
+            finally:
+                self._alone_waiting.discard(ticket)
+                self.cv.notify_all()
+
+    def reserve_alone(self, ticket: int) -> None:
+        """``ticket`` is to be measured alone where it stands (it holds its slot): nobody is
+        admitted from now on until it has been (:meth:`acquire_alone`)."""
+        with self.cv:
+            self._alone_waiting.add(ticket)
+
+    def vacate(self, ticket: int) -> None:
+        """``ticket``'s beam has left the target while it parks (class docstring): its slot is free."""
+        with self.cv:
+            if (ticket in self.holders or self.alone == ticket) and self.beams > 1:
+                self.holders.discard(ticket)
+                if self.alone == ticket:
+                    self.alone = None
+                self._vacated.add(ticket)
+                self.cv.notify_all()
+
+    def give_back(self, ticket: int, beam_off_target: bool = True) -> None:
+        """Give the slot back without ending the ticket (its beam parked, to be measured alone)."""
+        with self.cv:
+            if not beam_off_target:
+                self.blocked = True
+            self.holders.discard(ticket)
+            self.cv.notify_all()
+
+    def release(self, ticket: int, beam_off_target: bool = True) -> None:
+        """Give the target back (or skip this ticket if it never held it)."""
+        with self.cv:  # re-entrant: give_back takes it again
+            self.give_back(ticket, beam_off_target)
+            if self.alone == ticket:
+                self.alone = None
+            self._alone_waiting.discard(ticket)  # reserved, then stopped before its turn
+            self._done.add(ticket)
+            if self._next == ticket:  # skipped before its turn came
+                while self._next in self._done:
+                    self._next += 1
+            self.cv.notify_all()

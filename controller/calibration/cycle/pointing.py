@@ -1,0 +1,277 @@
+"""Geometry of one heliostat for the calibration cycle (the cycle's ``Pointing``): where it
+aims — the aim point and the standby point beside it, with its fitted model — and the
+corrections it moves by. The beam-safety geometry it checks every pose and slew with is
+:mod:`controller.calibration.cycle.beam_safety`; the model update after each run is
+:mod:`controller.calibration.cycle.model_update`."""
+
+from __future__ import annotations
+
+import math
+import threading
+from collections import OrderedDict
+from dataclasses import dataclass
+
+import numpy as np
+
+from controller.calibration.cycle.beam_safety import BeamSafety, UnsafePath
+from controller.calibration.cycle.model_update import fit_measurements, model_prior
+from controller.calibration.cycle.observations import Step
+from controller.calibration.records import MeasurementRecord, ModelRecord
+from controller.config import Heliostat, LampSource, ModelSettings, PersonZone, PlantConfig, Target
+from controller.errors import InputError, LimitError
+from controller.geometry.aiming import aim_normal, source_direction
+from controller.geometry.correction import correction_from_offset
+from controller.geometry.kinematics import HeliostatKinematics
+from controller.geometry.model.tracking import TERMS, TrackingModel, model_aim
+from controller.geometry.spot import MirrorOptics, predict_spots, standby_clearance_m
+from controller.geometry.target_frame import TargetFrame
+from controller.geometry.vectors import vector_to_azel
+
+PARK_MARGIN_M = 0.5  # a parked spot's 3σ footprint ends at least this far outside the camera's view
+# Steps solved by GeometryPointing._steps, least recently used dropped first: (heliostat config
+# object, model terms, point, source) -> (the heliostat object, steps). A 10,000-heliostat
+# night asks for a few per heliostat and lamp.
+AIMS_KEPT = 200_000
+_AIMS: OrderedDict[tuple, tuple[Heliostat, tuple[int, int]]] = OrderedDict()
+_AIMS_LOCK = threading.Lock()
+
+
+# -- geometry of one heliostat ------------------------------------------------------------------
+class GeometryPointing(BeamSafety):
+    """:class:`controller.calibration.cycle.machine.Pointing` on controller.geometry.
+
+    The aim point is the target centre; the standby point lies ``standby_offset_m`` beside it in
+    the target plane, on the heliostat's own side, so the approach is a short horizontal slew —
+    farther when the parked spot, at 3σ of its size and of its position's uncertainty
+    (``model``'s covariance), would reach into the camera's view (:meth:`park_clearance_m`).
+    ``others``: the plant's other targets, which slews must never cross either (their beams
+    belong to other pipelines that run at the same time). ``zones``: the plant's person zones
+    (config ``person_zones``), which the beam must never enter — at standby, on a slew, on the
+    approach or at the aim point.
+    """
+
+    def __init__(self, heliostat: Heliostat, target: Target, source, frame: TargetFrame,
+                 standby_offset_m: float, current_steps: tuple[int, int] | None = None,
+                 model_settings: ModelSettings | None = None, aim_point=None,
+                 others: tuple[Target, ...] = (), zones: tuple[PersonZone, ...] = (),
+                 model: ModelRecord | None = None) -> None:
+        self.model_settings = model_settings or ModelSettings()
+        model_prior(self.model_settings)  # an unknown term is refused before anything moves
+        self.model = model  # the model the standby and the beam-safety checks were computed with
+        pos = np.asarray(heliostat.position_enu_m, float)
+        super().__init__(heliostat, np.asarray(source_direction(source, pos), float), target, frame, others,
+                         zones, None if model is None else TrackingModel.from_dict(model.params))
+        self.heliostat_pos = pos
+        # The target centre, or a point of the aim grid on a planned night.
+        self.aim_point = np.asarray(target.center_enu_m if aim_point is None else aim_point, float)
+        self.source_pos = (tuple(float(v) for v in source.position_enu_m) if isinstance(source, LampSource)
+                           else None)
+        # Parked beside the aim point, the spot must stay out of the camera's view: at least the
+        # configured offset, more for a large or uncertain spot (:meth:`park_clearance_m`).
+        standby_offset_m = max(standby_offset_m, self.park_clearance_m(source, model)
+                               + abs(float((self.aim_point - frame.center) @ frame.u)))
+        self.standby_offset_m = standby_offset_m
+        self._current, self._standby_point = current_steps, None
+
+    @property
+    def standby_point(self) -> np.ndarray:
+        """The standby point (m ENU), chosen when first asked for: a lamp change asks only
+        whether a heliostat may stay where it is, which needs no standby point."""
+        if self._standby_point is None:
+            self._standby_point = self._choose_standby()
+        return self._standby_point
+
+    def _choose_standby(self) -> np.ndarray:
+        current_steps, model, frame = self._current, self.model, self.frame
+        own = frame.side(self.heliostat_pos)
+        chosen = self.aim_point + self.standby_offset_m * own
+        if current_steps is not None or self.zone_ids:
+            # Park on the side where the beam is now (its ray beside the target: what the slew's
+            # beam-safety check traces), else the side the slew from the present pose
+            # reaches first (azimuth steps closer to the present ones), so the beam does not
+            # pass the target on its way; without a present pose, on the heliostat's own side.
+            # Never on a side whose standby beam would enter a person zone.
+            now = self._beam_side(current_steps) if current_steps is not None else 0.0
+            best = None
+            for side in (own, -own):
+                point = self.aim_point + self.standby_offset_m * side
+                try:  # the steps the model will take there: far from nominal, a side's may differ
+                    az, el = self._steps(point, model) if model is not None else self.kin.aim(self.source_dir,
+                                                                                              point)
+                except (LimitError, ValueError):  # unreachable side
+                    continue
+                if self.beam_in_zone(az, el) is not None:
+                    continue
+                if now:
+                    cost = float(np.sign(float(side @ frame.u)) != now)
+                else:
+                    cost = abs(az - current_steps[0]) if current_steps is not None else float(side is not own)
+                if best is None or cost < best[0]:
+                    best = (cost, point)
+            if best is not None:
+                chosen = best[1]
+        return chosen
+
+    def _beam_side(self, steps: tuple[int, int]) -> float:
+        """+1 or −1: the side (along the view's u axis) of the target where the ray at ``steps``
+        lands beside it; 0 when it lands on it (grown by its margin) or misses its plane."""
+        c, b = self.rays([steps])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = float((self.frame.center - c[0]) @ self.frame.normal) / float(b[0] @ self.frame.normal)
+        if not np.isfinite(t) or t < 0:
+            return 0.0
+        u = float((c[0] + t * b[0] - self.frame.center) @ self.frame.u)
+        return float(np.sign(u)) if abs(u) > self.target.width_m / 2 + 2.0 else 0.0
+
+    def park_clearance_m(self, source, model: ModelRecord | None) -> float:
+        """The least distance (m) from the target centre, along the view's width, at which the
+        spot of this heliostat stays :data:`PARK_MARGIN_M` outside the camera's view at 3σ: the
+        view's half-width plus 3σ of the spot's size and of its position (the model's covariance,
+        the prior without a model; at least the measured normal's noise doubled, spot Eq. 3), as
+        the spot at the aim point predicts them (:func:`controller.geometry.spot.standby_clearance_m`)."""
+        tm, cov = model_covariance(model, self.model_settings)
+        try:
+            steps = np.array([self._steps(self.aim_point, model)], float)
+        except (LimitError, ValueError):
+            return 0.0  # the aim point is out of reach: the cycle fails it before it parks
+        optics = MirrorOptics.from_config(self.heliostat.mirror)
+        if isinstance(source, LampSource):
+            light = {"lamp": np.asarray(source.position_enu_m, float), "lamp_diameter_m": source.diameter_m}
+        else:
+            light = {"sun_dir": self.source_dir, "sun_angle_rad": 1e-3 * source.angular_diameter_mrad}
+        aim = self.aim_point[None]
+        spot = predict_spots(self.kin, optics, tm.values, cov, steps, aim, self.frame,
+                             floor_rad=2e-3 * self.model_settings.noise_mrad, **light)
+        return standby_clearance_m(self.frame.width_m / 2.0, float(spot.sigma_m[0, 0]),
+                                   float(spot.position_sigma_m[0, 0]), PARK_MARGIN_M)
+
+    def _steps(self, point: np.ndarray, model: ModelRecord | None) -> tuple[int, int]:
+        # The same heliostat, model, source and point come back many times in a night (its lamp
+        # change, its pass's queue, slot and cycle): each is solved once (_AIMS).
+        key = (id(self.heliostat), None if model is None else tuple(model.params.items()),
+               np.asarray(point, float).tobytes(), self.source_dir.tobytes(), self.source_pos)
+        with _AIMS_LOCK:
+            hit = _AIMS.get(key)
+            if hit is not None and hit[0] is self.heliostat:  # the very object: its id is not reused
+                _AIMS.move_to_end(key)
+                return hit[1]
+        steps = steps_to_aim(self.kin, model, self.source_dir, point, self.source_pos)
+        with _AIMS_LOCK:
+            _AIMS[key] = (self.heliostat, steps)
+            if len(_AIMS) > AIMS_KEPT:
+                _AIMS.popitem(last=False)
+        return steps
+
+    def aim_steps(self, model: ModelRecord | None) -> tuple[int, int]:
+        """Steps onto the aim point; UnsafePath when the beam there, or on the approach from
+        standby, would enter a person zone (nothing has moved yet)."""
+        aim = self._steps(self.aim_point, model)
+        if self.zone_ids:
+            sweep = self._sweep(self.standby_steps(model), aim)
+            # All poses traced at once; the first that enters a zone is named.
+            inside = self.in_zone(sweep)
+            for pose in sweep[int(np.argmax(inside)):] if inside.any() else ():
+                zone = self.beam_in_zone(*pose)
+                if zone is not None:
+                    raise UnsafePath(f"{self.heliostat.id}: the approach to the aim point {aim} would send "
+                                     f"the beam into person zone {zone!r}")
+        return aim
+
+    def standby_steps(self, model: ModelRecord | None, point=None) -> tuple[int, int]:
+        """Steps onto the standby point (or ``point``, m ENU); UnsafePath when the beam there
+        would enter a person zone."""
+        standby = self._steps(self.standby_point if point is None else point, model)
+        zone = self.beam_in_zone(*standby)
+        if zone is not None:
+            raise UnsafePath(f"{self.heliostat.id}: the standby pose {standby} would send the beam into "
+                             f"person zone {zone!r}")
+        return standby
+
+    def leave_steps(self, model: ModelRecord | None) -> tuple[int, int]:
+        """Steps onto the standby point on the side of the target nearest the aim point (the
+        same offset from it, :attr:`standby_offset_m`): the standby point itself when the aim is
+        on the target's centre line. LimitError, ValueError or UnsafePath (a person zone) when
+        it cannot be reached safely."""
+        off = float((self.aim_point - self.frame.center) @ self.frame.u)
+        if off == 0.0:
+            return self.standby_steps(model)
+        offset = math.copysign(self.standby_offset_m, off)
+        return self.standby_steps(model, self.aim_point + offset * self.frame.u)
+
+    def fine_correction(self, az_steps: int, el_steps: int, offset_enu: np.ndarray) -> Step:
+        c = correction_from_offset(self.kin, az_steps, el_steps, self.source_dir, None, self.target,
+                                   offset_enu)
+        return Step(c.daz_deg, c.del_deg, c.daz_steps, c.del_steps)
+
+    def coarse_correction(self, az_steps: int, el_steps: int, daz_deg: float, del_deg: float) -> Step:
+        alpha, eps = self.kin.angles(az_steps, el_steps)
+        daz = self.kin.azimuth.steps_float(alpha + math.radians(daz_deg)) - az_steps
+        dele = self.kin.elevation.steps_float(eps + math.radians(del_deg)) - el_steps
+        return Step(daz_deg, del_deg, int(round(float(daz))), int(round(float(dele))))
+
+    def fit(self, measurements: list[MeasurementRecord], prior: ModelRecord | None) -> ModelRecord | None:
+        """Tracking-model fit over all measurements of this heliostat (earlier runs included),
+        by identifiability: every term is regularised towards its nominal value with the
+        plant's prior σ (``calibration.model``), so the data move only what they observe
+        (:func:`controller.geometry.model.fit.fit_model`). ``prior`` (the last model) is kept
+        when there is nothing to fit or the data identify no term."""
+        return fit_measurements(self.kin, measurements, self.model_settings) or prior
+
+
+def steps_to_aim(kin: HeliostatKinematics, model: ModelRecord | None, source_dir: np.ndarray,
+                 point: np.ndarray, lamp_position=None) -> tuple[int, int]:
+    """Motor steps that reflect light from ``source_dir`` (unit ENU, towards the source) onto
+    ``point`` (m ENU): with the fitted tracking-error ``model`` (the bisector normal made the
+    *actual* normal, :func:`controller.geometry.model.tracking.model_aim`), or the nominal
+    kinematics without one. For a lamp at ``lamp_position`` (m ENU) the model takes its direction
+    from the model's mirror centre. LimitError when the pose is out of reach."""
+    if model is None:
+        return kin.aim(source_dir, point)
+    return model_aim(kin, TrackingModel.from_dict(model.params), source_dir, point,
+                     lamp_position=lamp_position)
+
+
+@dataclass(frozen=True)
+class NominalAim:
+    """Aim of one heliostat with the nominal kinematics (no error model): light-source
+    direction and mirror normal (ENU unit vectors), normal azimuth/elevation (degrees,
+    azimuth clockwise from north) and motor steps."""
+
+    heliostat_id: str
+    source_dir: np.ndarray
+    normal: np.ndarray
+    az_deg: float
+    el_deg: float
+    az_steps: int
+    el_steps: int
+
+
+def nominal_aims(cfg: PlantConfig, ids: list[str]) -> list[NominalAim]:
+    """Nominal aim of each heliostat at the calibration target's centre under the
+    calibration light source (a lamp)."""
+    src = cfg.light_source()
+    if not isinstance(src, LampSource):
+        raise InputError("calibration.light_source must be a lamp for a nightly aim")
+    target = np.asarray(cfg.target().center_enu_m, float)
+    out = []
+    for hid in ids:
+        h = cfg.heliostat(hid)
+        pos = np.asarray(h.position_enu_m, float)
+        s = source_direction(src, pos)
+        normal = aim_normal(s, pos, target)
+        az, el = vector_to_azel(normal)
+        a, e = HeliostatKinematics.from_config(h).steps_for_normal(normal)
+        out.append(NominalAim(hid, s, normal, float(az), float(el), int(a), int(e)))
+    return out
+
+
+def model_covariance(model: ModelRecord | None, settings: ModelSettings) -> tuple[TrackingModel, np.ndarray]:
+    """(model, covariance SI²) of a stored model; without one (or one that predates
+    covariances) the prior's model and covariance (``calibration.model``: the field's prior or
+    the documented one, :func:`controller.calibration.cycle.model_update.model_prior`)."""
+    cov = None if model is None else model.detail.get("covariance_si")
+    if cov is None or len(cov) != len(TERMS):
+        prior = model_prior(settings)
+        base = TrackingModel(prior.mean) if model is None else TrackingModel.from_dict(model.params)
+        return base, np.diag(prior.sigma**2)
+    return TrackingModel.from_dict(model.params), np.asarray(cov, float)

@@ -1,0 +1,400 @@
+"""A planned night on a field: the operation behind ``heliocal campaign night``, the console's
+night and ``heliocal demo``.
+
+On a :class:`controller.calibration.campaign.field.Field` (real or simulated, it cannot tell):
+
+1. open (or resume) the night's record (:class:`NightStore`, the ``nights`` table);
+2. unless a plan is already stored for it, measure every heliostat that has no model yet at
+   the calibration lamp first (a closed-loop campaign ``<night>/calibration``: the planner
+   needs a model to plan from);
+3. plan from the models in the store (:func:`controller.calibration.night.planner.plan_night`), or
+   reload the plan stored for this night when it is resumed;
+4. run the passes (:func:`controller.calibration.night.passes.run_night`): lamps changed in the dark
+   (:class:`controller.calibration.campaign.lamp_change.LampChanger`), the targets of a lamp in
+   parallel, each pass a :class:`controller.calibration.campaign.runner.Campaign` whose every run
+   refits its heliostat's model; each lamp is confirmed lit before anything is measured under it;
+5. record and return the night's :class:`NightSummary`.
+
+A rerun after Ctrl-C or ``kill -9`` resumes the same night: its plan is stored, finished
+passes are not repeated and recorded heliostats are skipped. Ctrl-C parks every beam
+(each campaign's fault path) and, when the field has a lamp panel, leaves every lamp off.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Protocol
+
+from controller.alarms.watch import night_ended
+from controller.calibration.campaign.field import Field, LampEnd
+from controller.calibration.campaign.lamp_change import LampChange, LampChangeError, LampChanger, Standby
+from controller.calibration.campaign.lights_out import lights_out_at_end, not_dark_message, require_dark
+from controller.calibration.campaign.observers import Observers
+from controller.calibration.campaign.runner import Campaign, CampaignObserver, CampaignOptions, CampaignResult
+from controller.calibration.night.daytime import DaytimeTally, predicted_daytime, sun_path
+from controller.calibration.night.passes import Pass, failed_geometries, flagged_keys, run_night
+from controller.calibration.night.planner import PlanItem, plan_field
+from controller.calibration.records import NightRecord
+from controller.config import PlantConfig
+from controller.errors import HeliocalError
+
+STRATEGIES = ("design", "round-robin")
+
+
+class NightStore(Protocol):
+    """What a night keeps besides its campaigns (:class:`controller.storage.nights.NightBook`)."""
+
+    def open_night(self, name: str, kind: str) -> tuple[NightRecord, bool]: ...
+    def finish_night(self, night_id: int, status: str, cause: str | None, summary: dict) -> None: ...
+    def unfinished(self, kind: str = "planned") -> NightRecord | None: ...
+    def next_index(self) -> int: ...
+    def plan(self, night: str) -> list[PlanItem]: ...
+    def record_plan(self, items: list[PlanItem]) -> None: ...
+    def add_to_summary(self, name: str, extra: dict) -> None: ...
+    def record_heliostats(self, night_id: int, rows: list[dict]) -> None: ...
+    def record_lamp_states(self, session: str, ended: str, lamps: list[LampEnd]) -> None: ...
+    def record_field(self, cfg: PlantConfig, ids: list[str], config_path: str, sha256: str) -> None: ...
+    def measured(self, night: str) -> dict[str, int]: ...
+    def record_geometry_failures(self, night: str, failures: list[dict]) -> None: ...
+    def flagged(self, ids: list[str] | None = None) -> list[dict]: ...
+
+
+def calibration_night(book: NightStore, campaign: Campaign) -> CampaignResult:
+    """Run ``campaign`` (a closed-loop calibration campaign) as a night of its own: night 0 of a
+    new field, the next index otherwise; its record says how it ended. However it ends, every
+    lamp is switched off and confirmed dark, and recorded
+    (:mod:`controller.calibration.campaign.lights_out`)."""
+    name = campaign.opt.name
+    rec, resumed = book.open_night(name, "calibration")
+    plant = campaign.field
+    plant.audit.record("night.resume" if resumed else "night.start", name, "calibration campaign")
+    book.record_field(plant.cfg, campaign.ids, plant.config_path, plant.config_sha256)
+
+    def lights_out(ended: str) -> list[LampEnd]:
+        lit = [campaign.lamp.lamp] if campaign.lamp else []
+        return lights_out_at_end(plant, book, name, ended, campaign.observer, lit=lit)
+
+    try:
+        r = campaign.run()
+    except BaseException as exc:
+        status, cause = _ended_by(exc)
+        ends = lights_out(status)
+        book.finish_night(rec.id, status, _with_lamps(cause, name, ends),
+                          {"lights_out": [e.to_json() for e in ends]})
+        plant.audit.record("night.end", name, status + (f": {cause}" if cause else ""))
+        require_dark(name, ends, after=exc)
+        raise
+    ends = lights_out(r.status)
+    lamps = [campaign.lamp.to_json()] if campaign.lamp else []
+    book.finish_night(rec.id, r.status, _with_lamps(r.cause, name, ends),
+                      {"campaign": r.name, "status": r.status, "lamps": lamps,
+                       "lights_out": [e.to_json() for e in ends]})
+    plant.audit.record("night.end", name, r.status + (f": {r.cause}" if r.cause else ""))
+    require_dark(name, ends)
+    return r
+
+
+def _ended_by(exc: BaseException) -> tuple[str, str]:
+    """The status and cause a night records when ``exc`` stopped it: Ctrl-C (SIGTERM) or another."""
+    if isinstance(exc, KeyboardInterrupt):
+        return "interrupted", "interrupted by the operator; rerun to resume"
+    return "aborted", f"{type(exc).__name__}: {exc}"
+
+
+def _with_lamps(cause: str | None, session: str, ends: list[LampEnd]) -> str | None:
+    """A night's cause with the lamps it left not confirmed dark, if any."""
+    line = not_dark_message(session, ends)
+    return "; ".join(x for x in (cause, line) if x) or None
+
+
+def tonight(book: NightStore, base: str) -> tuple[str, int]:
+    """The name and index of tonight's planned night: the unfinished one to resume, else
+    ``<base>/night-<k>`` with the next index ``k``."""
+    open_ = book.unfinished("planned")
+    if open_ is not None:
+        return open_.name, open_.index
+    k = book.next_index()
+    return f"{base}/night-{k}", k
+
+
+@dataclass
+class NightSummary:
+    """What one planned night did (the ``campaign night --json`` keys): ``planned`` and
+    ``measured`` geometries, ``failed`` planned geometries not measured, the ``lamps`` lit
+    (each with its confirmation), the field's daytime error its models now predict (open
+    loop, from their covariance), ``status`` (finished / partial / aborted / interrupted);
+    ``unmeasurable``: the heliostats with no measurable geometry tonight, each with why
+    (:class:`controller.calibration.night.planner.Unmeasurable`)."""
+
+    night: int
+    name: str
+    heliostats: int
+    planned: int
+    measured: int
+    failed: int
+    lamps: list[dict]
+    daytime_error_predicted_mrad: dict
+    status: str
+    cause: str | None = None
+    first_calibrated: list[str] = field(default_factory=list)  # measured at the calibration lamp first
+    passes: list[dict] = field(default_factory=list)
+    lamp_changes: list[dict] = field(default_factory=list)
+    unmeasurable: list[dict] = field(default_factory=list)
+    lights_out: list[dict] = field(default_factory=list)  # every lamp as the night left it (LampEnd)
+    flagged: list[dict] = field(default_factory=list)  # geometries that failed on two nights, not planned
+
+    @property
+    def exit_code(self) -> int:
+        return {"finished": 0, "partial": 3, "interrupted": 130}.get(self.status, 1)
+
+    def to_json(self) -> dict:
+        return {"night": self.night, "name": self.name, "heliostats": self.heliostats,
+                "planned": self.planned,
+                "measured": self.measured, "failed": self.failed, "lamps": self.lamps,
+                "daytime_error_predicted_mrad": self.daytime_error_predicted_mrad, "status": self.status,
+                "cause": self.cause, "first_calibrated": self.first_calibrated, "passes": self.passes,
+                "lamp_changes": self.lamp_changes, "unmeasurable": self.unmeasurable,
+                "lights_out": self.lights_out, "flagged": self.flagged}
+
+
+class PlannedNight:
+    """Runs (or resumes) planned night ``name`` (index ``index``) on ``plant`` (module
+    docstring). ``heliostat_ids``: tonight's heliostats (default all); ``strategy``: the
+    planner's (:data:`STRATEGIES`); ``observers``: handed to every campaign of the night;
+    ``progress(text)``: told of each pass and how far the night is; ``workers``: processes
+    that plan the field and predict its daytime error (None: one per core for a large field)."""
+
+    def __init__(self, plant: Field, book: NightStore, name: str, index: int, *,
+                 heliostat_ids: list[str] | None = None, strategy: str = "design",
+                 observers: Sequence[CampaignObserver] = (), progress: Callable[[str], None] | None = None,
+                 ask_operator: Callable[[], None] | None = None, workers: int | None = None) -> None:
+        if strategy not in STRATEGIES:
+            raise ValueError(f"planner strategy must be one of {STRATEGIES}, got {strategy!r}")
+        self.field = plant
+        self.book = book
+        self.name = name
+        self.index = index
+        self.ids = list(heliostat_ids) if heliostat_ids is not None else [h.id for h in plant.cfg.heliostats]
+        self.strategy = strategy
+        self.observers = list(observers)
+        self.progress = progress or (lambda text: None)
+        self._watched = progress is not None  # someone follows the night: tell them the field's state
+        self.changer = LampChanger(plant, lights_out=None if plant.lamps is not None else ask_operator)
+        self.ask_operator = ask_operator
+        self.path = sun_path(plant.cfg.site)
+        self._lock = threading.Lock()
+        self._live: set[Campaign] = set()
+        self._stopped = threading.Event()
+        self.plan: list[PlanItem] = []
+        self.unmeasurable: list[dict] = []
+        self.workers = workers
+        self.tally = DaytimeTally(plant.cfg, self.path)
+        self.results: list[CampaignResult] = []  # every campaign of this session, as they end
+        self.lamps: dict[str, dict] = {}
+        self.changes: list[LampChange] = []
+        self.measured: set[str] = set()  # "<pass>/<heliostat>" measured tonight
+        self.alone: set[str] = set()  # heliostats whose spot had to be measured alone tonight (K > 1)
+        self.state: dict = {"pass": None, "lamp": None, "daytime_error_predicted_rms": None}
+
+    # -- control from another thread (Ctrl-C's path, the console) -----------------------------------
+    def request_stop(self) -> None:
+        """Stop the night: no further pass starts, every running campaign parks its beams and
+        records itself interrupted; rerun to resume."""
+        self._stopped.set()
+        with self._lock:
+            for c in list(self._live):
+                c.request_stop()
+
+    def snapshot(self) -> dict:
+        """Where the night stands: the pass and lamp now, geometries measured of those planned."""
+        with self._lock:
+            return {"night": self.index, "name": self.name, **self.state, "planned": len(self.plan),
+                    "measured": len(self.measured), "heliostats_measured": len({m.rsplit("/", 1)[1]
+                                                                                for m in self.measured})}
+
+    # -- the night -------------------------------------------------------------------------------
+    def run(self) -> NightSummary:
+        rec, resumed = self.book.open_night(self.name, "planned")
+        f = self.field
+        f.audit.record("night.resume" if resumed else "night.start", self.name,
+                       f"{len(self.ids)} heliostat(s)")
+        self.book.record_field(f.cfg, self.ids, f.config_path, f.config_sha256)  # what the models rest on
+        results: list[CampaignResult] = []
+        first: list[str] = []
+        try:
+            # A stored plan (a resumed night, or one handed in) is run as it is; a new night
+            # first measures the heliostats the planner has no model of.
+            stored = self.book.plan(self.name)
+            if stored:  # resumed: why some heliostats had no measurable geometry was said when it was planned
+                self.unmeasurable = list(rec.summary.get("unmeasurable", []))
+            first, calib = ([], []) if stored else self._calibrate_new()
+            results += calib
+            if all(r.status in ("finished", "partial") for r in calib) and not self._stopped.is_set():
+                self.plan = self._plan()
+                self.progress(f"{self.name}: {len(self.plan)} geometries planned for "
+                              f"{len({i.heliostat_id for i in self.plan})} heliostats")
+                results += run_night(self.plan, self.name, self._run_pass, self.request_stop,
+                                     self._change_lamp)
+        except LampChangeError as exc:
+            return self._end(rec, results, first, "aborted", str(exc))
+        except BaseException as exc:  # Ctrl-C, or whatever else stopped it: recorded, lights out
+            self._end(rec, results, first, *_ended_by(exc), exc)
+            raise
+        status, cause = _status(results, self._stopped.is_set())
+        return self._end(rec, results, first, status, cause)
+
+    def _calibrate_new(self) -> tuple[list[str], list[CampaignResult]]:
+        """Heliostats without a model: one closed-loop campaign at the calibration lamp first."""
+        new = [hid for hid in self.ids if self.field.model(hid) is None]
+        if not new:
+            return [], []
+        lamp = self.field.cfg.calibration.light_source
+        self.progress(f"{self.name}: {len(new)} heliostat(s) without a model, measured at {lamp} first")
+        standby = {hid: Standby(required=hid in new) for hid in self.ids}
+        if self.field.cfg.light_source(lamp).kind == "lamp":
+            self._change_lamp(lamp, standby)
+        r = self._campaign(CampaignOptions(name=f"{self.name}/calibration"), new)
+        return new, [r]
+
+    def _plan(self) -> list[PlanItem]:
+        plan = self.book.plan(self.name)
+        if not plan:
+            flags = self.book.flagged(self.ids)  # failed on two nights: not planned until cleared
+            if flags:
+                self.progress(f"{self.name}: {len(flags)} flagged geometr{'y' if len(flags) == 1 else 'ies'} "
+                              "not planned (each failed on two nights; heliocal campaign flags)")
+            with self.field.time.computing():
+                done = plan_field(self.field.cfg, self.field.models(self.ids), self.name,
+                                  strategy=self.strategy, night_index=self.index, workers=self.workers,
+                                  flagged=flagged_keys(flags))
+            plan = done.items
+            self.unmeasurable = [u.to_json() for u in done.unmeasurable]
+            self.book.record_plan(plan)
+            self.book.add_to_summary(self.name, {"unmeasurable": self.unmeasurable})
+            if self.unmeasurable:
+                first = self.unmeasurable[0]
+                self.progress(f"{self.name}: {len(self.unmeasurable)} heliostat(s) with no measurable "
+                              f"geometry tonight, e.g. {first['heliostat']}: {first['why']}")
+        return plan
+
+    def _change_lamp(self, lamp: str, standbys: dict[str, Standby]) -> LampChange:
+        self.state["lamp"] = lamp
+        # Every heliostat of the night is made safe for the lamp, those without a geometry
+        # tonight too: their beams under it must not reach a target either.
+        standbys = {**{hid: Standby() for hid in self.ids}, **standbys}
+        done = self.changer(lamp, standbys)
+        self.changes.append(done)
+        self.progress(f"{self.name}: {lamp}: {len(done.parked)} heliostat(s) moved to its standby, "
+                      f"{len(done.stowed)} stowed, in the dark")
+        return done
+
+    def _run_pass(self, p: Pass) -> CampaignResult:
+        self.state["pass"] = p.name
+        self.progress(f"{p.name}: {len(p.aims)} heliostat(s) under {p.lamp}"
+                      + (f" on {p.target}" if p.target else ""))
+        with self._lock:  # with several beams, a spot measured alone before goes last (runner.py)
+            last = tuple(sorted(self.alone & p.aims.keys()))
+        r = self._campaign(CampaignOptions(name=p.name, light_source=p.lamp, aims=p.aims, observe=True,
+                                           target=p.target, queue_last=last), list(p.aims))
+        with self._lock:
+            self.measured |= {f"{p.name}/{run.heliostat_id}" for run in r.runs if run.status == "measured"}
+        self.book.record_geometry_failures(self.name, failed_geometries(self.plan, p, r,
+                                                                        self.field.cfg.calibration.target))
+        if self._watched:
+            # The operator's view of the field as the night goes: the controller's own computing,
+            # for the heliostats whose models changed (the whole field the first time).
+            with self.field.time.computing():
+                changed = self.ids if not self.tally.sums else [run.heliostat_id for run in r.runs]
+                self.tally.update(self.field.models(changed))
+            self.state["daytime_error_predicted_rms"] = self.tally.rms
+            self.progress(f"{self.name}: {len(self.measured)}/{len(self.plan)} geometries measured; "
+                          f"field predicted daytime RMS {self.tally.rms:.2f} mrad")
+        return r
+
+    def _campaign(self, options: CampaignOptions, ids: list[str]) -> CampaignResult:
+        c = Campaign(self.field, options, heliostat_ids=ids, observers=self.observers)
+        with self._lock:
+            self._live.add(c)
+            if self._stopped.is_set():  # stopped meanwhile: the campaign records itself interrupted
+                c.request_stop()
+        try:
+            r = c.run()
+        except HeliocalError as exc:
+            # A device that failed the whole campaign (a lamp that did not confirm, a camera gone):
+            # recorded aborted by the campaign; the night stops its passes with this cause.
+            rec = self.field.store.campaign_by_name(options.name)
+            r = CampaignResult(rec.id if rec else -1, options.name, False,
+                               self.field.store.runs(rec.id) if rec else [], 0.0, 0.0, "aborted", str(exc))
+        finally:
+            with self._lock:
+                self._live.discard(c)
+        with self._lock:
+            self.results.append(r)
+            self.alone |= set(c.group.alone if c.group is not None else ())
+        if c.lamp is not None and c.lamp.lamp not in self.lamps:
+            self.lamps[c.lamp.lamp] = c.lamp.to_json()
+        return r
+
+    def _end(self, rec: NightRecord, results: list[CampaignResult], first: list[str], status: str,
+             cause: str | None, after: BaseException | None = None) -> NightSummary:
+        """Lights out (every end: :mod:`controller.calibration.campaign.lights_out`), then the night's
+        record; :class:`LampNotDark` after it when a lamp is not confirmed dark."""
+        ends = lights_out_at_end(self.field, self.book, self.name, status, Observers(self.observers),
+                                 lit=self.lamps, ask_operator=self.ask_operator)
+        cause = _with_lamps(cause, self.name, ends)
+        # From the store: a pass stopped by Ctrl-C returned no result, but its runs are recorded.
+        per = self.book.measured(self.name)
+        measured = sum(per.values())
+        with self.field.time.computing():
+            now = predicted_daytime(self.field.cfg, self.field.models(self.ids), self.path,
+                                    workers=self.workers)
+        predicted = now.to_json()
+        self.book.record_heliostats(rec.id, self._heliostat_rows(per, now.per_heliostat))
+        s = NightSummary(self.index, self.name, len(self.ids), len(self.plan), measured,
+                         len(self.plan) - measured,
+                         list(self.lamps.values()), predicted,
+                         status, cause, first,
+                         [{"name": r.name, "status": r.status, "cause": r.cause,
+                           "measured": sum(run.status in ("measured", "calibrated") for run in r.runs),
+                           "heliostats": len(r.runs)} for r in results],
+                         [c.to_json() for c in self.changes], self.unmeasurable, [e.to_json() for e in ends],
+                         self.book.flagged(self.ids))
+        self.book.finish_night(rec.id, status, cause, s.to_json())
+        night_ended(self.field, self.name, status, cause, now.per_heliostat, self.ids)
+        self.progress(f"{self.name}: {status}; {measured}/{len(self.plan)} geometries measured; "
+                      "field predicted "
+                      f"daytime RMS {s.daytime_error_predicted_mrad['rms']:.2f} mrad")
+        require_dark(self.name, ends, after)
+        return s
+
+    def _heliostat_rows(self, measured: dict[str, int], predicted: dict[str, float]) -> list[dict]:
+        """What each heliostat of the night ended with (the ``night_heliostats`` table): where
+        it stands, its geometries planned and measured tonight, its predicted daytime RMS and,
+        when it had none measurable, why."""
+        planned: dict[str, int] = {}
+        for it in self.plan:
+            planned[it.heliostat_id] = planned.get(it.heliostat_id, 0) + 1
+        why = {u["heliostat"]: u["why"] for u in self.unmeasurable}
+        out = []
+        for hid in self.ids:
+            e, n, _ = self.field.cfg.heliostat(hid).position_enu_m
+            out.append({"heliostat": hid, "east_m": float(e), "north_m": float(n),
+                        "planned": planned.get(hid, 0), "measured": measured.get(hid, 0),
+                        "predicted_rms_mrad": predicted.get(hid), "unmeasurable": why.get(hid)})
+        return out
+
+def _status(results: list[CampaignResult], stopped: bool) -> tuple[str, str | None]:
+    """The night's status from its campaigns': the first that did not run to its end decides."""
+    for r in results:
+        if r.status == "interrupted" or (stopped and r.status not in ("finished", "partial")):
+            return "interrupted", "stopped by the operator; rerun to resume"
+        if r.status == "aborted":
+            return "aborted", f"{r.name}: {r.cause}"
+    if stopped:
+        return "interrupted", "stopped by the operator; rerun to resume"
+    partial = [r for r in results if r.status == "partial"]
+    if partial:
+        return "partial", "; ".join(f"{r.name}: {r.cause}" for r in partial[:3])
+    return "finished", None

@@ -1,0 +1,114 @@
+"""The coarse correction in ``heliocal demo`` (its summary:
+:func:`controller.reports.summary.coarse_summary`): the centroid-only twin of the runs it
+changed, and (``--uncalibrated MRAD``) the same comparison on a newly installed field.
+
+At the demo plant's own hidden-error scale every first spot is in the camera's view, and the
+coarse correction (a clipped spot moved by its estimated centre, docs/recognition.md) has
+nothing to do. ``--uncalibrated`` calibrates the same heliostats again on a plant whose hidden
+errors have the given scale, where first spots land at the view's edge, once with the config's
+coarse correction and once centroid only (same seed: same hidden errors and noise), and reports
+iterations per heliostat before/after.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+UNCALIBRATED_MAX_MRAD = 50.0  # the simulated plant's limit of its hidden-error scale
+# Beams parked beside the target of an uncalibrated field are off by as much as the field's
+# errors; at the demo config's 8 m they reach the view and spoil other heliostats' looks.
+UNCALIBRATED_STANDBY_OFFSET_M = 16.0
+
+
+def centroid_only_twin(coarse: dict, cfg, config: Path, out: Path, sim, args: argparse.Namespace) -> None:
+    """Adds ``iterations_centroid_only_mean`` (and ``centroid_only_rerun``) to ``coarse``.
+
+    A run without a coarse move made only centroid moves: it is its own centroid-only run. The
+    heliostats whose run made one are calibrated again, centroid only, on the same seed (each
+    heliostat's hidden errors and noise come from its own generator, whoever else is in the run)
+    into ``OUT/centroid-only/``; the mean is over both. No coarse move, no second campaign."""
+    from controller.commands.simulated import simulated_campaign, simulation_settings
+    from controller.config import load_config
+
+    coarse["iterations_centroid_only_mean"] = coarse["iterations_mean"]
+    coarse["centroid_only_rerun"] = []
+    redo = coarse["applied_heliostats"]
+    if cfg.calibration.coarse_correction is None or not redo:
+        return
+    plain = config_copy(config, out / "centroid-only", coarse_correction=None)
+    twin = plain.parent
+    _, again = simulated_campaign(load_config(plain), str(plain), twin, twin / "campaign.db", list(redo),
+                                  simulation_settings(seed=args.seed), f"{sim.result.name}-centroid-only",
+                                  sequential=args.sequential, library_dir=out)
+    its = {r.heliostat_id: r.iterations for r in sim.result.runs}
+    its.update({r.heliostat_id: r.iterations for r in again.result.runs})
+    truth = {**sim.truth, **again.truth}  # closed loop: the plant's true error after each run
+    after = [t.error_after_mrad for h, t in truth.items() if h in its and t.error_after_mrad is not None]
+    coarse["iterations_centroid_only_mean"] = round(sum(its.values()) / len(its), 3)
+    coarse["centroid_only_rerun"] = list(redo)
+    coarse["error_after_centroid_only_mrad"] = {"mean": sum(after) / len(after) if after else None,
+                                                "max": max(after) if after else None}
+
+
+def config_copy(config: Path, out: Path, **calibration) -> Path:
+    """A copy of the plant config in ``out/config.yaml`` with these ``calibration`` keys replaced."""
+    import yaml
+
+    from controller.io.images import write_atomic
+
+    data = yaml.safe_load(config.read_text(encoding="utf-8"))
+    data["calibration"].update(calibration)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / "config.yaml"
+    write_atomic(path, lambda t: t.write_text(yaml.safe_dump(data, sort_keys=False), encoding="utf-8"))
+    return path
+
+
+def uncalibrated_field(config: Path, out: Path, ids: list[str], seed: int, scale_mrad: float) -> dict:
+    """The heliostats ``ids`` calibrated on a plant with hidden errors of ``scale_mrad``
+    (:class:`simplant.settings.SimulationSettings`), with the config's coarse correction and
+    centroid only, into ``OUT/uncalibrated/{coarse,centroid-only}/``; parked beams
+    :data:`UNCALIBRATED_STANDBY_OFFSET_M` from the target (or the config's, if farther).
+
+    Returns (closed loop; final errors from the plant's truth): ``tracking_error_mrad``,
+    ``threshold``, ``heliostats``, ``clipped_first_looks``, ``applied``, ``applied_heliostats``,
+    ``iterations_mean`` / ``iterations_centroid_only_mean`` (measurements per heliostat),
+    ``corrections_mean`` / ``corrections_centroid_only_mean`` (corrective moves per heliostat),
+    ``calibrated`` / ``calibrated_centroid_only``, ``error_after_mrad`` /
+    ``error_after_centroid_only_mrad`` (mean, max)."""
+    from controller.commands.simulated import simulated_campaign, simulation_settings
+    from controller.config import load_config
+
+    base = load_config(config).calibration
+    standby = max(base.standby_offset_m, UNCALIBRATED_STANDBY_OFFSET_M)
+    res: dict = {"tracking_error_mrad": scale_mrad, "threshold": base.coarse_correction,
+                 "heliostats": len(ids)}
+    for name, threshold in (("coarse", base.coarse_correction), ("centroid-only", None)):
+        path = config_copy(config, out / "uncalibrated" / name, coarse_correction=threshold,
+                           standby_offset_m=standby)
+        s, _ = simulated_campaign(load_config(path), str(path), path.parent, path.parent / "campaign.db", ids,
+                                  simulation_settings(seed=seed, tracking_error_mrad=scale_mrad),
+                                  f"uncalibrated-{name}-seed{seed}", library_dir=out)
+        c = s["coarse_correction"]
+        suffix = "" if name == "coarse" else "_centroid_only"
+        if name == "coarse":
+            res |= {k: c[k] for k in ("clipped_first_looks", "applied", "applied_heliostats")}
+        res |= {f"iterations{suffix}_mean": c["iterations_mean"],
+                f"corrections{suffix}_mean": c["corrections_mean"], f"calibrated{suffix}": s["calibrated"],
+                f"error_after{suffix}_mrad": s["error_after_mrad"]}
+    return res
+
+
+def print_uncalibrated(con, u: dict) -> None:
+    """One line per comparison of :func:`uncalibrated_field` on the rich console ``con``."""
+    def f(v) -> str:
+        return "-" if v is None else f"{v:.2f}"
+
+    con.print(f"uncalibrated field (hidden-error scale {u['tracking_error_mrad']:g} mrad): "
+              f"{u['clipped_first_looks']} of {u['heliostats']} first looks clipped, coarse correction "
+              f"applied on {u['applied']}; iterations per heliostat {f(u['iterations_mean'])} with, "
+              f"{f(u['iterations_centroid_only_mean'])} centroid only; corrective moves "
+              f"{f(u['corrections_mean'])} vs {f(u['corrections_centroid_only_mean'])}; calibrated "
+              f"{u['calibrated']} vs {u['calibrated_centroid_only']}; final error (truth) mean "
+              f"{f(u['error_after_mrad']['mean'])} vs {f(u['error_after_centroid_only_mrad']['mean'])} mrad")
