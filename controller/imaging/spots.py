@@ -54,7 +54,7 @@ BAND = 0.1  # the border band :func:`spills` takes off, a fraction of the window
 # A registration less correlated than this is no shift: the cell's content did not move as one
 # — a spot that changed, or two spots that moved apart: another heliostat's beam in the cell,
 # whose energy would be in this one's centroid. A spot stepped alone correlates ≥ 0.99 on the
-# simulated plant; one with another's spot on it, 0.83 (tests/calibration/test_beams_sim.py).
+# simulated plant; one with another's spot on it, 0.83 (tests/calibration/beams/test_beams_sim.py).
 MIN_MATCH = 0.9
 
 

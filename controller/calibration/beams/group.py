@@ -52,7 +52,7 @@ SPILL_M = 0.1
 # The energy a cell's measurement weighs must move with its heliostat's step: a spot cut by its
 # cell moves less than the step, not across it (≤ 0.04 m on the simulated plant's nights); energy
 # moving with another step — another heliostat's spot on this one — pulls it across (0.155 m,
-# tests/calibration/test_beams_sim.py).
+# tests/calibration/beams/test_beams_sim.py).
 ACROSS_M = IDENTITY_STEP_M / 4
 
 

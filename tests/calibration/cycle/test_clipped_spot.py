@@ -10,8 +10,7 @@ import pytest
 from controller.calibration.cycle.observations import Observation
 from controller.imaging.centroid import energy_centroid
 from controller.imaging.clipped_spot import BEYOND, CORE_CUT, clipped_centre
-
-from .conftest import AIM
+from tests.calibration.conftest import AIM
 
 W, H = 160, 120  # view, px
 PITCH_M = 0.05  # m per px: the view is 8 m x 6 m about the aim point
@@ -139,8 +138,7 @@ def test_an_unconfident_clipped_centre_is_not_applied(make_cycle):
 def test_the_beam_chain_gives_a_clipped_spot_its_centre_on_the_target():
     from controller.calibration.cycle.beam_chain import BeamChain
     from controller.config import load_config
-
-    from .conftest import REPO
+    from tests.calibration.conftest import REPO
 
     chain = BeamChain(load_config(REPO / "configs" / "demo.yaml"))
     yy, xx = np.mgrid[0:768, 0:1024]

@@ -17,7 +17,7 @@ from simplant.optics import TargetGrid
 def cfg():
     from pathlib import Path
 
-    return load_config(Path(__file__).resolve().parents[2] / "configs" / "demo.yaml")
+    return load_config(Path(__file__).resolve().parents[3] / "configs" / "demo.yaml")
 
 
 def test_frame_corners_by_hand(cfg):

@@ -16,7 +16,7 @@ from simplant.clock import PlantClock
 from tests.calibration.conftest import SPEEDUP
 from tests.conftest import scaled_s
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 MATCH = Match("wind-load", 0.4, "gravity-sag", 1.3)
 
 

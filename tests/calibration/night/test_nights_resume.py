@@ -8,7 +8,7 @@ import os
 import signal
 import sqlite3
 
-from tests.calibration.test_campaign_sim import _heliocal, _wait_for_rows
+from tests.calibration.campaign.test_campaign_sim import _heliocal, _wait_for_rows
 from tests.conftest import scaled_s
 
 

@@ -21,10 +21,10 @@ from controller.config import load_config
 from simplant.daytime import true_errors_mrad
 from simplant.plant import SimulatedPlant, load_config_data
 from simplant.settings import SimulationSettings
-from tests.calibration.test_campaign_sim import _wait_for_rows
+from tests.calibration.campaign.test_campaign_sim import _wait_for_rows
 from tests.conftest import scaled_s
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 IDS = "H02,H14"  # serial bus 1 and Modbus TCP
 SPEEDUP = "50"
 KEYS = {"night", "name", "planned", "measured", "failed", "lamps", "daytime_error_predicted_mrad", "status",

@@ -115,8 +115,7 @@ def test_bad_coarse_correction_threshold_is_refused_naming_the_key(tmp_path, cap
     import yaml
 
     from controller.cli import main
-
-    from .conftest import REPO
+    from tests.calibration.conftest import REPO
 
     data = yaml.safe_load((REPO / "configs" / "demo.yaml").read_text(encoding="utf-8"))
     data["calibration"]["coarse_correction"] = value
@@ -154,8 +153,7 @@ def test_demo_recalibrates_only_the_heliostats_with_a_coarse_move_centroid_only(
 
     import controller.commands.campaigns._demo_coarse as demo_coarse
     import controller.commands.simulated as demo
-
-    from .conftest import REPO
+    from tests.calibration.conftest import REPO
 
     def truth(err):
         return NS(label="x", error_before_mrad=5.0, error_after_mrad=err)
@@ -193,8 +191,7 @@ def test_demo_uncalibrated_field_runs_the_same_heliostats_with_and_without_the_c
 
     import controller.commands.campaigns._demo_coarse as demo_coarse
     import controller.commands.simulated as demo
-
-    from .conftest import REPO
+    from tests.calibration.conftest import REPO
 
     asked = []
 
@@ -228,8 +225,7 @@ def test_demo_uncalibrated_field_runs_the_same_heliostats_with_and_without_the_c
 @pytest.mark.parametrize("value", ["0", "-3", "51", "nan"])
 def test_demo_refuses_a_bad_uncalibrated_scale_before_any_work(value, tmp_path, capsys):
     from controller.cli import main
-
-    from .conftest import REPO
+    from tests.calibration.conftest import REPO
 
     config = str(REPO / "configs" / "demo.yaml")
     assert main(["demo", "--config", config, "--uncalibrated", value, "--out", str(tmp_path / "o")]) == 2

@@ -28,7 +28,7 @@ from controller.storage.schema import MIGRATIONS
 from tests.calibration.conftest import calibrated_record
 from tests.conftest import scaled_s
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 
 
 def _demo() -> dict:

@@ -16,7 +16,7 @@ from controller.reports.campaign import write_report
 from controller.reports.summary import summarize
 from controller.storage.db import CampaignStore
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 OPEN = {"config_path": "c.yaml", "config_sha256": "ab", "light_source": "lamp", "target": "t"}
 
 

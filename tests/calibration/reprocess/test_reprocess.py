@@ -30,7 +30,7 @@ from tests.conftest import scaled_s
 
 pytestmark = pytest.mark.xdist_group("reprocess")
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 DASK = Path(sys.executable).with_name("dask")
 # Figures that say how the run went, not what it found.
 RUN_KEYS = {"workers", "scheduler", "local", "wall_s", "out", "report", "resumed_pairs"}

@@ -21,7 +21,7 @@ IDS = ["H02", "H08", "H14"]
 
 
 def test_sun_path_is_four_days_of_daylight():
-    cfg = load_config(Path(__file__).resolve().parents[2] / "configs" / "demo.yaml")
+    cfg = load_config(Path(__file__).resolve().parents[3] / "configs" / "demo.yaml")
     path = sun_path(cfg.site)
     assert {t.month for t in path.times} == {3, 6, 9, 12}
     assert np.all(path.elevation_deg > 15) and len(path.times) > 60

@@ -21,7 +21,7 @@ from controller.storage.db import CampaignStore
 from simplant.cheap_night import CheapField, field_data
 from tests.calibration.conftest import calibrated_record
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 # Beside the upper target, where standby beams on its east side pass (a stair landing).
 LANDING = {"id": "landing", "min_enu_m": [10.0, -2.0, 37.0], "max_enu_m": [14.0, 3.0, 43.0], "margin_m": 1.0}
 

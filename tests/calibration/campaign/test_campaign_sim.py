@@ -27,7 +27,7 @@ from simplant.settings import SimulationSettings
 from tests.calibration.conftest import FAST
 from tests.conftest import scaled_s
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 IDS = ["H02", "H08", "H14"]  # serial bus1, serial bus2, Modbus TCP
 
 

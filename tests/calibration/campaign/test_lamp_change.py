@@ -18,7 +18,7 @@ from controller.errors import LimitError
 from controller.storage.db import CampaignStore
 from simplant.cheap_night import CheapField, field_data
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 
 
 @pytest.fixture(scope="module")

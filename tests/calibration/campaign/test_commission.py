@@ -14,7 +14,7 @@ import pytest
 from controller.recognition.library_io import load_library
 from tests.conftest import scaled_s
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 
 
 def _run(*args):
