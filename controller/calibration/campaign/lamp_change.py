@@ -25,10 +25,12 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from controller.calibration.campaign.field import Field
+from controller.calibration.campaign.stay_check import certainly_safe
 from controller.calibration.cycle.beam_safety import UnsafePath
 from controller.calibration.cycle.park import park
 from controller.calibration.cycle.pointing import GeometryPointing
 from controller.calibration.records import ModelRecord
+from controller.config import PlantConfig
 from controller.devices.drive import Drive, DriveError
 from controller.devices.plant_time import PlantTime
 from controller.errors import HeliocalError, LimitError
@@ -83,14 +85,18 @@ class LampChanger:
     def pointing(self, hid: str, lamp: str, where: Standby, current: tuple[int, int],
                  model: ModelRecord | None = None) -> GeometryPointing:
         cfg = self.cfg.for_target(where.target) if where.target else self.cfg
-        cal, cam = cfg.calibration, cfg.camera
-        key = cfg.target().id
-        if key not in self._frames:  # one per target: a lamp change asks for it per heliostat
-            self._frames[key] = TargetFrame.from_config(cfg.target(), (cam.height_px, cam.width_px))
-        frame = self._frames[key]
+        cal, frame = cfg.calibration, self._frame(cfg)
         return GeometryPointing(cfg.heliostat(hid), cfg.target(), cfg.light_source(lamp), frame,
                                 cal.standby_offset_m, current, cal.model, where.aim_enu,
                                 others=self.cfg.targets, zones=self.cfg.person_zones, model=model)
+
+    def _frame(self, cfg: PlantConfig) -> TargetFrame:
+        """The view of ``cfg``'s calibration target, one per target: a lamp change asks for it per
+        heliostat."""
+        key, cam = cfg.target().id, cfg.camera
+        if key not in self._frames:
+            self._frames[key] = TargetFrame.from_config(cfg.target(), (cam.height_px, cam.width_px))
+        return self._frames[key]
 
     def __call__(self, lamp: str, standby: dict[str, Standby]) -> LampChange:
         """Switch the lamps off and leave every heliostat of ``standby`` on a pose whose beam
@@ -107,11 +113,20 @@ class LampChanger:
         # time it takes (a simulated plant's clock at 1x); the moves happen meanwhile.
         with self.time.computing():
             models = self.field.models(list(standby))  # one query for the night's heliostats
+            drives, poses = {}, {}
+            for hid in standby:
+                drives[hid] = self._ask(hid, lamp, lambda h=hid: self.field.drive(h))
+                st = self._ask(hid, lamp, drives[hid].status)
+                poses[hid] = (st.az_steps, st.el_steps)
+            # The whole field's beams under the new lamp at once; only the heliostats that are
+            # not certainly clear are checked one by one below, exactly as their cycle would.
+            clear = certainly_safe(self.cfg, lamp, {h: poses[h] for h, w in standby.items() if _default(w)},
+                                   models, self._frame(self.cfg))
             for hid, where in standby.items():
-                drive = self._ask(hid, lamp, lambda h=hid: self.field.drive(h))
-                st = self._ask(hid, lamp, drive.status)
-                model = models[hid]
-                p = self.pointing(hid, lamp, where, (st.az_steps, st.el_steps), model)
+                if hid in clear:
+                    continue
+                drive, st, model = drives[hid], _Pose(*poses[hid]), models[hid]
+                p = self.pointing(hid, lamp, where, poses[hid], model)
                 stay_margin = max(2.0, p.standby_offset_m - half)
                 if not where.required and _safe(p, st.az_steps, st.el_steps, stay_margin):
                     continue
@@ -142,6 +157,12 @@ class LampChanger:
         except DriveError as exc:
             raise LampChangeError(f"lamp {lamp} not lit: {hid} could not be made safe for it ({exc})") \
                 from exc
+
+
+def _default(where: Standby) -> bool:
+    """Whether ``where`` is the default standby (beside the calibration target's centre, only
+    when unsafe): the one :func:`certainly_safe` evaluates for the whole field."""
+    return not where.required and where.target is None and where.aim_enu is None
 
 
 def _safe_standby(p: GeometryPointing, model: ModelRecord | None) -> tuple[int, int] | None:
