@@ -51,7 +51,8 @@ def flagged_lines(flags: list[dict]) -> list[str]:
     if not flags:
         return []
     cols = ["heliostat", "lamp", "target", "aim cell", "failed on", "last cause"]
-    rows = [[g["heliostat"], g["lamp"], g["target"], f"{g['cell'][0]},{g['cell'][1]}", ", ".join(g["nights"]),
+    rows = [[g["heliostat"], g["lamp"], g["target"] or "every target",
+             "every cell" if g["cell"] is None else f"{g['cell'][0]},{g['cell'][1]}", ", ".join(g["nights"]),
              (g["cause"] or "").replace("|", "/")] for g in flags]
     return ["", "## Flagged geometries", "",
             f"{len(flags)} geometr{'y' if len(flags) == 1 else 'ies'} failed on two nights: not planned "

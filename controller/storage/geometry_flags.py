@@ -7,6 +7,12 @@ spot clipped at the view's edge). A geometry that failed on :data:`FLAG_NIGHTS` 
 *flagged*: the planner does not plan it again, the report and the console show it, until it is
 cleared (:func:`clear_flags`, ``heliocal campaign flags --clear``), which keeps the rows (with
 the time they were cleared) as the history.
+
+A heliostat whose looks under one lamp failed on :data:`FLAG_NIGHTS` nights at geometries not
+flagged each on their own (a different target or aim point each night) has that whole lamp
+flagged (``target`` and ``cell`` None: every geometry under it): a spot clipped at the view's
+edge under a lamp at one aim point is, the next night, as clipped at the next one the planner
+picks (the demo's H01 under the west lamp).
 """
 
 from __future__ import annotations
@@ -32,8 +38,8 @@ def record_failures(store: CampaignStore, night: str, failures: list[dict]) -> N
 
 def flagged(store: CampaignStore, ids: list[str] | None = None) -> list[dict]:
     """The flagged geometries (of heliostats ``ids``, or all), by heliostat: ``heliostat``,
-    ``lamp``, ``target``, ``cell`` [row, col], the ``nights`` it failed on since it was last
-    cleared and the last ``cause``."""
+    ``lamp``, ``target``, ``cell`` [row, col] (both None: the whole lamp, module docstring), the
+    ``nights`` it failed on since it was last cleared and the last ``cause``."""
     if not has_table(store, "geometry_failures"):
         return []
     groups: dict[tuple, dict] = {}
@@ -43,10 +49,23 @@ def flagged(store: CampaignStore, ids: list[str] | None = None) -> list[dict]:
                                     "cell": [key[3], key[4]], "nights": [], "cause": None})
         g["nights"].append(r["night"])
         g["cause"] = r["cause"]
+    single = [g for g in groups.values() if len(set(g["nights"])) >= FLAG_NIGHTS]
+    # The whole lamp when its failures at geometries not flagged each on its own (a different
+    # target or aim point each night) span FLAG_NIGHTS nights; one geometry failing again is that
+    # geometry's flag, its neighbours may still work.
+    lamps: dict[tuple, dict] = {}
+    for g in groups.values():
+        if len(set(g["nights"])) >= FLAG_NIGHTS:
+            continue
+        whole = lamps.setdefault((g["heliostat"], g["lamp"]), {"heliostat": g["heliostat"], "lamp": g["lamp"],
+                                                               "target": None, "cell": None, "nights": [],
+                                                               "cause": None})
+        whole["nights"] = list(dict.fromkeys([*whole["nights"], *g["nights"]]))
+        whole["cause"] = g["cause"]
+    flags = [g for g in lamps.values() if len(g["nights"]) >= FLAG_NIGHTS] + single
     wanted = None if ids is None else set(ids)
-    return sorted((g for g in groups.values() if len(set(g["nights"])) >= FLAG_NIGHTS
-                   and (wanted is None or g["heliostat"] in wanted)),
-                  key=lambda g: (g["heliostat"], g["lamp"], g["target"], g["cell"]))
+    return sorted((g for g in flags if wanted is None or g["heliostat"] in wanted),
+                  key=lambda g: (g["heliostat"], g["lamp"], g["target"] or "", g["cell"] or []))
 
 
 def clear_flags(store: CampaignStore, heliostats: list[str] | None, lamp: str | None = None) -> list[dict]:
@@ -63,5 +82,9 @@ def clear_flags(store: CampaignStore, heliostats: list[str] | None, lamp: str | 
     with store.tx() as db:
         db.executemany("UPDATE geometry_failures SET cleared_utc=? WHERE cleared_utc IS NULL "
                        "AND heliostat_id=? AND lamp=? AND target=? AND cell_row=? AND cell_col=?",
-                       [(now, g["heliostat"], g["lamp"], g["target"], *g["cell"]) for g in hit])
+                       [(now, g["heliostat"], g["lamp"], g["target"], *g["cell"]) for g in hit
+                        if g["target"] is not None])
+        db.executemany("UPDATE geometry_failures SET cleared_utc=? WHERE cleared_utc IS NULL "
+                       "AND heliostat_id=? AND lamp=?",
+                       [(now, g["heliostat"], g["lamp"]) for g in hit if g["target"] is None])
     return hit

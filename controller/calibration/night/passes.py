@@ -137,8 +137,10 @@ def failed_geometries(plan: list[PlanItem], p: Pass, r: CampaignResult,
 
 def flagged_keys(flags: list[dict]) -> dict[str, frozenset]:
     """The flagged geometries (``geometry_failures``' flags) per heliostat, as the planner skips
-    them (:func:`controller.calibration.night.planner.geometry_key`)."""
+    them (:func:`controller.calibration.night.planner.geometry_key`); a lamp flagged as a whole
+    as ``(lamp, None, None)``."""
     out: dict[str, set] = {}
     for g in flags:
-        out.setdefault(g["heliostat"], set()).add((g["lamp"], g["target"], tuple(g["cell"])))
+        cell = None if g["cell"] is None else tuple(g["cell"])
+        out.setdefault(g["heliostat"], set()).add((g["lamp"], g["target"], cell))
     return {hid: frozenset(keys) for hid, keys in out.items()}

@@ -215,7 +215,8 @@ def _decide(geo: FieldGeometry, heliostat_id: str, cov: np.ndarray, found: list[
     predicted = 1e3 * math.sqrt(v) if math.isfinite(v) else float("inf")
     n = cal.planner.check_geometries if predicted <= cal.tolerance_mrad else cal.planner.geometries_per_night
     geos = [g for tid, c in found for g in _geometries(c, tid)]
-    keep = [i for i, g in enumerate(geos) if geometry_key(g, cal.target) not in flagged]
+    keep = [i for i, g in enumerate(geos) if geometry_key(g, cal.target) not in flagged
+            and (g.lamp, None, None) not in flagged]  # the whole lamp flagged
     if n == 0:
         return [], None
     if not keep:

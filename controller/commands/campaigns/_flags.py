@@ -51,6 +51,7 @@ def flags_command(args: argparse.Namespace) -> int:
 
 
 def _line(g: dict) -> str:
-    row, col = g["cell"]
-    return (f"{g['heliostat']} under {g['lamp']} on {g['target']} (aim cell {row},{col}): failed on "
+    where = ("on every target and aim cell" if g["target"] is None
+             else f"on {g['target']} (aim cell {g['cell'][0]},{g['cell'][1]})")
+    return (f"{g['heliostat']} under {g['lamp']} {where}: failed on "
             f"{', '.join(g['nights'])}" + (f"; last: {g['cause']}" if g["cause"] else ""))
