@@ -11,10 +11,19 @@ from __future__ import annotations
 import contextlib
 import io
 import os
+import signal
 
 import pytest
 
 TIME_FACTOR = float(os.environ.get("HELIOCAL_TEST_TIME_FACTOR", "1") or "1")
+
+# The Ctrl-C tests interrupt this process and send SIGINT to the commands they start. A suite
+# started in the background by a shell without job control (`make test &` in a script) inherits
+# SIGINT ignored, and so would those commands (an ignored signal stays ignored across exec):
+# the tests would then test the shell's choice, not heliocal. Python's own handler here makes
+# every child start with the default disposition, as from a terminal.
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 def scaled_s(seconds: float) -> float:
