@@ -32,8 +32,6 @@ import tempfile
 import time
 from pathlib import Path
 
-import yaml
-
 from controller.calibration.reprocess.plan import (
     MAX_TASK_PAIRS,
     in_scope,
@@ -44,7 +42,7 @@ from controller.calibration.reprocess.plan import (
 )
 from controller.calibration.reprocess.run import open_cluster, reprocess
 from controller.calibration.reprocess.tasks import analyse_chunk, refit_heliostat
-from controller.commands.common import PACKAGED_CONFIG
+from controller.commands.simulated import plant_crf_config
 from controller.storage.db import open_existing
 from controller.storage.reprocess.archive import fingerprint, read_archive
 from controller.storage.reprocess.db import open_output
@@ -77,23 +75,7 @@ def tasks(planned) -> list:
 
 def demo(work: Path, small: bool) -> Path:
     """Record a demo run whose configuration holds the plant's camera responses."""
-    from simplant.plant import SimulatedPlant
-    from simplant.settings import SimulationSettings
-
-    data = yaml.safe_load(Path(PACKAGED_CONFIG).read_text())
-    if small:
-        for cam in [data["camera"]] + [t["camera"] for t in data["targets"] if t.get("camera")]:
-            cam["width_px"], cam["height_px"] = 256, 192
-            if cam.get("registration"):
-                cam["registration"]["focal_px"] *= 256 / 1024
-    with SimulatedPlant(data, work / "plant0", settings=SimulationSettings(seed=0)) as plant:
-        plant.start()
-    data["camera"]["crf_file"] = str(work / "plant0" / "crf.yaml")
-    for t in data["targets"]:
-        if t.get("camera"):
-            t["camera"]["crf_file"] = str(work / "plant0" / f"crf-{t['id']}.yaml")
-    config = work / "plant.yaml"
-    config.write_text(yaml.safe_dump(data, sort_keys=False))
+    config = plant_crf_config(work, small=small)
     r = subprocess.run([sys.executable, "-m", "controller.cli", "demo", "--config", str(config),
                         "--heliostats", "3", "--nights", "1", "--out", str(work / "demo"), "--json"],
                        capture_output=True, text=True)

@@ -304,3 +304,31 @@ def simulated_campaign(cfg, config_path: str, out: Path, db: Path, ids: list[str
     summary["db"] = str(db)
     summary["report"] = str(report)
     return summary, sim
+
+
+def plant_crf_config(work: Path, *, small: bool = True) -> Path:
+    """The packaged demo plant as ``work/plant.yaml``, its cameras 256×192 when ``small``, and
+    the simulated sensors' responses (the plant writes them into ``work/plant0``) named as the
+    controller's CRF files, as a sphere calibration would hand them over: the configuration a
+    recorded archive is reprocessed with (``tests/calibration/reprocess``, ``bench_reprocess``)."""
+    import yaml
+
+    from controller.commands.common import PACKAGED_CONFIG
+    from simplant.plant import SimulatedPlant
+    from simplant.settings import SimulationSettings
+
+    data = yaml.safe_load(Path(PACKAGED_CONFIG).read_text())
+    if small:
+        for cam in [data["camera"]] + [t["camera"] for t in data["targets"] if t.get("camera")]:
+            cam["width_px"], cam["height_px"] = 256, 192
+            if cam.get("registration"):
+                cam["registration"]["focal_px"] *= 256 / 1024
+    with SimulatedPlant(data, work / "plant0", settings=SimulationSettings(seed=0)) as plant:
+        plant.start()
+    data["camera"]["crf_file"] = str(work / "plant0" / "crf.yaml")
+    for t in data["targets"]:
+        if t.get("camera"):
+            t["camera"]["crf_file"] = str(work / "plant0" / f"crf-{t['id']}.yaml")
+    config = work / "plant.yaml"
+    config.write_text(yaml.safe_dump(data, sort_keys=False))
+    return config

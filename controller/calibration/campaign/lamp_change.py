@@ -125,10 +125,10 @@ class LampChanger:
             for hid, where in standby.items():
                 if hid in clear:
                     continue
-                drive, st, model = drives[hid], _Pose(*poses[hid]), models[hid]
+                drive, model = drives[hid], models[hid]
                 p = self.pointing(hid, lamp, where, poses[hid], model)
                 stay_margin = max(2.0, p.standby_offset_m - half)
-                if not where.required and _safe(p, st.az_steps, st.el_steps, stay_margin):
+                if not where.required and _safe(p, *poses[hid], stay_margin):
                     continue
                 pose = _safe_standby(p, model)
                 try:

@@ -25,13 +25,8 @@ def flags_command(args: argparse.Namespace) -> int:
     if args.clear is None:
         with open_existing(args.db) as store:
             rows = flagged(store)
-        if args.json:
-            print_json({"flagged": rows})
-        else:
-            print(f"{args.db}: {len(rows)} flagged geometr{'y' if len(rows) == 1 else 'ies'}")
-            for g in rows:
-                print(f"  {_line(g)}")
-        return 0
+        return _show(args, "flagged", rows, f"{args.db}: {len(rows)} flagged geometr"
+                     f"{'y' if len(rows) == 1 else 'ies'}")
     ids = None if args.clear.strip() == "all" else [i.strip() for i in args.clear.split(",") if i.strip()]
     if ids == []:
         raise InputError(f"--clear: no heliostat id in {args.clear!r} (ids separated by commas, or all)")
@@ -41,11 +36,17 @@ def flags_command(args: argparse.Namespace) -> int:
         cleared = clear_flags(store, ids, args.lamp)
     finally:
         store.close()
+    return _show(args, "cleared", cleared,
+                 f"cleared {len(cleared)} flag(s); the planner may plan these geometries again:")
+
+
+def _show(args, key: str, rows: list[dict], heading: str) -> int:
+    """``{key: rows}`` with --json, else ``heading`` and a line per flag; exit 0."""
     if args.json:
-        print_json({"cleared": cleared})
+        print_json({key: rows})
     else:
-        print(f"cleared {len(cleared)} flag(s); the planner may plan these geometries again:")
-        for g in cleared:
+        print(heading)
+        for g in rows:
             print(f"  {_line(g)}")
     return 0
 

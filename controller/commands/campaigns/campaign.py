@@ -39,6 +39,16 @@ from controller.commands.common import (
 SPEEDUP = Number(0, 1000, lo_open=True)  # the simulated plant clock's speedup (SimulationSettings)
 
 
+def _add_simulation_options(parser) -> None:
+    """--simulate and what it takes (seed, clock speedup, hidden errors): ``campaign run`` and
+    ``campaign night`` alike."""
+    parser.add_argument("--simulate", action="store_true", help="run against the embedded simulated plant")
+    parser.add_argument("--seed", type=SEED, default=0, help="simulation seed (with --simulate; default 0)")
+    parser.add_argument("--clock-speedup", type=SPEEDUP, default=20.0, metavar="X",
+                        help="simulated plant seconds per wall second (with --simulate; default 20)")
+    add_hidden_errors_option(parser)
+
+
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "campaign", help="nightly calibration campaigns (run / resume)", description=__doc__.splitlines()[0]
@@ -50,11 +60,7 @@ def register(subparsers) -> None:
     r.add_argument("--name", default=None, help="campaign name (default: <config stem>-<night>)")
     r.add_argument("--heliostats", default=None, metavar="IDS", help="comma-separated ids (default: all)")
     r.add_argument("--camera-manifest", default=None, metavar="FILE", help="replay frame pairs (FileCamera)")
-    r.add_argument("--simulate", action="store_true", help="run against the embedded simulated plant")
-    r.add_argument("--seed", type=SEED, default=0, help="simulation seed (with --simulate; default 0)")
-    r.add_argument("--clock-speedup", type=SPEEDUP, default=20.0, metavar="X",
-                   help="simulated plant seconds per wall second (with --simulate; default 20)")
-    add_hidden_errors_option(r)
+    _add_simulation_options(r)
     r.add_argument("--report", default=None, metavar="DIR", help="also write the morning report into DIR")
     r.add_argument("--notify", default=None, metavar="CMD",
                    help="run CMD (a shell command) at the end with the summary JSON on its standard input")
@@ -71,11 +77,7 @@ def register(subparsers) -> None:
     n.add_argument("--heliostats", default=None, metavar="IDS", help="comma-separated ids (default: all)")
     n.add_argument("--camera-manifest", default=None, metavar="FILE",
                    help="replay frame pairs for the calibration target (FileCamera)")
-    n.add_argument("--simulate", action="store_true", help="run against the embedded simulated plant")
-    n.add_argument("--seed", type=SEED, default=0, help="simulation seed (with --simulate; default 0)")
-    n.add_argument("--clock-speedup", type=SPEEDUP, default=20.0, metavar="X",
-                   help="simulated plant seconds per wall second (with --simulate; default 20)")
-    add_hidden_errors_option(n)
+    _add_simulation_options(n)
     n.add_argument("--strategy", default="design", choices=("design", "round-robin"),
                    help="planner strategy (default design: the daytime variance reduction)")
     add_field_change_option(n)

@@ -23,7 +23,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from controller.commands.common import PACKAGED_CONFIG
+from controller.commands.simulated import plant_crf_config
 from controller.storage.reprocess.archive import fingerprint
 from simplant.archive import replicate
 from tests.conftest import scaled_s
@@ -55,24 +55,8 @@ def _found(f: dict) -> dict:
 @pytest.fixture(scope="module")
 def field(tmp_path_factory) -> dict[str, Path]:
     """A demo database recorded with the configuration it names (module docstring)."""
-    from simplant.plant import SimulatedPlant
-    from simplant.settings import SimulationSettings
-
     d = tmp_path_factory.mktemp("reprocess")
-    data = yaml.safe_load(Path(PACKAGED_CONFIG).read_text())
-    for cam in [data["camera"]] + [t["camera"] for t in data["targets"] if t.get("camera")]:
-        cam["width_px"], cam["height_px"] = 256, 192
-        if cam.get("registration"):
-            cam["registration"]["focal_px"] *= 256 / 1024
-    # The simulated sensors' responses, handed to the controller as a sphere calibration would.
-    with SimulatedPlant(data, d / "plant0", settings=SimulationSettings(seed=0)) as plant:
-        plant.start()
-    data["camera"]["crf_file"] = str(d / "plant0" / "crf.yaml")
-    for t in data["targets"]:
-        if t.get("camera"):
-            t["camera"]["crf_file"] = str(d / "plant0" / f"crf-{t['id']}.yaml")
-    config = d / "plant.yaml"
-    config.write_text(yaml.safe_dump(data, sort_keys=False))
+    config = plant_crf_config(d)
     r = _heliocal("demo", "--config", str(config), "--heliostats", "3", "--nights", "1", "--out",
                   str(d / "demo"), "--json", check=False)
     # The demo exits with its worst night: 3 when a night left planned geometries unmeasured.
