@@ -12,7 +12,8 @@ grew to 22 GB).
 Categories: ``config_numbers`` (every numeric key of the schema × NaN, ±inf, ±1e308 and one
 step past each bound), ``duplicate_keys`` (YAML and JSON), ``special_files`` (every bounded
 reader × FIFO, folder, /dev/zero, oversized), ``cli_numbers`` (every numeric option × the same
-values), ``console_bodies`` (oversized, nested, duplicate keys, not UTF-8, not JSON).
+values), ``console_bodies`` (oversized, nested, duplicate keys, not UTF-8, not JSON); then the
+categories of each module of ``benchmarks/adversarial/`` (``tally.py`` says how they are written).
 """
 
 from __future__ import annotations
@@ -20,16 +21,16 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
-import copy
+import importlib
 import io
 import json
 import os
+import pkgutil
 import resource
 import subprocess
 import sys
 import tempfile
 import time
-import tracemalloc
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
@@ -37,54 +38,23 @@ sys.path.insert(0, str(REPO / "tests"))
 sys.path.insert(0, str(REPO))
 
 from test_cli_numbers import OPTIONS, _bad_values  # noqa: E402
-from test_config_ranges import KEYS, MAXIMAL, SOURCE, bad_values, locate  # noqa: E402
+from test_config_ranges import KEYS, SOURCE, bad_values, holding, locate  # noqa: E402
 
 from controller.config import load_config, parse_config  # noqa: E402
-from controller.errors import InputError  # noqa: E402
 from controller.io.files import read_bytes  # noqa: E402
 from controller.io.images import read_image  # noqa: E402
 from controller.io.json_files import load_json, parse_json  # noqa: E402
 from controller.io.yaml_files import load_yaml, parse_yaml  # noqa: E402
 
-
-class Tally:
-    def __init__(self) -> None:
-        self.tried = self.refused = 0
-        self.worst_ms = self.worst_mb = 0.0
-        self.failures: list[str] = []
-
-    def case(self, name: str, fn, refused) -> None:
-        """Run ``fn``; ``refused(exc_or_result)`` says whether it ended as it must."""
-        self.tried += 1
-        tracemalloc.start()
-        t0 = time.perf_counter()
-        try:
-            outcome = fn()
-        except BaseException as exc:  # noqa: BLE001 - judged below
-            outcome = exc
-        ms = (time.perf_counter() - t0) * 1e3
-        peak = tracemalloc.get_traced_memory()[1] / 1e6
-        tracemalloc.stop()
-        self.worst_ms, self.worst_mb = max(self.worst_ms, ms), max(self.worst_mb, peak)
-        if refused(outcome):
-            self.refused += 1
-        else:
-            self.failures.append(f"{name}: {outcome!r}"[:200])
-
-    def report(self) -> dict:
-        return {"tried": self.tried, "refused_cleanly": self.refused, "worst_ms": round(self.worst_ms, 2),
-                "worst_peak_mb": round(self.worst_mb, 3), "failures": self.failures[:5]}
-
-
-def _input_error(outcome) -> bool:
-    return isinstance(outcome, InputError) and "\n" not in str(outcome)
+sys.path.insert(0, str(REPO / "benchmarks"))
+from adversarial.tally import Tally, _input_error  # noqa: E402
 
 
 def config_numbers() -> dict:
     t = Tally()
     for key in KEYS:
         for value in bad_values(key):
-            doc = copy.deepcopy(MAXIMAL)
+            doc = holding(key)
             container, index, path = locate(doc, key)
             container[index] = value
             t.case(f"{path}={value}", lambda d=doc: parse_config(d, SOURCE),
@@ -194,9 +164,12 @@ def main() -> None:
     ap.parse_args()
     with tempfile.TemporaryDirectory() as d:
         special, processes = special_files(Path(d))
-    out = {"config_numbers": config_numbers(), "duplicate_keys": duplicate_keys(), "special_files": special,
-           "special_files_as_processes_1GiB_limit": processes, "cli_numbers": cli_numbers(),
-           "console_bodies": console_bodies()}
+        out = {"config_numbers": config_numbers(), "duplicate_keys": duplicate_keys(),
+               "special_files": special, "special_files_as_processes_1GiB_limit": processes,
+               "cli_numbers": cli_numbers(), "console_bodies": console_bodies()}
+        for name in sorted(m.name for m in pkgutil.iter_modules([str(REPO / "benchmarks" / "adversarial")])):
+            if name != "tally":
+                out.update(importlib.import_module(f"adversarial.{name}").categories(Path(d)))
     cats = [v for v in out.values() if "tried" in v]
     out["total"] = {"tried": sum(c["tried"] for c in cats),
                     "refused_cleanly": sum(c["refused_cleanly"] for c in cats),
