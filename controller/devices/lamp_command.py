@@ -13,12 +13,19 @@ one channel, the target's fiducial lamps, and no channel argument: ``argv + [on|
 
 from __future__ import annotations
 
+import errno
+import os
+import selectors
+import signal
 import subprocess
+import time
 
 from controller.devices.lamp_panel import LampError, LampPanel, LampState
 
 LAMP_COMMAND_TIMEOUT_S = 30.0  # camera.registration.lamp_command
+OUTPUT_LIMIT_BYTES = 64 * 1024  # stdout and stderr each: a switch program says a line or two
 _FIDUCIALS = "fiducials"
+_QUOTED_CHARS = 200  # of the program's last line, in an error
 
 
 class LampCommandError(LampError):
@@ -43,21 +50,14 @@ class CommandLampPanel(LampPanel):
         return f"lamp {channel}" if self.with_status else "the fiducial lamps"
 
     def _run(self, verb: str, channel: str, doing: str) -> tuple[int, list[str]]:
-        """(exit status, the lines it printed on stderr, else stdout)."""
+        """(exit status, the lines it printed on stderr, else stdout): :func:`run_bounded`."""
         cmd = [*self.argv, verb, channel] if self.with_status else [*self.argv, verb]
-        try:
-            r = subprocess.run(cmd, capture_output=True, text=True, timeout=self.timeout_s, check=False)
-        except FileNotFoundError:
-            raise LampCommandError(f"{self.name}: {self.argv[0]!r} not found") from None
-        except PermissionError:
-            raise LampCommandError(f"{self.name}: {self.argv[0]!r} is not executable") from None
-        except subprocess.TimeoutExpired:
-            raise LampCommandError(f"{self.name}: {doing} did not finish within "
-                                   f"{self.timeout_s:g} s") from None
-        return r.returncode, (r.stderr or r.stdout).strip().splitlines()
+        code, out, err = run_bounded(cmd, self.timeout_s, key=self.name, doing=doing)
+        return code, (err or out).strip().splitlines()
 
     def _failed(self, doing: str, code: int, said: list[str]) -> LampCommandError:
-        return LampCommandError(f"{self.name}: {doing} exited {code}" + (f": {said[-1]}" if said else ""))
+        how = f"exited {code}" if code >= 0 else f"was killed by signal {-code}"
+        return LampCommandError(f"{self.name}: {doing} {how}" + (f": {_quoted(said[-1])}" if said else ""))
 
     def switch(self, channel: str, on: bool) -> None:
         state = "on" if on else "off"
@@ -89,3 +89,88 @@ def fiducial_command_panel(argv: tuple[str, ...]) -> tuple[CommandLampPanel, str
     """``camera.registration.lamp_command`` as a panel, and its one channel's name."""
     return (CommandLampPanel(argv, (_FIDUCIALS,), LAMP_COMMAND_TIMEOUT_S,
                              key="camera.registration.lamp_command", with_status=False), _FIDUCIALS)
+
+
+def run_bounded(cmd: list[str], timeout_s: float, *, key: str, doing: str,
+                limit: int = OUTPUT_LIMIT_BYTES) -> tuple[int, str, str]:
+    """Run ``cmd`` (no shell, stdin empty) in a process group of its own; (exit status,
+    stdout, stderr), decoded as UTF-8 with undecodable bytes replaced.
+
+    Bounded on every path (docs/lamps.md, "The command driver"): more than ``limit`` bytes on
+    stdout or stderr, or no exit within ``timeout_s``, is a :class:`LampCommandError` naming
+    the configuration ``key`` and what it was ``doing``. When the program exits, or fails, or
+    the caller is interrupted, its whole process group is killed: a child it left behind
+    holding its output does not keep us waiting, nor does it stay running. A program the
+    system cannot start (missing, not executable, no ``#!`` line, another machine's binary)
+    is named in one line."""
+    try:
+        proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, start_new_session=True)
+    except OSError as exc:
+        raise LampCommandError(f"{key}: {_cannot_start(cmd[0], exc)}") from None
+    deadline = time.monotonic() + timeout_s
+    out = {proc.stdout: bytearray(), proc.stderr: bytearray()}
+    pidfd = os.pidfd_open(proc.pid)
+    try:
+        with selectors.DefaultSelector() as sel:
+            for pipe in out:
+                sel.register(pipe, selectors.EVENT_READ)
+            sel.register(pidfd, selectors.EVENT_READ)
+            exited = False
+            while True:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise LampCommandError(f"{key}: {doing} did not finish within {timeout_s:g} s")
+                # Once it exited, only what is already in the pipes is read: a child holding
+                # them open is killed with the group below.
+                ready = sel.select(0 if exited else left)
+                if exited and not ready:
+                    break
+                for ready_key, _ in ready:
+                    if ready_key.fileobj == pidfd:
+                        exited = True
+                        sel.unregister(pidfd)
+                        continue
+                    chunk = os.read(ready_key.fd, 65536)
+                    if not chunk:
+                        sel.unregister(ready_key.fileobj)
+                        continue
+                    buf = out[ready_key.fileobj]
+                    buf += chunk
+                    if len(buf) > limit:
+                        stream = "stdout" if ready_key.fileobj is proc.stdout else "stderr"
+                        raise LampCommandError(f"{key}: {doing}: the program printed more than {limit} bytes "
+                                               f"on {stream}")
+                if exited and not sel.get_map():
+                    break
+    finally:
+        # The leader is not reaped yet (a zombie keeps the group's id ours): the whole group
+        # goes, whatever ended the loop.
+        try:
+            os.killpg(proc.pid, signal.SIGKILL)
+        except (ProcessLookupError, PermissionError):
+            pass
+        os.close(pidfd)
+        proc.stdout.close()
+        proc.stderr.close()
+        proc.wait()
+    return (proc.returncode, out[proc.stdout].decode("utf-8", "replace"),
+            out[proc.stderr].decode("utf-8", "replace"))
+
+
+def _cannot_start(program: str, exc: OSError) -> str:
+    """Why the system cannot run ``program`` (``exc`` from starting it), in words."""
+    if isinstance(exc, FileNotFoundError):
+        return f"{program!r} not found (or the interpreter its #! line names)"
+    if exc.errno == errno.ENOEXEC:
+        return (f"{program!r} cannot be executed: not a program for this system "
+                "(a script without a #! line, a binary of another format)")
+    if isinstance(exc, PermissionError):
+        return f"{program!r} is not executable"
+    return f"{program!r} cannot be started: {exc.strerror or exc}"
+
+
+def _quoted(line: str) -> str:
+    """The program's ``line`` as an error quotes it: printable, at most :data:`_QUOTED_CHARS`."""
+    line = "".join(c if c.isprintable() else "?" for c in line)
+    return line if len(line) <= _QUOTED_CHARS else line[:_QUOTED_CHARS - 1] + "…"

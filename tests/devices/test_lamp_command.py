@@ -5,11 +5,12 @@ from __future__ import annotations
 
 import json
 import sys
+import time
 
 import pytest
 
 from controller.config import CommandLamps
-from controller.devices.lamp_command import LampCommandError
+from controller.devices.lamp_command import OUTPUT_LIMIT_BYTES, LampCommandError
 from controller.devices.lamp_drivers import open_lamp_panel
 from controller.devices.lamp_panel import (
     LampNotConfirmed,
@@ -86,3 +87,92 @@ def test_a_failing_program_is_one_line_with_its_reason(lamps):
     with open_lamp_panel(missing) as panel, pytest.raises(
             LampCommandError, match="lamps.command: '/nonexistent/lamp-switch' not found"):
         panel.switch("lamp-west", True)
+
+
+def _panel(tmp_path, program: str | list[str], *, timeout_s: float = 5.0, mode: int = 0o755):
+    """A command panel running ``program`` (a shell script's text, or an argv as is)."""
+    if isinstance(program, str):
+        script = tmp_path / "switch"
+        script.write_text(program)
+        script.chmod(mode)
+        program = [str(script)]
+    cfg = CommandLamps(driver="command", command=tuple(program), channels={"lamp-west": 0},
+                       timeout_s=scaled_s(timeout_s))
+    return open_lamp_panel(cfg)
+
+
+def _gone(pid: int) -> bool:
+    """Whether process ``pid`` is gone (or a zombie waiting for its reaper), within a bound."""
+    deadline = time.monotonic() + scaled_s(5)
+    while time.monotonic() < deadline:
+        try:
+            with open(f"/proc/{pid}/stat") as f:
+                if f.read().rsplit(")", 1)[1].split()[0] == "Z":
+                    return True
+        except FileNotFoundError:
+            return True
+        time.sleep(0.01)
+    return False
+
+
+@pytest.mark.parametrize("content, mode, said", [
+    (b"echo no shebang line\n", 0o755, "cannot be executed: not a program for this system"),
+    (b"MZ\x90\x00" + bytes(60), 0o755, "cannot be executed: not a program for this system"),
+    (b"\x7fELF\x02\x01\x01" + bytes(57), 0o755, "cannot be executed: not a program for this system"),
+    (b"#!/bin/sh\nexit 0\n", 0o644, "is not executable"),
+    (b"#!/nonexistent/interpreter\n", 0o755, "not found (or the interpreter its #! line names)"),
+])
+def test_a_program_the_system_cannot_run_is_named_in_one_line(tmp_path, content, mode, said):
+    program = tmp_path / "lamp-switch"
+    program.write_bytes(content)
+    program.chmod(mode)
+    with _panel(tmp_path, [str(program)]) as panel, pytest.raises(LampCommandError) as e:
+        panel.switch("lamp-west", True)
+    assert str(e.value).startswith(f"lamps.command: {str(program)!r} {said}")
+    assert "\n" not in str(e.value)
+    folder = _panel(tmp_path, [str(tmp_path)])
+    with folder as panel, pytest.raises(LampCommandError, match="is not executable"):
+        panel.confirmed("lamp-west")
+
+
+def test_output_that_is_not_utf8_is_decoded_leniently(tmp_path):
+    failing = "#!/bin/sh\nprintf 'relay \\377\\376 4 offline\\n' >&2\nexit 3\n"
+    with _panel(tmp_path, failing) as panel, pytest.raises(LampCommandError) as e:
+        panel.switch("lamp-west", True)
+    assert str(e.value) == "lamps.command: switching lamp lamp-west on exited 3: relay \ufffd\ufffd 4 offline"
+    lit = "#!/bin/sh\nprintf '\\377\\000\\033[31m lit\\n'\nexit 0\n"
+    with _panel(tmp_path, lit) as panel:
+        assert panel.confirmed("lamp-west") is True
+
+
+def test_a_program_that_floods_its_output_is_stopped_at_the_limit(tmp_path):
+    flood = [sys.executable, "-c", "import sys\nwhile True: sys.stdout.write('x' * 65536)"]
+    t0 = time.monotonic()
+    with _panel(tmp_path, flood, timeout_s=60) as panel, pytest.raises(LampCommandError) as e:
+        panel.switch("lamp-west", True)
+    assert str(e.value) == (f"lamps.command: switching lamp lamp-west on: the program printed more than "
+                            f"{OUTPUT_LIMIT_BYTES} bytes on stdout")
+    assert time.monotonic() - t0 < scaled_s(10)  # stopped at the limit, not at the 60 s timeout
+
+
+def test_a_child_left_holding_the_output_neither_delays_nor_survives(tmp_path):
+    pid_file = tmp_path / "child.pid"
+    leaves_child = f"#!/bin/sh\nsleep 300 &\necho $! > {pid_file}\nexit 0\n"
+    t0 = time.monotonic()
+    with _panel(tmp_path, leaves_child, timeout_s=60) as panel:
+        panel.switch("lamp-west", True)
+    assert time.monotonic() - t0 < scaled_s(10)  # not the child's 300 s, nor the 60 s timeout
+    assert _gone(int(pid_file.read_text()))
+
+
+def test_on_timeout_the_whole_group_is_killed(tmp_path):
+    pid_file = tmp_path / "child.pid"
+    # The child ignores SIGTERM and SIGINT; the program itself never ends.
+    hangs = f"#!/bin/sh\n(trap '' TERM INT; sleep 300) &\necho $! > {pid_file}\nsleep 300\n"
+    t0 = time.monotonic()
+    with _panel(tmp_path, hangs, timeout_s=0.5) as panel, pytest.raises(LampCommandError) as e:
+        panel.switch("lamp-west", False)
+    assert str(e.value) == ("lamps.command: switching lamp lamp-west off did not finish within "
+                            f"{scaled_s(0.5):g} s")
+    assert time.monotonic() - t0 < scaled_s(5)
+    assert _gone(int(pid_file.read_text()))
