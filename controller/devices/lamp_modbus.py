@@ -6,16 +6,24 @@ confirmation that it is lit). One pymodbus client per panel; every request holds
 the panel may be used from several threads. A request without an answer is sent once more
 after reconnecting; then :class:`LampError` names the panel, the channel and the register.
 Modbus exception responses (pymodbus returns them) are :class:`LampError` too, with their code.
+
+A panel is recognised before it is trusted: every answer must be the Modbus response due to
+the request (its function code; one data byte, padded with zeros, for the one bit read; the
+coil and the value written), and before the first write on a connection the channel's coil
+is read and checked so. An echo server passes a write (a write's response echoes it) but not
+a read; a peer answering garbage or HTTP gives no valid frame. Either is refused in one line
+naming the panel's address (:class:`NotALampPanel`).
 """
 
 from __future__ import annotations
 
 import logging
+import struct
 import threading
 from collections.abc import Callable
 
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
-from pymodbus.exceptions import ConnectionException, ModbusIOException
+from pymodbus.exceptions import ModbusException
 
 from controller.devices.lamp_panel import LampError, LampPanel, LampState
 
@@ -29,6 +37,10 @@ _EXCEPTIONS = {1: "illegal function", 2: "illegal data address", 3: "illegal dat
 _ATTEMPTS = 2  # the first request and one re-send after reconnecting
 
 
+class NotALampPanel(LampError):
+    """The peer answered, but not as a Modbus lamp panel answers the request it was sent."""
+
+
 class ModbusLampPanel(LampPanel):
     """Use :meth:`from_config`; ``client`` is a pymodbus synchronous client."""
 
@@ -39,6 +51,7 @@ class ModbusLampPanel(LampPanel):
         self.index = dict(channels)
         self.channels = tuple(channels)
         self._lock = threading.Lock()
+        self._recognised = False  # this connection's peer answered a read as a panel does
 
     @classmethod
     def from_config(cls, cfg) -> ModbusLampPanel:
@@ -59,11 +72,18 @@ class ModbusLampPanel(LampPanel):
                     continue
                 try:
                     rr = call(self._client)
-                except (ConnectionException, ModbusIOException, OSError):
+                except (ModbusException, OSError):
                     # A late answer to this request must not be taken for the next one's.
-                    self._client.close()
+                    self._close()
                     failure = "no answer to"
                     continue
+                except NotALampPanel:
+                    self._close()
+                    raise
+                except (ValueError, IndexError, KeyError, struct.error) as exc:  # a frame not decodable
+                    self._close()
+                    raise NotALampPanel(f"{self.name}: not a Modbus lamp panel: its answer to {what} "
+                                        f"cannot be decoded ({type(exc).__name__})") from None
                 if rr.isError():
                     code = getattr(rr, "exception_code", None)
                     raise LampError(f"{self.name}: {what} of lamp {channel} refused with Modbus exception "
@@ -71,20 +91,50 @@ class ModbusLampPanel(LampPanel):
                 return rr
         raise LampError(f"{self.name}: {failure} {what} of lamp {channel}")
 
+    def _close(self) -> None:
+        self._client.close()
+        self._recognised = False
+
     def switch(self, channel: str, on: bool) -> None:
         i = self.index[self.check_channel(channel)]
-        self._request(f"writing coil {i}", channel,
-                      lambda c: c.write_coil(i, bool(on), device_id=self.unit))
+
+        def write(c):
+            if not self._recognised:  # an echo would pass the write itself: its read first
+                probe = self._read(c, 1, i)
+                if probe.isError():
+                    return probe
+            rr = c.write_coil(i, bool(on), device_id=self.unit)
+            if not rr.isError() and (rr.function_code != 5 or getattr(rr, "address", None) != i
+                                     or list(getattr(rr, "bits", None) or [])[:1] != [bool(on)]):
+                raise NotALampPanel(f"{self.name}: not a Modbus lamp panel: writing coil {i} "
+                                    f"(function 05) was answered with function {rr.function_code}, "
+                                    f"address {getattr(rr, 'address', None)}")
+            return rr
+
+        self._request(f"writing coil {i}", channel, write)
+
+    def _read(self, c, fc: int, i: int):
+        """Read bit ``i`` (function ``fc``: 1 coil, 2 discrete input) and check that the answer
+        is the response due; NotALampPanel naming what came otherwise."""
+        rr = c.read_coils(i, count=1, device_id=self.unit) if fc == 1 else \
+            c.read_discrete_inputs(i, count=1, device_id=self.unit)
+        if rr.isError():
+            return rr
+        bits = list(getattr(rr, "bits", None) or [])
+        if rr.function_code != fc or len(bits) != 8 or any(bits[1:]):
+            table = "coil" if fc == 1 else "discrete input"
+            got = f"function {rr.function_code}"
+            if rr.function_code == fc:
+                got += f" with {len(bits) // 8} data bytes" if len(bits) != 8 else " with its unused bits set"
+            raise NotALampPanel(f"{self.name}: not a Modbus lamp panel: reading {table} {i} (function "
+                                f"{fc:02d}, one bit: one data byte, zero padded) was answered with {got}")
+        self._recognised = True
+        return rr
 
     def _bit(self, fc: int, channel: str) -> bool:
         i = self.index[self.check_channel(channel)]
-        if fc == 1:
-            rr = self._request(f"reading coil {i}", channel,
-                               lambda c: c.read_coils(i, count=1, device_id=self.unit))
-        else:
-            rr = self._request(f"reading discrete input {i}", channel,
-                               lambda c: c.read_discrete_inputs(i, count=1, device_id=self.unit))
-        return bool(rr.bits[0])
+        what = f"reading coil {i}" if fc == 1 else f"reading discrete input {i}"
+        return bool(self._request(what, channel, lambda c: self._read(c, fc, i)).bits[0])
 
     def commanded(self, channel: str) -> bool:
         """The channel's coil: what the panel was last told."""
@@ -98,4 +148,4 @@ class ModbusLampPanel(LampPanel):
 
     def close(self) -> None:
         with self._lock:
-            self._client.close()
+            self._close()

@@ -9,6 +9,7 @@ import shutil
 import socket
 import subprocess
 import threading
+import time
 
 import pytest
 
@@ -29,6 +30,7 @@ from simplant.devices.lamp_panel import SimLampPanel
 from simplant.plant import SimulatedPlant, load_config_data
 from tests.calibration.conftest import REPO
 from tests.conftest import scaled_s
+from tests.devices.tcp_peers import KINDS, NotAPanel
 
 FIDUCIALS = "fiducials:tower-lower"
 
@@ -236,3 +238,22 @@ def test_the_panel_serves_several_clients_at_once(field):
     for t in threads:
         t.join()
     assert errors == []
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_a_peer_that_is_not_a_lamp_panel_is_refused_in_one_line(kind):
+    timeout = scaled_s(0.2)
+    with NotAPanel(kind) as peer:
+        cfg = ModbusTcpLamps(driver="modbus-tcp", host="127.0.0.1", port=peer.port, timeout_s=timeout,
+                             channels={"lamp": 0, "lamp-west": 1, "lamp-east": 2})
+        for call in (lambda p: p.states(), lambda p: p.switch("lamp-west", True),
+                     lambda p: p.confirmed("lamp-east")):
+            t0 = time.monotonic()
+            with open_lamp_panel(cfg) as p, pytest.raises(LampError) as e:
+                call(p)
+            line = str(e.value)
+            assert line.startswith(f"lamp panel modbus-tcp 127.0.0.1:{peer.port} unit 1: ")
+            assert "\n" not in line
+            if kind in ("echo", "fc05", "two-bytes", "padding"):  # it answered, not as a panel does
+                assert "not a Modbus lamp panel" in line
+            assert time.monotonic() - t0 < 4 * timeout + scaled_s(1)  # two attempts, each bounded

@@ -12,6 +12,7 @@ from controller.cli import main
 from simplant.plant import SimulatedPlant, load_config_data
 from tests.calibration.conftest import REPO
 from tests.conftest import scaled_s
+from tests.devices.tcp_peers import NotAPanel
 
 
 @pytest.fixture(scope="module")
@@ -98,3 +99,18 @@ def test_an_unknown_action_is_a_usage_error(field, capsys):
     err = capsys.readouterr().err.splitlines()
     assert err == ["heliocal lamps: error: argument action: invalid choice: 'blink' (choose from 'status', "
                    "'on', 'off', 'all-off') (see heliocal lamps --help)"]
+
+
+@pytest.mark.parametrize("kind", ["echo", "fc05", "garbage"])
+def test_lamps_against_a_peer_that_is_not_a_panel_exit_1_and_report_nothing_lit(field, capsys, kind):
+    _, path = field
+    data = yaml.safe_load(path.read_text())
+    with NotAPanel(kind) as peer:
+        data["lamps"].update(port=peer.port, timeout_s=scaled_s(0.2))
+        bad = path.with_name(f"not-a-panel-{kind}.yaml")
+        bad.write_text(yaml.safe_dump(data, sort_keys=False))
+        for args in (("status",), ("status", "--json"), ("on", "lamp-west")):
+            code, out, err = _lamps(capsys, bad, *args)
+            said = json.loads(out)["error"] if "--json" in args else err.strip()
+            assert code == 1 and said.count("\n") == 0 and f"127.0.0.1:{peer.port}" in said
+            assert "lit" not in out and "ok\": true" not in out
