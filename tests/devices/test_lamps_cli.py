@@ -3,7 +3,13 @@ cameras render with) are the truth the output is checked against."""
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
+import signal
+import subprocess
+import sys
+import time
 
 import pytest
 import yaml
@@ -114,3 +120,53 @@ def test_lamps_against_a_peer_that_is_not_a_panel_exit_1_and_report_nothing_lit(
             said = json.loads(out)["error"] if "--json" in args else err.strip()
             assert code == 1 and said.count("\n") == 0 and f"127.0.0.1:{peer.port}" in said
             assert "lit" not in out and "ok\": true" not in out
+
+
+@pytest.mark.parametrize("action, sig", [("on", signal.SIGINT), ("on", signal.SIGTERM),
+                                         ("all-off", signal.SIGINT)])
+def test_interrupted_while_waiting_for_the_confirmation_the_lamp_is_left_off(field, action, sig):
+    """A real ``heliocal lamps`` process, signalled once its coil is written (the lamp never
+    confirms lit, so it is still waiting): the coil goes off again, confirmed, exit 130."""
+    plant, path = field
+    data = yaml.safe_load(path.read_text())
+    data["lamps"]["confirm_timeout_s"] = scaled_s(60)
+    slow = path.with_name(f"slow-confirm-{action}-{sig.name}.yaml")
+    slow.write_text(yaml.safe_dump(data, sort_keys=False))
+    panel = plant.lamp_panel
+    lamp = "lamp-far-east"
+    try:
+        if action == "on":
+            panel.no_confirm.add(lamp)  # its coil is written, it stays dark: the command waits
+        else:  # all-off waits on a lamp that stays lit after its coil went off
+            assert _lamps_quiet(path, "on", lamp) == 0
+            panel.stuck_lit.add(lamp)
+        before = len(panel.writes)
+        argv = ["lamps", "--config", str(slow), action, *([lamp] if action == "on" else [])]
+        proc = subprocess.Popen([sys.executable, "-m", "controller.cli", *argv], cwd=REPO, text=True,
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+        awaited = (lamp, action == "on")
+        deadline = time.monotonic() + scaled_s(20)
+        while awaited not in panel.writes[before:] and time.monotonic() < deadline and proc.poll() is None:
+            time.sleep(0.01)
+        assert awaited in panel.writes[before:], proc.communicate(timeout=scaled_s(20))
+        if action == "all-off":
+            panel.stuck_lit.discard(lamp)  # it goes dark now; the command still waits for its next poll
+        proc.send_signal(sig)
+        out, err = proc.communicate(timeout=scaled_s(20))
+        what = f"lamp {lamp}" if action == "on" else "every lamp"
+        assert proc.returncode == 130 and err.strip().splitlines() == [
+            f"heliocal lamps: interrupted; {what} switched off and confirmed dark"]
+        assert [w for w in panel.writes if w[0] == lamp][-1] == (lamp, False)
+        assert not panel.coils[panel.channels[lamp]] and not plant.lamp_lit(lamp)
+        if action == "all-off":
+            assert not any(panel.coils) and plant.lit is None
+    finally:
+        panel.no_confirm.clear()
+        panel.stuck_lit.clear()
+        assert _lamps_quiet(path, "all-off") == 0
+
+
+def _lamps_quiet(path, *args: str) -> int:
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+        return main(["lamps", "--config", str(path), *args])

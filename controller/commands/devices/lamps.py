@@ -11,10 +11,16 @@ switch that one channel only — the other lamps stay as they are — and wait u
 waits until all confirm dark. JSON: ``{"ok": true, "action": ..., "panel": ..., "lamps":
 [{"channel", "commanded", "lit"}, ...]}`` (plus ``"channel"`` for on/off). Exit 0 done, 1 the
 panel failed or a lamp did not confirm (the line names it), 2 bad input (no ``lamps:``
-section, an unknown LAMP).
+section, an unknown LAMP), 130 interrupted (Ctrl-C, SIGTERM) — after ``on``/``off`` switched
+that channel off again and ``all-off`` every channel, confirmed dark: an interrupted command
+never leaves a lamp on (1 when the panel cannot confirm it).
 """
 
 from __future__ import annotations
+
+import signal
+import sys
+import threading
 
 from controller.commands.common import add_config_option, add_json_option, print_json
 from controller.errors import InputError
@@ -55,11 +61,16 @@ def run(args) -> int:
                          f"(known: {', '.join(lamps.channels)})")
     timeout_s = lamps.confirm_timeout_s
     with open_lamp_panel(lamps) as panel:
-        if args.action in ("on", "off"):
-            set_and_confirm(panel, args.lamp, args.action == "on", time=WALL, timeout_s=timeout_s)
-        elif args.action == "all-off":
-            lights_out(panel, time=WALL, timeout_s=timeout_s)
-        states = panel.states()
+        try:
+            if args.action in ("on", "off"):
+                set_and_confirm(panel, args.lamp, args.action == "on", time=WALL, timeout_s=timeout_s)
+            elif args.action == "all-off":
+                lights_out(panel, time=WALL, timeout_s=timeout_s)
+            states = panel.states()
+        except KeyboardInterrupt:
+            if args.action == "status":
+                raise
+            return _interrupted(args, panel, timeout_s)
     out = {"ok": True, "action": args.action, "panel": panel.name}
     if args.lamp:
         out["channel"] = args.lamp
@@ -71,3 +82,32 @@ def run(args) -> int:
         told = "?" if s.commanded is None else ("on" if s.commanded else "off")
         print(f"{s.channel:<28} {'lit' if s.lit else 'dark':<5} (commanded {told})")
     return 0
+
+
+def _interrupted(args, panel, timeout_s: float) -> int:
+    """Ctrl-C or SIGTERM while switching: the channel (``all-off``: every channel) off again and
+    confirmed dark, a second signal ignored meanwhile (the switching is bounded by the panel's
+    timeouts); 130, or LampError (exit 1) when the panel cannot confirm it."""
+    from controller.devices.lamp_panel import LampError, lights_out, set_and_confirm
+    from controller.devices.plant_time import WALL
+
+    main = threading.current_thread() is threading.main_thread()
+    held = {s: signal.signal(s, signal.SIG_IGN) for s in (signal.SIGINT, signal.SIGTERM)} if main else {}
+    what = f"lamp {args.lamp}" if args.lamp else "every lamp"
+    panel.close()  # a request cut short may still be answered: a new connection for these
+    try:
+        if args.lamp:
+            set_and_confirm(panel, args.lamp, False, time=WALL, timeout_s=timeout_s)
+        else:
+            lights_out(panel, time=WALL, timeout_s=timeout_s)
+    except LampError as exc:
+        raise LampError(f"interrupted; {what} could not be confirmed off: {exc}") from None
+    finally:
+        for s, handler in held.items():
+            signal.signal(s, handler)
+    line = f"interrupted; {what} switched off and confirmed dark"
+    if args.json:
+        print_json({"ok": False, "error": line})
+    else:
+        print(f"heliocal lamps: {line}", file=sys.stderr)
+    return 130
