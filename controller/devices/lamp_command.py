@@ -110,6 +110,7 @@ def run_bounded(cmd: list[str], timeout_s: float, *, key: str, doing: str,
         raise LampCommandError(f"{key}: {_cannot_start(cmd[0], exc)}") from None
     deadline = time.monotonic() + timeout_s
     out = {proc.stdout: bytearray(), proc.stderr: bytearray()}
+    open_pipes = set(out)  # not at their end yet
     pidfd = os.pidfd_open(proc.pid)
     try:
         with selectors.DefaultSelector() as sel:
@@ -134,6 +135,7 @@ def run_bounded(cmd: list[str], timeout_s: float, *, key: str, doing: str,
                     chunk = os.read(ready_key.fd, 65536)
                     if not chunk:
                         sel.unregister(ready_key.fileobj)
+                        open_pipes.discard(ready_key.fileobj)
                         continue
                     buf = out[ready_key.fileobj]
                     buf += chunk
@@ -150,12 +152,39 @@ def run_bounded(cmd: list[str], timeout_s: float, *, key: str, doing: str,
             os.killpg(proc.pid, signal.SIGKILL)
         except (ProcessLookupError, PermissionError):
             pass
+        # A child that left the group (setsid) but still holds the output goes too.
+        for pid in _holders({os.fstat(p.fileno()).st_ino for p in open_pipes}):
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except (ProcessLookupError, PermissionError):
+                pass
         os.close(pidfd)
         proc.stdout.close()
         proc.stderr.close()
         proc.wait()
     return (proc.returncode, out[proc.stdout].decode("utf-8", "replace"),
             out[proc.stderr].decode("utf-8", "replace"))
+
+
+def _holders(inodes: set[int]) -> list[int]:
+    """The processes other than this one that hold one of the pipes ``inodes`` open (Linux
+    ``/proc/PID/fd``; those of other users cannot be read, nor killed)."""
+    if not inodes:
+        return []
+    links, me, found = {f"pipe:[{i}]" for i in inodes}, os.getpid(), []
+    for pid in filter(str.isdigit, os.listdir("/proc")):
+        try:
+            fds = os.listdir(f"/proc/{pid}/fd")
+        except OSError:
+            continue
+        for fd in fds:
+            try:
+                if os.readlink(f"/proc/{pid}/fd/{fd}") in links and int(pid) != me:
+                    found.append(int(pid))
+                    break
+            except OSError:
+                continue
+    return found
 
 
 def _cannot_start(program: str, exc: OSError) -> str:

@@ -176,3 +176,15 @@ def test_on_timeout_the_whole_group_is_killed(tmp_path):
                             f"{scaled_s(0.5):g} s")
     assert time.monotonic() - t0 < scaled_s(5)
     assert _gone(int(pid_file.read_text()))
+
+
+def test_a_child_that_left_the_group_but_holds_the_output_is_killed_too(tmp_path):
+    pid_file = tmp_path / "child.pid"
+    # setsid: the child leads a session of its own, out of the program's process group.
+    escapes = (f"#!/bin/sh\nsetsid sh -c 'echo $$ > {pid_file}; exec sleep 300' &\n"
+               f"while [ ! -s {pid_file} ]; do :; done\nexit 0\n")
+    t0 = time.monotonic()
+    with _panel(tmp_path, escapes, timeout_s=60) as panel:
+        panel.switch("lamp-west", True)
+    assert time.monotonic() - t0 < scaled_s(10)
+    assert _gone(int(pid_file.read_text()))
