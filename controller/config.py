@@ -290,8 +290,7 @@ class PlantConfig(_Model):
                                        "calibration": self.calibration.model_copy(update={"target": tid})})
 
     def light_source(self, sid: str | None = None) -> SunSource | LampSource:
-        sid = sid or self.calibration.light_source
-        return next(s for s in self.light_sources if s.id == sid)
+        return _by_id(self.light_sources, sid or self.calibration.light_source, "light source")
 
 
 _INDEX: dict[int, tuple[tuple, dict]] = {}  # id(items) -> (items, {id: entry}): a large field's lookups

@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
 from typing import Protocol
 
 from controller.alarms.watch import night_ended
@@ -35,7 +34,8 @@ from controller.calibration.campaign.observers import Observers
 from controller.calibration.campaign.runner import Campaign, CampaignObserver, CampaignOptions, CampaignResult
 from controller.calibration.night.daytime import DaytimeTally, predicted_daytime, sun_path
 from controller.calibration.night.passes import Pass, failed_geometries, flagged_keys, run_night
-from controller.calibration.night.planner import PlanItem, plan_field
+from controller.calibration.night.planner import PlanItem, check_plan, plan_field
+from controller.calibration.night.summary import NightSummary
 from controller.calibration.records import NightRecord
 from controller.config import PlantConfig
 from controller.errors import HeliocalError
@@ -69,24 +69,28 @@ def calibration_night(book: NightStore, campaign: Campaign) -> CampaignResult:
     name = campaign.opt.name
     rec, resumed = book.open_night(name, "calibration")
     plant = campaign.field
-    plant.audit.record("night.resume" if resumed else "night.start", name, "calibration campaign")
-    book.record_field(plant.cfg, campaign.ids, plant.config_path, plant.config_sha256)
 
-    def lights_out(ended: str) -> list[LampEnd]:
+    def lights_out(ended: str, cause: str | None) -> list[LampEnd]:
         lit = [campaign.lamp.lamp] if campaign.lamp else []
-        return lights_out_at_end(plant, book, name, ended, campaign.observer, lit=lit)
+        try:
+            return lights_out_at_end(plant, book, name, ended, campaign.observer, lit=lit)
+        except BaseException as exc:  # the record says so: it never stays running
+            _finish_failed(book, rec, ended, cause, exc)
+            raise
 
     try:
+        plant.audit.record("night.resume" if resumed else "night.start", name, "calibration campaign")
+        book.record_field(plant.cfg, campaign.ids, plant.config_path, plant.config_sha256)
         r = campaign.run()
     except BaseException as exc:
         status, cause = _ended_by(exc)
-        ends = lights_out(status)
+        ends = lights_out(status, cause)
         book.finish_night(rec.id, status, _with_lamps(cause, name, ends),
                           {"lights_out": [e.to_json() for e in ends]})
         plant.audit.record("night.end", name, status + (f": {cause}" if cause else ""))
         require_dark(name, ends, after=exc)
         raise
-    ends = lights_out(r.status)
+    ends = lights_out(r.status, r.cause)
     lamps = [campaign.lamp.to_json()] if campaign.lamp else []
     book.finish_night(rec.id, r.status, _with_lamps(r.cause, name, ends),
                       {"campaign": r.name, "status": r.status, "lamps": lamps,
@@ -103,6 +107,16 @@ def _ended_by(exc: BaseException) -> tuple[str, str]:
     return "aborted", f"{type(exc).__name__}: {exc}"
 
 
+def _finish_failed(book: NightStore, rec: NightRecord, status: str, cause: str | None,
+                   exc: BaseException) -> None:
+    """Night ``rec`` could not be ended as it should (``exc`` while switching the lamps off or
+    summing it up): recorded ``aborted`` (``interrupted`` for a second Ctrl-C) with the cause
+    and why, so that it never stays ``running``."""
+    why = f"ending it failed: {_ended_by(exc)[1]}"
+    ended = "interrupted" if status == "interrupted" or isinstance(exc, KeyboardInterrupt) else "aborted"
+    book.finish_night(rec.id, ended, "; ".join(x for x in (cause, why) if x), rec.summary)
+
+
 def _with_lamps(cause: str | None, session: str, ends: list[LampEnd]) -> str | None:
     """A night's cause with the lamps it left not confirmed dark, if any."""
     line = not_dark_message(session, ends)
@@ -117,46 +131,6 @@ def tonight(book: NightStore, base: str) -> tuple[str, int]:
         return open_.name, open_.index
     k = book.next_index()
     return f"{base}/night-{k}", k
-
-
-@dataclass
-class NightSummary:
-    """What one planned night did (the ``campaign night --json`` keys): ``planned`` and
-    ``measured`` geometries, ``failed`` planned geometries not measured, the ``lamps`` lit
-    (each with its confirmation), the field's daytime error its models now predict (open
-    loop, from their covariance), ``status`` (finished / partial / aborted / interrupted);
-    ``unmeasurable``: the heliostats with no measurable geometry tonight, each with why
-    (:class:`controller.calibration.night.planner.Unmeasurable`)."""
-
-    night: int
-    name: str
-    heliostats: int
-    planned: int
-    measured: int
-    failed: int
-    lamps: list[dict]
-    daytime_error_predicted_mrad: dict
-    status: str
-    cause: str | None = None
-    first_calibrated: list[str] = field(default_factory=list)  # measured at the calibration lamp first
-    passes: list[dict] = field(default_factory=list)
-    lamp_changes: list[dict] = field(default_factory=list)
-    unmeasurable: list[dict] = field(default_factory=list)
-    lights_out: list[dict] = field(default_factory=list)  # every lamp as the night left it (LampEnd)
-    flagged: list[dict] = field(default_factory=list)  # geometries that failed on two nights, not planned
-
-    @property
-    def exit_code(self) -> int:
-        return {"finished": 0, "partial": 3, "interrupted": 130}.get(self.status, 1)
-
-    def to_json(self) -> dict:
-        return {"night": self.night, "name": self.name, "heliostats": self.heliostats,
-                "planned": self.planned,
-                "measured": self.measured, "failed": self.failed, "lamps": self.lamps,
-                "daytime_error_predicted_mrad": self.daytime_error_predicted_mrad, "status": self.status,
-                "cause": self.cause, "first_calibrated": self.first_calibrated, "passes": self.passes,
-                "lamp_changes": self.lamp_changes, "unmeasurable": self.unmeasurable,
-                "lights_out": self.lights_out, "flagged": self.flagged}
 
 
 class PlannedNight:
@@ -218,15 +192,17 @@ class PlannedNight:
     def run(self) -> NightSummary:
         rec, resumed = self.book.open_night(self.name, "planned")
         f = self.field
-        f.audit.record("night.resume" if resumed else "night.start", self.name,
-                       f"{len(self.ids)} heliostat(s)")
-        self.book.record_field(f.cfg, self.ids, f.config_path, f.config_sha256)  # what the models rest on
         results: list[CampaignResult] = []
         first: list[str] = []
         try:
-            # A stored plan (a resumed night, or one handed in) is run as it is; a new night
-            # first measures the heliostats the planner has no model of.
+            f.audit.record("night.resume" if resumed else "night.start", self.name,
+                           f"{len(self.ids)} heliostat(s)")
+            self.book.record_field(f.cfg, self.ids, f.config_path, f.config_sha256)  # what the models rest on
+            # A stored plan (a resumed night, or one handed in) is run as it is, when it still
+            # fits the configuration; a new night first measures the heliostats the planner has
+            # no model of.
             stored = self.book.plan(self.name)
+            check_plan(stored, f.cfg, f.config_path)
             if stored:  # resumed: why some heliostats had no measurable geometry was said when it was planned
                 self.unmeasurable = list(rec.summary.get("unmeasurable", []))
             first, calib = ([], []) if stored else self._calibrate_new()
@@ -340,7 +316,24 @@ class PlannedNight:
     def _end(self, rec: NightRecord, results: list[CampaignResult], first: list[str], status: str,
              cause: str | None, after: BaseException | None = None) -> NightSummary:
         """Lights out (every end: :mod:`controller.calibration.campaign.lights_out`), then the night's
-        record; :class:`LampNotDark` after it when a lamp is not confirmed dark."""
+        record; :class:`LampNotDark` after it when a lamp is not confirmed dark. The record is
+        finished on every path: when ending the night fails itself, it says so in the cause."""
+        try:
+            s, ends, per_heliostat = self._summary(rec, results, first, status, cause)
+        except BaseException as exc:
+            _finish_failed(self.book, rec, status, cause, exc)
+            raise
+        self.book.finish_night(rec.id, s.status, s.cause, s.to_json())
+        night_ended(self.field, self.name, s.status, s.cause, per_heliostat, self.ids)
+        self.progress(f"{self.name}: {s.status}; {s.measured}/{len(self.plan)} geometries measured; "
+                      f"field predicted daytime RMS {s.daytime_error_predicted_mrad['rms']:.2f} mrad")
+        require_dark(self.name, ends, after)
+        return s
+
+    def _summary(self, rec: NightRecord, results: list[CampaignResult], first: list[str], status: str,
+                 cause: str | None) -> tuple[NightSummary, list[LampEnd], dict[str, float]]:
+        """Lights out, then the night's summary, its lamps' end states and each heliostat's
+        predicted daytime RMS (recorded in ``night_heliostats``)."""
         ends = lights_out_at_end(self.field, self.book, self.name, status, Observers(self.observers),
                                  lit=self.lamps, ask_operator=self.ask_operator)
         cause = _with_lamps(cause, self.name, ends)
@@ -350,24 +343,17 @@ class PlannedNight:
         with self.field.time.computing():
             now = predicted_daytime(self.field.cfg, self.field.models(self.ids), self.path,
                                     workers=self.workers)
-        predicted = now.to_json()
         self.book.record_heliostats(rec.id, self._heliostat_rows(per, now.per_heliostat))
         s = NightSummary(self.index, self.name, len(self.ids), len(self.plan), measured,
                          len(self.plan) - measured,
-                         list(self.lamps.values()), predicted,
+                         list(self.lamps.values()), now.to_json(),
                          status, cause, first,
                          [{"name": r.name, "status": r.status, "cause": r.cause,
                            "measured": sum(run.status in ("measured", "calibrated") for run in r.runs),
                            "heliostats": len(r.runs)} for r in results],
                          [c.to_json() for c in self.changes], self.unmeasurable, [e.to_json() for e in ends],
                          self.book.flagged(self.ids))
-        self.book.finish_night(rec.id, status, cause, s.to_json())
-        night_ended(self.field, self.name, status, cause, now.per_heliostat, self.ids)
-        self.progress(f"{self.name}: {status}; {measured}/{len(self.plan)} geometries measured; "
-                      "field predicted "
-                      f"daytime RMS {s.daytime_error_predicted_mrad['rms']:.2f} mrad")
-        require_dark(self.name, ends, after)
-        return s
+        return s, ends, now.per_heliostat
 
     def _heliostat_rows(self, measured: dict[str, int], predicted: dict[str, float]) -> list[dict]:
         """What each heliostat of the night ended with (the ``night_heliostats`` table): where

@@ -53,6 +53,7 @@ from controller.calibration.night.daytime import model_covariance, sun_path
 from controller.calibration.night.workers import map_chunks
 from controller.calibration.records import ModelRecord
 from controller.config import PlantConfig
+from controller.errors import InputError
 from controller.geometry.design import fixed_design, greedy_design
 from controller.geometry.model.tracking import TrackingModel
 from controller.geometry.target_frame import TargetFrame
@@ -113,6 +114,30 @@ class NightPlan:
     unmeasurable: list[Unmeasurable]
     decisions: int
     seconds: float
+
+
+def check_plan(plan: list[PlanItem], cfg: PlantConfig, source: str) -> None:
+    """That a stored ``plan`` (a night resumed) still fits ``cfg`` (read from ``source``): each
+    lamp a lamp of ``light_sources`` with a ``lamps.channels`` channel when a panel is
+    configured, each heliostat and target in the configuration. InputError naming the first
+    that is not; nothing was switched or moved."""
+    lamps = {s.id for s in cfg.light_sources if s.kind == "lamp"}
+    channels = None if cfg.lamps is None else set(cfg.lamps.channels)
+    heliostats = {h.id for h in cfg.heliostats}
+    targets = {t.id for t in cfg.targets}
+    for it in plan:
+        g, where = it.geometry, f"{source}: night {it.night} was planned with"
+        if g.lamp not in lamps:
+            missing = f"lamp {g.lamp!r}, no longer a lamp of light_sources"
+        elif channels is not None and g.lamp not in channels:
+            missing = f"lamp {g.lamp!r}, which has no channel in lamps.channels any more"
+        elif it.heliostat_id not in heliostats:
+            missing = f"heliostat {it.heliostat_id!r}, no longer in heliostats"
+        elif g.target is not None and g.target not in targets:
+            missing = f"target {g.target!r}, no longer in targets"
+        else:
+            continue
+        raise InputError(f"{where} {missing}; put it back to resume that night")
 
 
 def aim_points(cfg: PlantConfig, target: str | None = None) -> list[tuple[tuple[int, int], np.ndarray]]:

@@ -3,8 +3,9 @@ with its campaigns (a calibration night's campaign, a planned night's passes), t
 that belong to no night (recorded before nights were).
 
 Each line fits :data:`WIDTH` columns (a terminal's, a log's): a night names how many lamps it
-lit and a line that would be longer is cut with ``…``; ``--long`` prints every detail in full
-(the lamps, each night's and campaign's cause), ``--json`` all of it as data.
+lit and a line that would be longer is cut with ``…``; a night that ended before any campaign
+(at its first lamp change) has its cause on the next line; ``--long`` prints every detail in
+full (the lamps, each night's and campaign's cause), ``--json`` all of it as data.
 
 A pass measures (``measured``), a calibration campaign calibrates (``calibrated``): each row
 counts what its campaign was for, so a pass whose heliostats were all measured reads
@@ -52,13 +53,15 @@ def list_campaigns(args: argparse.Namespace) -> int:
     if args.json:
         print_json({"nights": nights, "campaigns": rows})
         return 0
-    if not rows:
+    if not rows and not nights:
         print(f"{args.db}: no campaign recorded")
         return 0
     out = print if args.long else (lambda line: print(_fit(line)))
     shown: set[int] = set()
     for n in nights:
         out(_night_line(n, args.long))
+        if n["cause"] and not n["campaigns"] and not args.long:  # no pass line gives it: why it ended
+            out(f"    {n['cause']}")
         for r in rows:
             if r["id"] in n["campaigns"]:
                 shown.add(r["id"])
