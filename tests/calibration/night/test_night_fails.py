@@ -30,7 +30,7 @@ from controller.storage.lamp_states import lamp_states
 from controller.storage.nights import NightBook
 from simplant.settings import SimulationSettings
 from tests.calibration.conftest import FAST, REPO
-from tests.conftest import scaled_s
+from tests.conftest import run_cli, scaled_s
 from tests.devices.tcp_peers import NotAPanel
 
 IDS = ["H02"]
@@ -189,3 +189,17 @@ def test_a_night_whose_ending_fails_is_still_recorded_with_why(field):
     rec = next(n for n in NightBook(fs.field.store).nights() if n.name == "fails/ending")
     assert rec.status == "aborted" and said in rec.cause
     assert rec.cause.endswith("ending it failed: OSError: [Errno 28] No space left on device")
+
+
+def test_campaign_list_shows_a_night_that_ended_before_any_campaign_with_its_cause(field):
+    fs, folder = field
+    section, said, _ = _faulty("no-shebang", fs, folder)
+    lamps = PanelLamps(open_lamp_panel(section), fs.field.time, section.confirm_timeout_s)
+    name = "fails/listed"
+    with pytest.raises(HeliocalError):
+        PlannedNight(dataclasses.replace(fs.field, lamps=lamps), fs.book, name, 1, heliostat_ids=IDS).run()
+    code, out, _ = run_cli(["campaign", "list", "--db", str(fs.field.store.path)])
+    lines = out.splitlines()
+    at = next(i for i, line in enumerate(lines) if f": {name} (planned), aborted" in line)
+    assert code == 0 and lines[at + 1].startswith("    LampCommandError: lamps.command: ")
+    assert said in lines[at + 1]
