@@ -131,17 +131,19 @@ def lamp_programs(folder: Path) -> dict:
                                                       "timeout_s": TIMEOUT_S,
                                                       "confirm_timeout_s": 2.0})
         for action in (["on", "lamp-west"], ["status"]):
-            def refused(o, a=action) -> bool:
+            before = set(_left_running(folder))  # not this case's
+
+            def refused(o, before=before) -> bool:
                 if not isinstance(o, tuple):
                     return False
                 code, _, err = o
                 lines = err.strip().splitlines()
                 # The exit ended it: give the kernel a moment to remove the killed processes.
                 deadline = time.monotonic() + 2.0
-                while _left_running(folder) and time.monotonic() < deadline:
+                while set(_left_running(folder)) - before and time.monotonic() < deadline:
                     time.sleep(0.01)
                 return (code == 1 and len(lines) == 1 and "lamps.command" in lines[0]
-                        and not _left_running(folder))
+                        and not set(_left_running(folder)) - before)
             t.case(f"{name} {' '.join(action)}",
                    lambda c=config, a=action: _cli(["lamps", "--config", str(c), *a]), refused)
     return t.report()
