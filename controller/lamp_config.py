@@ -11,6 +11,8 @@ panel the coil that switches it and the discrete input that confirms it.
 
 from __future__ import annotations
 
+import ipaddress
+import re
 from typing import Annotated, Literal
 
 from pydantic import Field, field_validator
@@ -20,6 +22,7 @@ from controller.config_rules import Section
 FIDUCIALS = "fiducials:"  # channel-name prefix of a target's fiducial lamps
 MAX_CHANNELS = 256
 MAX_INDEX = 65535  # Modbus coil / discrete-input addresses are 16 bit
+_LABEL = re.compile(r"[A-Za-z0-9_]([A-Za-z0-9_-]{0,61}[A-Za-z0-9_])?")  # one label of a host name
 
 
 Index = Annotated[int, Field(strict=True, ge=0, le=MAX_INDEX)]  # strict: true/false are no index
@@ -56,6 +59,19 @@ class ModbusTcpLamps(_Lamps):
     unit: int = Field(default=1, ge=1, le=247)
     timeout_s: float = Field(default=1.0, gt=0, le=60, description="answer timeout per request, s")
 
+    @field_validator("host")
+    @classmethod
+    def _host(cls, v: str) -> str:
+        try:
+            ipaddress.ip_address(v)
+            return v
+        except ValueError:
+            pass
+        if not all(_LABEL.fullmatch(label) for label in v.removesuffix(".").split(".")):
+            raise ValueError(f"{v[:80]!r} is neither an IP address nor a host name (dot-separated labels "
+                             "of 1 to 63 letters, digits, '-' and '_')")
+        return v
+
     @property
     def name(self) -> str:
         return f"lamp panel modbus-tcp {self.host}:{self.port} unit {self.unit}"
@@ -88,6 +104,9 @@ class CommandLamps(_Lamps):
     def _program(cls, v: tuple[str, ...]) -> tuple[str, ...]:
         if not v[0]:
             raise ValueError("the program (first element) must not be empty")
+        for i, arg in enumerate(v):
+            if "\0" in arg:
+                raise ValueError(f"element {i} holds a NUL character, which no program argument can")
         return v
 
     @property

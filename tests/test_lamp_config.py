@@ -78,6 +78,13 @@ def _broken(demo: dict, change) -> str:
     (lambda c, d: c.update(channels={}), "lamps.channels: Dictionary should have at least 1 item"),
     (lambda c, d: (c.clear(), c.update(driver="command", command=[], channels={"lamp": 0})),
      "plant.yaml: lamps.command: Tuple should have at least 1 item"),
+    (lambda c, d: c.update(host="a" * 64 + ".example"),
+     "plant.yaml: lamps.host: 'aaaa"),
+    (lambda c, d: c.update(host="panel 4.plant"), "is neither an IP address nor a host name"),
+    (lambda c, d: c.update(host="panel..plant"), "is neither an IP address nor a host name"),
+    (lambda c, d: (c.clear(), c.update(driver="command", command=["/usr/bin/lamps", "a\0b"],
+                                       channels={"lamp": 0})),
+     "plant.yaml: lamps.command: element 1 holds a NUL character"),
     (lambda c, d: (c["channels"].update({"fiducials:tower-target": 8}),
                        d["camera"]["registration"].update(lamp_command=["/usr/bin/fid"])),
      "lamps.channels.fiducials:tower-target: the fiducial lamps of 'tower-target' are switched by "

@@ -106,7 +106,7 @@ def run_bounded(cmd: list[str], timeout_s: float, *, key: str, doing: str,
     try:
         proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
                                 stderr=subprocess.PIPE, start_new_session=True)
-    except OSError as exc:
+    except (OSError, ValueError) as exc:  # ValueError: a NUL in an argument
         raise LampCommandError(f"{key}: {_cannot_start(cmd[0], exc)}") from None
     deadline = time.monotonic() + timeout_s
     out = {proc.stdout: bytearray(), proc.stderr: bytearray()}
@@ -187,16 +187,16 @@ def _holders(inodes: set[int]) -> list[int]:
     return found
 
 
-def _cannot_start(program: str, exc: OSError) -> str:
+def _cannot_start(program: str, exc: OSError | ValueError) -> str:
     """Why the system cannot run ``program`` (``exc`` from starting it), in words."""
     if isinstance(exc, FileNotFoundError):
         return f"{program!r} not found (or the interpreter its #! line names)"
-    if exc.errno == errno.ENOEXEC:
+    if getattr(exc, "errno", None) == errno.ENOEXEC:
         return (f"{program!r} cannot be executed: not a program for this system "
                 "(a script without a #! line, a binary of another format)")
     if isinstance(exc, PermissionError):
         return f"{program!r} is not executable"
-    return f"{program!r} cannot be started: {exc.strerror or exc}"
+    return f"{program!r} cannot be started: {getattr(exc, 'strerror', None) or exc}"
 
 
 def _quoted(line: str) -> str:

@@ -67,7 +67,11 @@ class ModbusLampPanel(LampPanel):
         failure = "no answer to"
         with self._lock:
             for _ in range(_ATTEMPTS):
-                if not self._client.connect():  # True at once when connected
+                try:
+                    connected = self._client.connect()  # True at once when connected
+                except (OSError, ValueError):  # a host name the resolver cannot even encode
+                    connected = False
+                if not connected:
                     failure = "cannot connect for"
                     continue
                 try:
