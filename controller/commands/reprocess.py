@@ -91,7 +91,7 @@ def _check(args: argparse.Namespace) -> tuple[Path, Path, datetime | None, str |
 
 
 def run(args: argparse.Namespace) -> int:
-    from controller.calibration.reprocess.plan import in_scope, load_configs
+    from controller.calibration.reprocess.plan import check_records, in_scope, load_configs
     from controller.calibration.reprocess.run import open_cluster, reprocess
     from controller.calibration.reprocess.scheduler import check_scheduler
     from controller.commands.common import print_json
@@ -109,6 +109,7 @@ def run(args: argparse.Namespace) -> int:
     with open_existing(db_path) as source:
         archive = read_archive(source)
         configs = load_configs(archive)
+        check_records(archive, configs)
         scope = in_scope(archive, since)
         fp = fingerprint(db_path)
         quiet = args.json or not sys.stderr.isatty()

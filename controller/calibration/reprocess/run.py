@@ -34,7 +34,13 @@ from controller.calibration.reprocess.plan import (
     take_task,
 )
 from controller.calibration.reprocess.scheduler import ClusterError, check_scheduler
-from controller.calibration.reprocess.tasks import PairResult, RefitResult, analyse_timed, refit_heliostat
+from controller.calibration.reprocess.tasks import (
+    PairResult,
+    RefitResult,
+    analyse_timed,
+    outcome,
+    refit_heliostat,
+)
 
 REFIT_BATCH = 64  # refits committed per transaction
 TASKS_PER_WORKER = 3  # pair tasks in flight per worker: one running, the next ones queued on it
@@ -192,7 +198,7 @@ def _streamed(client, todo: Iterator, workers: int, token: str) -> Iterator[list
                 break
         for fut in running:
             live.discard(fut)
-            results, seconds = fut.result()  # raises the worker's exception
+            results, seconds = outcome(fut.result())  # raises the worker's exception
             fut.release()
             sizer.tell(len(results), seconds)
             submit()
@@ -208,9 +214,7 @@ def _completed(client, futures: list) -> Iterator[Any]:
 
     try:
         for fut in as_completed(futures, loop=client.loop):
-            if fut.status == "error":
-                fut.result()  # raises the worker's exception
-            yield fut.result()
+            yield outcome(fut.result())  # raises the worker's exception
             fut.release()
     finally:
         client.cancel([f for f in futures if not f.done()])
