@@ -36,9 +36,9 @@ MAX_HOST_CHARS = 253  # a DNS name (RFC 1035), at most 63 per label
 SHOWN_CHARS = 80  # of an address or a peer's answer quoted in an error line
 SHOWN_BYTES = 32  # of a peer's raw bytes
 
-_ADDRESS = re.compile(r"^(tcp|tls)://(\[[0-9A-Fa-f:.]+\]|[^\[\]:/]+):([0-9]{1,5})$")
+_ADDRESS = re.compile(r"(tcp|tls)://(\[[0-9A-Fa-f:.]+\]|[^\[\]:/]+):([0-9]{1,5})")
 # Underscores too: resolvers accept them (container and /etc/hosts names), DNS does not.
-_LABEL = re.compile(r"^[A-Za-z0-9_](?:[A-Za-z0-9_-]{0,61}[A-Za-z0-9_])?$")
+_LABEL = re.compile(r"[A-Za-z0-9_](?:[A-Za-z0-9_-]{0,61}[A-Za-z0-9_])?")
 
 
 class ClusterError(HeliocalError):
@@ -65,7 +65,7 @@ def parse_scheduler_address(text: str) -> SchedulerAddress:
     """``tcp://HOST:PORT`` or ``tls://HOST:PORT``: HOST an IPv4 address, an IPv6 address in
     brackets or a host name (letters, digits, ``_`` and inner hyphens; labels of 1 … 63, at
     most 253 characters), PORT 1 … 65535. InputError (exit 2) naming the address otherwise."""
-    m = _ADDRESS.match(text)
+    m = _ADDRESS.fullmatch(text)
     if m is None:
         raise InputError(f"--scheduler {shown(text)}: expected tcp://HOST:PORT (or tls://HOST:PORT)")
     scheme, host, port = m.group(1), m.group(2), int(m.group(3))
@@ -79,7 +79,7 @@ def parse_scheduler_address(text: str) -> SchedulerAddress:
     elif len(host) > MAX_HOST_CHARS:
         raise InputError(f"--scheduler {shown(text)}: host name of {len(host)} characters (at most "
                          f"{MAX_HOST_CHARS})")
-    elif not all(_LABEL.match(label) for label in host.split(".")):
+    elif not all(_LABEL.fullmatch(label) for label in host.split(".")):
         raise InputError(f"--scheduler {shown(text)}: {shown(host)} is not a host name (letters, digits, "
                          "_ and inner hyphens, dot-separated labels of 1 … 63) nor an IP address")
     return SchedulerAddress(text, scheme, host, port)

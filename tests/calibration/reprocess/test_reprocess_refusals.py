@@ -1,0 +1,250 @@
+"""``heliocal reprocess`` against a bad cluster or a bad archive: one line naming the address,
+the file or the record, the documented exit code, in bounded time, nothing else on stderr (no
+traceback, no Dask log line, from this process or its workers) and no output left behind.
+
+The peers are real servers on 127.0.0.1 started and stopped by each test (an echo, random
+bytes, an HTTP server, one that closes at once, one that accepts and never answers); the Dask
+side is a real ``dask scheduler`` with a ``dask worker`` or the command's local cluster; the
+frames are real special files (a symbolic link to /dev/zero, a FIFO, a folder, a sparse
+oversized file).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import http.server
+import json
+import os
+import shutil
+import socket
+import sqlite3
+import subprocess
+import threading
+import time
+from pathlib import Path
+
+import pytest
+import yaml
+
+from tests.calibration.reprocess.conftest import heliocal
+from tests.calibration.reprocess.test_reprocess import dask_cluster
+from tests.conftest import run_cli, scaled_s
+
+pytestmark = pytest.mark.xdist_group("reprocess")
+
+CONNECT_S = 1.5  # --connect-timeout of these tests, before the time factor
+STARTUP_S = 6.0  # the command's own start and exit around the connect timeout, before the factor
+
+
+@contextlib.contextmanager
+def tcp_peer(handle):
+    """A TCP server on 127.0.0.1 calling ``handle(conn, stop)`` per connection on its own
+    thread; yields the port; ``stop`` is set and every socket closed on exit."""
+    server = socket.create_server(("127.0.0.1", 0))
+    stop, conns = threading.Event(), []
+
+    def serve() -> None:
+        while True:
+            try:
+                conn, _ = server.accept()
+            except OSError:
+                return
+            conns.append(conn)
+            threading.Thread(target=_quietly, args=(handle, conn, stop), daemon=True).start()
+
+    thread = threading.Thread(target=serve, daemon=True)
+    thread.start()
+    try:
+        yield server.getsockname()[1]
+    finally:
+        stop.set()
+        with contextlib.suppress(OSError):
+            server.shutdown(socket.SHUT_RDWR)  # wakes the accept()
+        server.close()
+        for c in conns:
+            c.close()
+        thread.join(scaled_s(5))
+
+
+def _quietly(handle, conn, stop) -> None:
+    with contextlib.suppress(OSError):
+        handle(conn, stop)
+
+
+def _echo(conn, stop) -> None:
+    while data := conn.recv(65536):
+        conn.sendall(data)
+
+
+def _random_bytes(conn, stop) -> None:
+    while not stop.is_set():
+        conn.sendall(os.urandom(65536))
+
+
+def _close_at_once(conn, stop) -> None:
+    conn.close()
+
+
+def _silent(conn, stop) -> None:
+    stop.wait()
+
+
+class _QuietHandler(http.server.BaseHTTPRequestHandler):
+    def log_message(self, *args) -> None:  # the test's stderr is not under test
+        pass
+
+
+@contextlib.contextmanager
+def http_peer():
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), _QuietHandler)
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    try:
+        yield server.server_address[1]
+    finally:
+        server.shutdown()
+        server.server_close()
+
+
+PEERS = {"echo": lambda: tcp_peer(_echo), "random bytes": lambda: tcp_peer(_random_bytes),
+         "closes at once": lambda: tcp_peer(_close_at_once), "http": http_peer,
+         "silent": lambda: tcp_peer(_silent)}
+
+
+def _refused(r: subprocess.CompletedProcess, code: int, *words: str) -> None:
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == code and len(lines) == 1, r.stderr
+    assert lines[0].startswith("heliocal reprocess: error: ") and all(w in lines[0] for w in words), lines
+
+
+@pytest.mark.parametrize("kind", list(PEERS))
+def test_a_peer_that_is_not_a_dask_scheduler_is_refused_within_the_connect_timeout(kind, tmp_path):
+    source = tmp_path / "source.db"
+    source.write_bytes(b"")  # the scheduler is checked before the source is opened
+    with PEERS[kind]() as port:
+        address = f"tcp://127.0.0.1:{port}"
+        t0 = time.monotonic()
+        r = heliocal("reprocess", "--db", str(source), "--out", str(tmp_path / "new.db"), "--scheduler",
+                     address, "--connect-timeout", str(scaled_s(CONNECT_S)), check=False)
+        took = time.monotonic() - t0
+    _refused(r, 1, address, "Dask scheduler")
+    assert took < scaled_s(CONNECT_S + STARTUP_S), took
+    if kind == "silent":
+        assert "within the connect timeout" in r.stderr and took >= scaled_s(CONNECT_S)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["source.db"]
+
+
+def test_a_refused_port_fails_at_once(tmp_path):
+    with socket.create_server(("127.0.0.1", 0)) as s:
+        port = s.getsockname()[1]  # bound, closed below: nothing listens there
+    source = tmp_path / "source.db"
+    source.write_bytes(b"")
+    t0 = time.monotonic()
+    code, _, err = run_cli(["reprocess", "--db", str(source), "--out", str(tmp_path / "new.db"),
+                            "--scheduler", f"tcp://127.0.0.1:{port}", "--connect-timeout", "60"])
+    assert code == 1 and "cannot connect" in err and len(err.strip().splitlines()) == 1, err
+    assert time.monotonic() - t0 < scaled_s(5)
+
+
+@pytest.mark.parametrize("address, words", [
+    ("tcp://" + "a" * 300 + ":8786", "host name of 300 characters"),
+    ("tcp://" + ".".join(["b" * 64] * 2) + ":8786", "is not a host name"),
+    ("tcp://sched uler:8786", "is not a host name"),
+    ("tcp://127.0.0.1:0", "port 0 is outside"),
+    ("tcp://127.0.0.1:65536", "port 65536 is outside"),
+    ("tcp://[1::2::3]:8786", "is not an IPv6 address"),
+    ("tcp://\u0660.example:8786", "is not a host name"),
+    ("tls://127.0.0.1:8786", "tls:// needs Dask's TLS settings"),
+    ("tcp://127.0.0.1:8786\n", "expected tcp://HOST:PORT"),
+])
+def test_a_malformed_address_is_bad_input_at_once(address, words, tmp_path):
+    t0 = time.monotonic()
+    code, out, err = run_cli(["reprocess", "--db", str(tmp_path / "source.db"), "--out",
+                              str(tmp_path / "new.db"), "--scheduler", address])
+    assert code == 2 and len(err.strip().splitlines()) == 1 and words in err and "\n" not in err.strip(), err
+    assert time.monotonic() - t0 < scaled_s(2) and not any(tmp_path.iterdir())
+
+
+def _moved_archive(field, where: Path) -> tuple[Path, dict[str, Path]]:
+    """A copy of the demo's frames for ``--images``, five LOW frames replaced by bad files."""
+    images = where / "moved"
+    shutil.copytree(field["db"].parent / "images", images)
+    frames = sorted(images.rglob("*-low.png"))[:5]
+    bad = dict(zip(["device", "fifo", "folder", "oversized", "garbled"], frames, strict=True))
+    for p in frames:
+        p.unlink()
+    bad["device"].symlink_to("/dev/zero")
+    os.mkfifo(bad["fifo"])
+    bad["folder"].mkdir()
+    with open(bad["oversized"], "wb") as f:
+        f.truncate(300 << 20)  # sparse: 300 MiB claimed, nothing stored
+    bad["garbled"].write_bytes(b"\x89PNG\r\n\x1a\n" + os.urandom(5000))
+    return images, bad
+
+
+def test_bad_frames_are_counted_unreadable_without_reading_them(field, tmp_path):
+    images, bad = _moved_archive(field, tmp_path)
+    t0 = time.monotonic()
+    r = heliocal("reprocess", "--db", str(field["db"]), "--out", str(tmp_path / "new.db"), "--images",
+                 str(images), "--workers", "1", "--json")
+    assert r.stderr == "" and time.monotonic() - t0 < scaled_s(60)
+    f = json.loads(r.stdout)
+    assert f["unreadable"] == 5 and f["missing"] == 0 and f["measurements"] + f["no_beam"] == f["pairs"] - 5
+    pairs = (Path(f["report"]) / "pairs.csv").read_text()
+    for what, words in [("device", "is a character device"), ("fifo", "is a FIFO"),
+                        ("folder", "is a directory"), ("oversized", "is too large for a frame"),
+                        ("garbled", "SHA-256")]:
+        line = next(ln for ln in pairs.splitlines() if bad[what].name in ln)
+        assert words in line, line
+
+
+def _source_with(field, where: Path, edit) -> Path:
+    """A copy of the demo database naming a copy of its configuration changed by ``edit(data)``."""
+    data = yaml.safe_load(field["config"].read_text())
+    edit(data)
+    config = where / "edited.yaml"
+    config.write_text(yaml.safe_dump(data, sort_keys=False))
+    db = where / "source.db"
+    with sqlite3.connect(f"file:{field['db']}?mode=ro", uri=True) as c, sqlite3.connect(db) as d:
+        c.backup(d)
+    with sqlite3.connect(db) as d:
+        d.execute("UPDATE campaigns SET config_path=?", (str(config),))
+    return db
+
+
+def _measured(field) -> str:
+    with sqlite3.connect(f"file:{field['db']}?mode=ro", uri=True) as c:
+        return c.execute("SELECT heliostat_id FROM heliostat_runs ORDER BY id").fetchone()[0]
+
+
+def test_a_record_the_configuration_no_longer_fits_is_refused_before_any_output(field, tmp_path):
+    gone = _measured(field)
+    db = _source_with(field, tmp_path, lambda d: d.update(
+        heliostats=[h for h in d["heliostats"] if h["id"] != gone]))
+    r = heliocal("reprocess", "--db", str(db), "--out", str(tmp_path / "new.db"), "--workers", "1",
+                 check=False)
+    _refused(r, 2, f"heliostat {gone!r}", "is not in the configuration any more")
+    assert not (tmp_path / "new.db").exists()
+
+
+def test_a_task_refused_on_a_worker_is_one_line_locally_and_on_a_cluster(field, tmp_path):
+    """A recognition library the configuration names but a worker cannot read: the worker's
+    InputError comes back as the command's one line, with no traceback from the worker."""
+    library = tmp_path / "library.yaml"
+    library.write_text("entries: [not closed\n")
+    db = _source_with(field, tmp_path, lambda d: d.setdefault("calibration", {}).update(library=str(library)))
+    local = heliocal("reprocess", "--db", str(db), "--out", str(tmp_path / "local.db"), "--workers", "1",
+                     check=False)
+    _refused(local, 2, str(library))
+    with dask_cluster(tmp_path / "cluster", workers=1) as (address, client):
+        remote = heliocal("reprocess", "--db", str(db), "--out", str(tmp_path / "remote.db"),
+                          "--scheduler", address, check=False)
+        # the worker did not log the task's failure either
+        assert "Traceback" not in (tmp_path / "cluster" / "worker0.log").read_text()
+        worker = next(iter(client.scheduler_info()["workers"]))
+        at_worker = heliocal("reprocess", "--db", str(db), "--out", str(tmp_path / "w.db"), "--scheduler",
+                             worker, "--connect-timeout", str(scaled_s(CONNECT_S)), check=False)
+    _refused(remote, 2, str(library))
+    assert remote.stderr == local.stderr
+    _refused(at_worker, 1, worker, "not a Dask scheduler", "a worker")
+    assert not (tmp_path / "w.db").exists()
