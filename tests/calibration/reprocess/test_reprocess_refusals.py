@@ -11,15 +11,12 @@ oversized file).
 
 from __future__ import annotations
 
-import contextlib
-import http.server
 import json
 import os
 import shutil
 import socket
 import sqlite3
 import subprocess
-import threading
 import time
 from pathlib import Path
 
@@ -27,6 +24,7 @@ import pytest
 import yaml
 
 from tests.calibration.reprocess.conftest import heliocal
+from tests.calibration.reprocess.peers import NOT_SCHEDULERS, SILENT
 from tests.calibration.reprocess.test_reprocess import dask_cluster
 from tests.conftest import run_cli, scaled_s
 
@@ -36,79 +34,9 @@ CONNECT_S = 1.5  # --connect-timeout of these tests, before the time factor
 STARTUP_S = 6.0  # the command's own start and exit around the connect timeout, before the factor
 
 
-@contextlib.contextmanager
-def tcp_peer(handle):
-    """A TCP server on 127.0.0.1 calling ``handle(conn, stop)`` per connection on its own
-    thread; yields the port; ``stop`` is set and every socket closed on exit."""
-    server = socket.create_server(("127.0.0.1", 0))
-    stop, conns = threading.Event(), []
-
-    def serve() -> None:
-        while True:
-            try:
-                conn, _ = server.accept()
-            except OSError:
-                return
-            conns.append(conn)
-            threading.Thread(target=_quietly, args=(handle, conn, stop), daemon=True).start()
-
-    thread = threading.Thread(target=serve, daemon=True)
-    thread.start()
-    try:
-        yield server.getsockname()[1]
-    finally:
-        stop.set()
-        with contextlib.suppress(OSError):
-            server.shutdown(socket.SHUT_RDWR)  # wakes the accept()
-        server.close()
-        for c in conns:
-            c.close()
-        thread.join(scaled_s(5))
-
-
-def _quietly(handle, conn, stop) -> None:
-    with contextlib.suppress(OSError):
-        handle(conn, stop)
-
-
-def _echo(conn, stop) -> None:
-    while data := conn.recv(65536):
-        conn.sendall(data)
-
-
-def _random_bytes(conn, stop) -> None:
-    while not stop.is_set():
-        conn.sendall(os.urandom(65536))
-
-
-def _close_at_once(conn, stop) -> None:
-    conn.close()
-
-
-def _silent(conn, stop) -> None:
-    stop.wait()
-
-
-class _QuietHandler(http.server.BaseHTTPRequestHandler):
-    def log_message(self, *args) -> None:  # the test's stderr is not under test
-        pass
-
-
-@contextlib.contextmanager
-def http_peer():
-    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), _QuietHandler)
-    thread = threading.Thread(target=server.serve_forever, daemon=True)
-    thread.start()
-    try:
-        yield server.server_address[1]
-    finally:
-        server.shutdown()
-        server.server_close()
-
-
-PEERS = {"echo": lambda: tcp_peer(_echo), "random bytes": lambda: tcp_peer(_random_bytes),
-         "closes at once": lambda: tcp_peer(_close_at_once), "http": http_peer,
-         "silent": lambda: tcp_peer(_silent)}
+# A sample of each kind of peers.py (benchmarks/adversarial/reprocess.py tries them all).
+PEERS = {k: NOT_SCHEDULERS[k] for k in ("echo", "random bytes", "closes at once", "http 400", "claims 1 TiB")}
+PEERS.update({k: SILENT[k] for k in ("silent", "http (waits for a request line)")})
 
 
 def _refused(r: subprocess.CompletedProcess, code: int, *words: str) -> None:
@@ -129,7 +57,7 @@ def test_a_peer_that_is_not_a_dask_scheduler_is_refused_within_the_connect_timeo
         took = time.monotonic() - t0
     _refused(r, 1, address, "Dask scheduler")
     assert took < scaled_s(CONNECT_S + STARTUP_S), took
-    if kind == "silent":
+    if kind in SILENT:
         assert "within the connect timeout" in r.stderr and took >= scaled_s(CONNECT_S)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["source.db"]
 
