@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+import json
 import os
 import shutil
 import socket
@@ -274,14 +275,28 @@ def as_processes(folder: Path, db: Path) -> dict:
 
 
 def _process(args: list[str]) -> dict:
+    """``heliocal reprocess args`` as a process: exit status, wall time, lines on stderr (its
+    workers' included), its own peak RSS (``VmHWM``: this mm only; ``ru_maxrss`` would start
+    from this bench's RSS, inherited at the fork) and the largest of its worker processes
+    (``ru_maxrss`` of its children: an upper bound, it includes the command's RSS when each
+    was spawned)."""
     t0 = time.perf_counter()
-    p = subprocess.Popen([sys.executable, "-m", "controller.cli", "reprocess", *args],
-                         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    err = p.stderr.read()
-    _, status, usage = os.wait4(p.pid, 0)
-    p.returncode = os.waitstatus_to_exitcode(status)
-    return {"exit": p.returncode, "ms": round((time.perf_counter() - t0) * 1e3),
-            "maxrss_mb": round(usage.ru_maxrss / 1024, 1), "stderr_lines": len(err.strip().splitlines())}
+    r = subprocess.run([sys.executable, "-c", _MEASURED, *args], capture_output=True, text=True)
+    figures = json.loads(r.stdout.strip().splitlines()[-1])
+    return {**figures, "ms": round((time.perf_counter() - t0) * 1e3),
+            "stderr_lines": len(r.stderr.strip().splitlines())}
+
+
+_MEASURED = """
+import contextlib, io, json, resource, sys
+from controller.cli import main
+with contextlib.redirect_stdout(io.StringIO()):
+    code = main(["reprocess", *sys.argv[1:]])
+hwm = next(int(ln.split()[1]) for ln in open("/proc/self/status") if ln.startswith("VmHWM:"))
+workers = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+print(json.dumps({"exit": code, "peak_rss_mb": round(hwm / 1024, 1),
+                  "workers_peak_rss_mb_at_most": round(workers / 1024, 1) if workers else None}))
+"""
 
 
 def categories(folder: Path) -> dict[str, dict]:
