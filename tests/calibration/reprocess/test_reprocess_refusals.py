@@ -24,8 +24,8 @@ import pytest
 import yaml
 
 from tests.calibration.reprocess.conftest import heliocal
-from tests.calibration.reprocess.peers import NOT_SCHEDULERS, SILENT
-from tests.calibration.reprocess.test_reprocess import dask_cluster
+from tests.calibration.reprocess.peers import NOT_SCHEDULERS, SILENT, tcp_peer
+from tests.calibration.reprocess.test_reprocess import DASK, dask_cluster
 from tests.conftest import run_cli, scaled_s
 
 pytestmark = pytest.mark.xdist_group("reprocess")
@@ -176,3 +176,58 @@ def test_a_task_refused_on_a_worker_is_one_line_locally_and_on_a_cluster(field, 
     assert remote.stderr == local.stderr
     _refused(at_worker, 1, worker, "not a Dask scheduler", "a worker")
     assert not (tmp_path / "w.db").exists()
+
+
+@pytest.fixture
+def tls_files(tmp_path) -> dict[str, str]:
+    """A self-signed certificate and its key (the certificate is its own CA), by openssl."""
+    if shutil.which("openssl") is None:
+        pytest.skip("openssl is not installed (it makes the test's certificate)")
+    cert, key = tmp_path / "cert.pem", tmp_path / "key.pem"
+    subprocess.run(["openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-keyout", str(key), "-out",
+                    str(cert), "-days", "1", "-subj", "/CN=127.0.0.1"], check=True, capture_output=True)
+    return {"cert": str(cert), "key": str(key)}
+
+
+def _tls_echo(files: dict[str, str]):
+    """An echo behind TLS with the test's certificate: a TLS peer that is no Dask scheduler."""
+    import ssl
+
+    context = ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER)
+    context.load_cert_chain(files["cert"], files["key"])
+
+    def handle(conn, stop) -> None:
+        with context.wrap_socket(conn, server_side=True) as tls:
+            while data := tls.recv(65536):
+                tls.sendall(data)
+    return tcp_peer(handle)
+
+
+def test_over_tls_a_real_scheduler_passes_the_check_and_other_peers_do_not(tls_files, tmp_path):
+    import dask
+
+    from controller.calibration.reprocess.scheduler import ClusterError, check_scheduler
+
+    file = tmp_path / "scheduler.json"
+    tls = ["--tls-ca-file", tls_files["cert"], "--tls-cert", tls_files["cert"], "--tls-key", tls_files["key"]]
+    p = subprocess.Popen([str(DASK), "scheduler", "--protocol", "tls", "--host", "127.0.0.1", "--port", "0",
+                          "--no-dashboard", "--scheduler-file", str(file), *tls],
+                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    settings = {"distributed.comm.tls.ca-file": tls_files["cert"],
+                "distributed.comm.tls.client.cert": tls_files["cert"],
+                "distributed.comm.tls.client.key": tls_files["key"]}
+    try:
+        deadline = time.monotonic() + scaled_s(60)
+        while not file.is_file() and time.monotonic() < deadline:
+            time.sleep(0.1)
+        address = json.loads(file.read_text())["address"]
+        assert address.startswith("tls://127.0.0.1:")
+        with dask.config.set(settings):
+            assert check_scheduler(address, scaled_s(10))["type"] == "Scheduler"
+            with _tls_echo(tls_files) as port, pytest.raises(ClusterError, match="echoed the request back"):
+                check_scheduler(f"tls://127.0.0.1:{port}", scaled_s(CONNECT_S))
+            with NOT_SCHEDULERS["echo"]() as port, pytest.raises(ClusterError, match="TLS handshake failed"):
+                check_scheduler(f"tls://127.0.0.1:{port}", scaled_s(CONNECT_S))
+    finally:
+        p.terminate()
+        p.wait(timeout=scaled_s(20))
