@@ -112,26 +112,26 @@ def probe(address: SchedulerAddress, timeout_s: float, context: ssl.SSLContext |
     """The identity a Dask scheduler at ``address`` gives (``type``, ``id``, ``n_workers``, ...),
     within ``timeout_s`` all told. ClusterError naming the address and what went wrong: no such
     host, refused, silent, closed, or an answer that is not a Dask scheduler's."""
-    probe = _Probe(f"--scheduler {shown(address.text)}", time.monotonic() + timeout_s, timeout_s)
-    sock = probe.connect(address, context)
+    session = _Probe(f"--scheduler {shown(address.text)}", time.monotonic() + timeout_s, timeout_s)
+    sock = session.connect(address, context)
     try:
-        probe.send(sock, _message({"compression": None, "python": tuple(sys.version_info)[:3],
+        session.send(sock, _message({"compression": None, "python": tuple(sys.version_info)[:3],
                                    "pickle-protocol": pickle.HIGHEST_PROTOCOL})
                    + _message({"op": "identity", "n_workers": 0, "reply": True}))
-        hello = probe.read_message(sock)
+        hello = session.read_message(sock)
         if not (isinstance(hello, dict) and {"compression", "pickle-protocol"} <= hello.keys()):
-            raise probe.error(f"its handshake {_shown_value(hello)} is not Dask's")
-        answer = probe.read_message(sock)
+            raise session.error(f"its handshake {_shown_value(hello)} is not Dask's")
+        answer = session.read_message(sock)
     finally:
         sock.close()
     kind = answer.get("type") if isinstance(answer, dict) else None
     if kind == "Scheduler":
         return answer
     if isinstance(answer, dict) and answer.get("op") == "identity":
-        raise probe.error("it echoed the request back")
+        raise session.error("it echoed the request back")
     if isinstance(answer, dict) and answer.get("status") == "uncaught-error":
-        raise probe.error("a Dask server that refused a scheduler's request: a worker or a nanny?")
-    raise probe.error(f"it answered {_shown_value(answer)}")
+        raise session.error("a Dask server that refused a scheduler's request: a worker or a nanny?")
+    raise session.error(f"it answered {_shown_value(answer)}")
 
 
 def _message(msg: dict) -> bytes:
