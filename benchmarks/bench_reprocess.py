@@ -41,7 +41,7 @@ from controller.calibration.reprocess.plan import (
     take_task,
 )
 from controller.calibration.reprocess.run import open_cluster, reprocess
-from controller.calibration.reprocess.tasks import analyse_chunk, refit_heliostat
+from controller.calibration.reprocess.tasks import analyse_chunk, refit
 from controller.commands.simulated import plant_crf_config
 from controller.storage.db import open_existing
 from controller.storage.reprocess.archive import fingerprint, read_archive
@@ -111,7 +111,7 @@ def peer(o: _Output) -> tuple[float, float, float]:
         for spec, pairs in tasks(plan_pairs(o.archive, o.configs, o.scope, None)):
             out.record_pairs(analyse_chunk(spec, pairs), old)
         t1, c1 = time.perf_counter(), cpu_s()
-        out.record_models([refit_heliostat(s) for s in refit_specs(o.archive, o.configs, out.pair_results())],
+        out.record_models([refit(s) for s in refit_specs(o.archive, o.configs, out.pair_results())],
                           o.archive.models)
         return t1 - t0, c1 - c0, time.perf_counter() - t1
     finally:

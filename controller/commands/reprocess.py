@@ -4,7 +4,7 @@ every heliostat's tracking model, on a Dask cluster, into a new database.
 Contract (scripts depend on it, docs/reprocess.md)::
 
     heliocal reprocess --db DB --out NEW.db [--images DIR] [--since DATE]
-                       [--scheduler ADDRESS | --workers N] [--json]
+                       [--scheduler ADDRESS [--connect-timeout S] | --workers N] [--json]
 
 DB and the frame archive are opened read-only and never modified. A rerun with the same --out
 continues where an interrupted one stopped. Prints the figures (``--json``: one object with
@@ -25,6 +25,7 @@ from controller.commands._numbers import Number
 from controller.commands.common import add_json_option
 
 MAX_WORKERS = 256
+CONNECT_TIMEOUT_S = 30.0  # Dask's own default connect timeout (distributed.comm.timeouts.connect)
 
 
 def register(subparsers) -> None:
@@ -40,7 +41,11 @@ def register(subparsers) -> None:
                    help="re-analyse only pairs measured at or after DATE (ISO 8601, UTC unless a zone is "
                         "given); every heliostat is refitted")
     p.add_argument("--scheduler", default=None, metavar="ADDRESS",
-                   help="Dask scheduler tcp://HOST:PORT to run on (default: a local cluster)")
+                   help="Dask scheduler tcp://HOST:PORT (or tls://) to run on (default: a local cluster)")
+    p.add_argument("--connect-timeout", type=Number(0, 600, lo_open=True), default=CONNECT_TIMEOUT_S,
+                   metavar="S", help="seconds for --scheduler to answer as a Dask scheduler, name lookup "
+                                     f"and connection included, before any work is sent (default "
+                                     f"{CONNECT_TIMEOUT_S:g})")
     p.add_argument("--workers", type=Number(1, MAX_WORKERS, integer=True), default=None, metavar="N",
                    help="worker processes of the local cluster (default: the machine's cores)")
     add_json_option(p)
@@ -61,7 +66,7 @@ def parse_since(text: str) -> datetime:
 
 def _check(args: argparse.Namespace) -> tuple[Path, Path, datetime | None, str | None, int]:
     """Every option checked before anything is opened or started."""
-    from controller.calibration.reprocess.run import check_scheduler_address
+    from controller.calibration.reprocess.scheduler import parse_scheduler_address, tls_context
     from controller.commands.common import output_file
     from controller.errors import InputError
 
@@ -69,7 +74,7 @@ def _check(args: argparse.Namespace) -> tuple[Path, Path, datetime | None, str |
         raise InputError("--scheduler and --workers exclude each other (the cluster has its own workers)")
     workers = args.workers if args.workers is not None else min(os.cpu_count() or 1, MAX_WORKERS)
     if args.scheduler is not None:
-        check_scheduler_address(args.scheduler)
+        tls_context(parse_scheduler_address(args.scheduler))
     since = parse_since(args.since) if args.since is not None else None
     images = None
     if args.images is not None:
@@ -86,8 +91,9 @@ def _check(args: argparse.Namespace) -> tuple[Path, Path, datetime | None, str |
 
 
 def run(args: argparse.Namespace) -> int:
-    from controller.calibration.reprocess.plan import in_scope, load_configs
+    from controller.calibration.reprocess.plan import check_records, in_scope, load_configs
     from controller.calibration.reprocess.run import open_cluster, reprocess
+    from controller.calibration.reprocess.scheduler import check_scheduler
     from controller.commands.common import print_json
     from controller.reports.reprocess import summary, write_report
     from controller.storage.db import open_existing
@@ -96,10 +102,14 @@ def run(args: argparse.Namespace) -> int:
 
     t0 = time.monotonic()
     db_path, out, since, images, workers = _check(args)
+    if args.scheduler is not None:
+        # Before the output exists: a peer that is not a Dask scheduler leaves nothing behind.
+        check_scheduler(args.scheduler, args.connect_timeout)
     options = {"since": since.isoformat() if since else None, "images": images}
     with open_existing(db_path) as source:
         archive = read_archive(source)
         configs = load_configs(archive)
+        check_records(archive, configs)
         scope = in_scope(archive, since)
         fp = fingerprint(db_path)
         quiet = args.json or not sys.stderr.isatty()
@@ -107,7 +117,7 @@ def run(args: argparse.Namespace) -> int:
         with open_output(source, out, fp, options) as db:
             resumed = len(db.done_pairs())
             if db.run_info()["status"] != "finished":
-                with open_cluster(args.scheduler and args.scheduler.strip(), workers) as cluster:
+                with open_cluster(args.scheduler, workers, connect_timeout_s=args.connect_timeout) as cluster:
                     extra = {"workers": cluster.workers, "scheduler": cluster.address, "local": cluster.local}
                     with _progress(quiet) as progress:
                         reprocess(cluster, archive, configs, scope, db, images_dir=images, progress=progress)

@@ -28,14 +28,23 @@ def read_image(path: str | Path) -> np.ndarray:
     The file's size and header (:mod:`controller.io.image_headers`) are checked before anything
     is decoded, so a hostile file costs at most its size plus the stated decoded limit."""
     p = Path(path)
-    data = _read_bytes(p)
-    header = image_header(data, str(p))
-    check_header(header, str(p))
+    return decode_image(_read_bytes(p), str(p))
+
+
+def decode_image(data: bytes, name: str, *, shape: tuple[int, int] | None = None) -> np.ndarray:
+    """The 2-D grey image in ``data``, the bytes of the file ``name`` (read by a bounded reader,
+    :func:`controller.io.files.read_bytes`), as :func:`read_image` returns it. With ``shape``
+    (rows, cols) the header must claim exactly that size, checked before decoding."""
+    header = image_header(data, name)
+    check_header(header, name)
+    if shape is not None and (header.height, header.width) != tuple(shape):
+        raise InputError(f"{name}: {header.format.upper()} header claims {header.width}×{header.height} px, "
+                         f"expected {shape[1]}×{shape[0]}")
     if header.format == "npy":
         try:
             img = np.load(io.BytesIO(data), allow_pickle=False)
         except (ValueError, OSError, EOFError) as exc:
-            raise InputError(f"{p}: not a readable .npy array ({exc})") from None
+            raise InputError(f"{name}: not a readable .npy array ({exc})") from None
     else:
         # OpenCV logs its own warnings for corrupt files on stderr; our InputError says it once.
         level = cv2.utils.logging.getLogLevel()
@@ -47,7 +56,7 @@ def read_image(path: str | Path) -> np.ndarray:
         finally:
             cv2.utils.logging.setLogLevel(level)
         if img is None:
-            raise InputError(f"{p}: not a readable image (corrupt file or unsupported format)")
+            raise InputError(f"{name}: not a readable image (corrupt file or unsupported format)")
         if img.ndim == 3:
             if img.shape[2] == 4:
                 img = cv2.cvtColor(img, cv2.COLOR_BGRA2GRAY)
@@ -56,13 +65,13 @@ def read_image(path: str | Path) -> np.ndarray:
             else:
                 img = img[:, :, 0]
     if img.ndim != 2:
-        raise InputError(f"{p}: expected a 2-D grey image, got shape {img.shape}")
+        raise InputError(f"{name}: expected a 2-D grey image, got shape {img.shape}")
     if img.size == 0:
-        raise InputError(f"{p}: image is empty")
+        raise InputError(f"{name}: image is empty")
     if not (np.issubdtype(img.dtype, np.integer) or np.issubdtype(img.dtype, np.floating)):
-        raise InputError(f"{p}: unsupported pixel type {img.dtype}")
+        raise InputError(f"{name}: unsupported pixel type {img.dtype}")
     if np.issubdtype(img.dtype, np.floating) and not np.all(np.isfinite(img)):
-        raise InputError(f"{p}: image contains NaN or infinite values")
+        raise InputError(f"{name}: image contains NaN or infinite values")
     return img
 
 

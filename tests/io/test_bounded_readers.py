@@ -22,7 +22,7 @@ from controller.errors import InputError
 from controller.geometry.paint_io import read_towers
 from controller.imaging.crf_io import load_crf
 from controller.io.image_headers import MAX_DECODED_BYTES, MAX_FILE_BYTES, MAX_PIXELS
-from controller.io.images import read_image
+from controller.io.images import decode_image, read_image
 from controller.io.json_files import load_json, nesting_depth, parse_json
 from controller.io.yaml_files import load_yaml, parse_yaml
 from controller.storage.model_file import read_model
@@ -199,3 +199,14 @@ def test_text_parsers_never_raise_anything_but_input_error(text):
 
 def test_corpus_is_small():
     assert sum(len(v) for v in corpus().values()) < 2_000_000  # 1.4 MB, mostly the deep YAML/JSON
+
+
+def test_decode_image_checks_the_size_the_caller_expects_before_decoding():
+    ok, data = cv2.imencode(".png", np.arange(12, dtype=np.uint16).reshape(3, 4))
+    assert ok
+    assert decode_image(data.tobytes(), "f.png", shape=(3, 4)).shape == (3, 4)
+    with pytest.raises(InputError, match=r"f\.png: PNG header claims 4×3 px, expected 4×2"):
+        decode_image(data.tobytes(), "f.png", shape=(2, 4))
+    # a header claiming the expected size over garbage is still refused by the decoder, naming the file
+    with pytest.raises(InputError, match=r"^g\.png: "):
+        decode_image(data.tobytes()[:40] + bytes(64), "g.png", shape=(3, 4))

@@ -120,19 +120,55 @@ def in_scope(archive: Archive, since: datetime | None) -> list[MeasurementRecord
     return [m for m in archive.measurements if (t := measured_at(m)) is None or t >= since]
 
 
+def check_records(archive: Archive, configs: Configs) -> None:
+    """Every measurement's record against its campaign's configuration, before any work is sent
+    or any output created (:func:`plan_pairs` checks its scope the same way)."""
+    seen: dict[int, set[str]] = {}
+    for m in archive.measurements:
+        _checked_campaign(archive, configs, m, seen)
+
+
+def _checked_campaign(archive: Archive, configs: Configs, m: MeasurementRecord,
+                      seen: dict[int, set[str]]) -> StoredCampaign:
+    """The campaign of ``m``; InputError naming the measurement when its campaign, target or
+    heliostat is gone or its aim point is not finite (``seen``: heliostats per checked campaign)."""
+    c = archive.campaigns.get(m.campaign_id)
+    if c is None:
+        raise InputError(f"measurement {m.id}: its campaign (id {m.campaign_id}) is not in the database")
+    path = os.path.abspath(c.config_path)
+    if c.id not in seen:
+        cfg = configs.files[path][1]
+        try:
+            camera = cfg.for_target(c.target).camera
+        except HeliocalError:
+            raise InputError(f"{path}: campaign {c.name!r} measured on target {c.target!r}, which the "
+                             "configuration no longer has") from None
+        if c.registration_json and camera.registration is None:
+            raise InputError(f"{path}: campaign {c.name!r} was registered to its target but the "
+                             f"camera of {c.target!r} has no camera.registration now")
+        seen[c.id] = {h.id for h in cfg.heliostats}
+    if m.heliostat_id not in seen[c.id]:
+        raise InputError(f"{path}: heliostat {m.heliostat_id!r} (measurement {m.id}, campaign "
+                         f"{c.name!r}) is not in the configuration any more; it cannot be re-analysed")
+    aim = tuple(float(v) for v in m.aim_enu)
+    if len(aim) != 3 or not all(math.isfinite(v) for v in aim):
+        raise InputError(f"measurement {m.id} (campaign {c.name!r}): aim point {aim} is not 3 finite "
+                         "coordinates")
+    return c
+
+
 def plan_pairs(archive: Archive, configs: Configs, scope: list[MeasurementRecord],
                images_dir: str | None) -> list[tuple[ChainSpec, PairSpec]]:
-    """Each measurement of ``scope`` with the chain of its campaign, in measurement-id order."""
+    """Each measurement of ``scope`` with the chain of its campaign, in measurement-id order
+    (each record checked as :func:`check_records` does)."""
     specs: dict[int, ChainSpec] = {}
+    seen: dict[int, set[str]] = {}
     out = []
     for m in sorted(scope, key=lambda m: m.id):
-        c = archive.campaigns[m.campaign_id]
+        c = _checked_campaign(archive, configs, m, seen)
         if c.id not in specs:
             path = os.path.abspath(c.config_path)
             sha, cfg = configs.files[path]
-            if c.registration_json and cfg.for_target(c.target).camera.registration is None:
-                raise InputError(f"{path}: campaign {c.name!r} was registered to its target but the "
-                                 f"camera of {c.target!r} has no camera.registration now")
             lib = cfg.calibration.library
             specs[c.id] = ChainSpec(path, sha, c.target, c.registration_json,
                                     os.path.abspath(lib) if lib else "")

@@ -17,7 +17,7 @@
 from __future__ import annotations
 
 import itertools
-import re
+import logging
 import uuid
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -33,10 +33,15 @@ from controller.calibration.reprocess.plan import (
     refit_specs,
     take_task,
 )
-from controller.calibration.reprocess.tasks import PairResult, RefitResult, analyse_timed, refit_heliostat
-from controller.errors import HeliocalError, InputError
+from controller.calibration.reprocess.scheduler import ClusterError, check_scheduler
+from controller.calibration.reprocess.tasks import (
+    PairResult,
+    RefitResult,
+    analyse_timed,
+    outcome,
+    refit_heliostat,
+)
 
-SCHEDULER_ADDRESS = re.compile(r"^(tcp|tls)://[A-Za-z0-9.\-\[\]:]+:(\d{1,5})$")
 REFIT_BATCH = 64  # refits committed per transaction
 TASKS_PER_WORKER = 3  # pair tasks in flight per worker: one running, the next ones queued on it
 # A local cluster's workers (docs/reprocess.md, "On a cluster", for workers started by hand):
@@ -45,13 +50,13 @@ TASKS_PER_WORKER = 3  # pair tasks in flight per worker: one running, the next o
 #   for 1,020 pairs in one process; twice the loop's CPU on the workers);
 # * the statistical profiler samples the task's thread every 10 ms for a dashboard a local
 #   cluster does not serve.
+# * Dask's own log lines (a task's traceback, a worker lost) would reach the user's stderr beside
+#   the command's one line: the workers start with Dask's loggers at "critical".
 LOCAL_WORKERS = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
+                 "distributed.nanny.pre-spawn-environ.DASK_LOGGING__DISTRIBUTED": "critical",
                  "distributed.worker.profile.enabled": False}
-
-
-class ClusterError(HeliocalError):
-    """The Dask cluster cannot be reached or has no worker (exit 1: the plant's computers, not
-    the input)."""
+CONNECT_TIMEOUT_S = 10.0  # --connect-timeout's default
+WORKER_WAIT_S = 60.0  # for the first worker of a cluster (all of a local one)
 
 
 class ReprocessSink(Protocol):
@@ -76,42 +81,61 @@ class Cluster:
     local: bool
 
 
-def check_scheduler_address(address: str) -> str:
-    """``tcp://HOST:PORT`` (or ``tls://``) with a port in 1 … 65535; InputError otherwise."""
-    m = SCHEDULER_ADDRESS.match(address)
-    if m is None or not 1 <= int(m.group(2)) <= 65535:
-        raise InputError(f"--scheduler {address!r}: expected tcp://HOST:PORT")
-    return address
+@contextmanager
+def quiet_dask() -> Iterator[None]:
+    """Dask's log output (distributed's and tornado's handlers, asyncio's warnings) silenced
+    while the cluster is used: what goes wrong reaches the user as the command's one line."""
+    handlers = [(h, h.level) for name in ("distributed", "tornado")
+                for h in logging.getLogger(name).handlers]
+    loggers = [(lg, lg.level) for lg in (logging.getLogger("asyncio"), logging.getLogger("distributed"))]
+    try:
+        for h, _ in handlers:
+            h.setLevel(logging.CRITICAL + 1)
+        for lg, _ in loggers:
+            lg.setLevel(logging.CRITICAL + 1)
+        yield
+    finally:
+        for h, level in handlers:
+            h.setLevel(level)
+        for lg, level in loggers:
+            lg.setLevel(level)
 
 
 @contextmanager
-def open_cluster(scheduler: str | None, workers: int, *, timeout_s: float = 60.0) -> Iterator[Cluster]:
-    """Connect to ``scheduler`` and wait (up to ``timeout_s``) for a worker, or start a local
-    cluster of ``workers`` single-threaded worker processes on 127.0.0.1; closed on exit."""
+def open_cluster(scheduler: str | None, workers: int, *, connect_timeout_s: float = CONNECT_TIMEOUT_S,
+                 timeout_s: float = WORKER_WAIT_S) -> Iterator[Cluster]:
+    """Connect to ``scheduler`` — checked to be a Dask scheduler within ``connect_timeout_s``
+    (:func:`controller.calibration.reprocess.scheduler.check_scheduler`) before anything is
+    sent — and wait (up to ``timeout_s``) for a worker, or start a local cluster of ``workers``
+    single-threaded worker processes on 127.0.0.1; closed on exit."""
     from dask.distributed import Client, LocalCluster
 
-    if scheduler:
-        try:
-            client = Client(scheduler, timeout=timeout_s, set_as_default=False)
-        except (OSError, TimeoutError) as exc:
-            raise ClusterError(f"--scheduler {scheduler}: no Dask scheduler answers ({exc})") from None
-        try:
+    with quiet_dask():
+        if scheduler:
+            check_scheduler(scheduler, connect_timeout_s)
             try:
-                client.wait_for_workers(1, timeout=timeout_s)
-            except TimeoutError:
-                raise ClusterError(f"--scheduler {scheduler}: no Dask worker connected within "
-                                   f"{timeout_s:g} s") from None
-            yield Cluster(client, len(client.scheduler_info()["workers"]), scheduler, False)
-        finally:
-            client.close()
-        return
-    import dask
+                client = Client(scheduler, timeout=connect_timeout_s, set_as_default=False)
+            except (OSError, TimeoutError, ValueError) as exc:
+                raise ClusterError(f"--scheduler {scheduler}: answered the check, then no Dask client "
+                                   f"could connect ({exc})") from None
+            try:
+                try:
+                    client.wait_for_workers(1, timeout=timeout_s)
+                except TimeoutError:
+                    raise ClusterError(f"--scheduler {scheduler}: no Dask worker connected within "
+                                       f"{timeout_s:g} s") from None
+                yield Cluster(client, len(client.scheduler_info()["workers"]), scheduler, False)
+            finally:
+                client.close()
+            return
+        import dask
 
-    with dask.config.set(LOCAL_WORKERS), \
-            LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                         dashboard_address=None) as cluster, Client(cluster, set_as_default=False) as client:
-        client.wait_for_workers(workers, timeout=timeout_s)
-        yield Cluster(client, workers, cluster.scheduler_address, True)
+        with dask.config.set(LOCAL_WORKERS), \
+                LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                             dashboard_address=None, silence_logs=logging.CRITICAL + 1) as cluster, \
+                Client(cluster, set_as_default=False) as client:
+            client.wait_for_workers(workers, timeout=timeout_s)
+            yield Cluster(client, workers, cluster.scheduler_address, True)
 
 
 def reprocess(cluster: Cluster, archive: Archive, configs: Configs, scope: list, sink: ReprocessSink, *,
@@ -174,7 +198,7 @@ def _streamed(client, todo: Iterator, workers: int, token: str) -> Iterator[list
                 break
         for fut in running:
             live.discard(fut)
-            results, seconds = fut.result()  # raises the worker's exception
+            results, seconds = outcome(fut.result())  # raises the worker's exception
             fut.release()
             sizer.tell(len(results), seconds)
             submit()
@@ -190,9 +214,7 @@ def _completed(client, futures: list) -> Iterator[Any]:
 
     try:
         for fut in as_completed(futures, loop=client.loop):
-            if fut.status == "error":
-                fut.result()  # raises the worker's exception
-            yield fut.result()
+            yield outcome(fut.result())  # raises the worker's exception
             fut.release()
     finally:
         client.cancel([f for f in futures if not f.done()])

@@ -10,7 +10,15 @@ Nothing here writes anything.
 Per pair the outcome is one of :data:`PAIR_STATUSES`: ``ok`` (a beam measured), ``no_beam``
 (the chain finds no usable spot now: :class:`BeamNotFound` with its reason), ``missing`` (a
 frame file is not there, or the measurement has no archived pair) or ``unreadable`` (a frame
-that cannot be decoded, or whose bytes no longer match the SHA-256 the archive recorded).
+that is not a regular file, is larger than :func:`frame_limit`, cannot be decoded, is not its
+camera's size, or whose bytes no longer match the SHA-256 the archive recorded). A frame is
+read like every other input (:func:`controller.io.files.read_bytes`): its kind and size are
+checked before a byte is read.
+
+A task refused for its input (a configuration edited mid-run, a record the configuration no
+longer fits: a :class:`HeliocalError`) returns it as a :class:`Refused` value instead of
+raising it: a raised one makes the worker log its traceback (on the user's terminal, for a
+local cluster); the client raises it, one line (:func:`outcome`).
 """
 
 from __future__ import annotations
@@ -19,9 +27,9 @@ import functools
 import hashlib
 import json
 import math
+import os
 import time
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
@@ -37,9 +45,32 @@ from controller.errors import HeliocalError, InputError
 from controller.geometry.aiming import pointing_error_mrad
 from controller.geometry.kinematics import HeliostatKinematics
 from controller.geometry.model.fit import predicted_error
-from controller.io.images import read_image
+from controller.io.files import read_bytes
+from controller.io.images import decode_image
 
 PAIR_STATUSES = ("ok", "no_beam", "missing", "unreadable")
+FRAME_SLACK_BYTES = 1 << 20  # a PNG's chunks, filter bytes and zlib blocks over the raw pixels
+
+
+def frame_limit(width_px: int, height_px: int) -> int:
+    """The largest frame file of a ``width_px`` × ``height_px`` camera, bytes: 2 bytes a pixel
+    (16-bit samples; a PNG stores incompressible pixels with well under 1 % overhead) plus
+    :data:`FRAME_SLACK_BYTES`."""
+    return 2 * width_px * height_px + FRAME_SLACK_BYTES
+
+
+@dataclass(frozen=True)
+class Refused:
+    """A task's :class:`HeliocalError`, returned (module docstring)."""
+
+    error: HeliocalError
+
+
+def outcome(result):
+    """A task's result on the client: raises the :class:`Refused` error, else ``result``."""
+    if isinstance(result, Refused):
+        raise result.error
+    return result
 
 
 @dataclass(frozen=True)
@@ -111,17 +142,15 @@ def chain_for(spec: ChainSpec) -> BeamChain:
     return chain
 
 
-def _frame(path: str, sha256: str) -> np.ndarray:
-    p = Path(path)
-    try:
-        data = p.read_bytes()
-    except FileNotFoundError:
-        raise FileNotFoundError(f"{p}: frame not found") from None
-    except OSError as exc:
-        raise InputError(f"{p}: cannot read frame ({exc.strerror or exc})") from None
+def _frame(path: str, sha256: str, camera) -> np.ndarray:
+    """The frame at ``path`` of a camera (``width_px`` × ``height_px``): a regular file within
+    :func:`frame_limit`, its bytes those the archive recorded, its header the camera's size."""
+    if not os.path.lexists(path):
+        raise FileNotFoundError(f"{path}: frame not found")
+    data = read_bytes(path, "frame", frame_limit(camera.width_px, camera.height_px))
     if sha256 and hashlib.sha256(data).hexdigest() != sha256:
-        raise InputError(f"{p}: frame differs from the archive record (SHA-256)")
-    return read_image(p)
+        raise InputError(f"{path}: frame differs from the archive record (SHA-256)")
+    return decode_image(data, path, shape=(camera.height_px, camera.width_px))
 
 
 def analyse_pair(chain: BeamChain, heliostat_pos: np.ndarray, pair: PairSpec) -> PairResult:
@@ -132,7 +161,8 @@ def analyse_pair(chain: BeamChain, heliostat_pos: np.ndarray, pair: PairSpec) ->
     if not pair.low or not pair.high:
         return PairResult(mid, "missing", "no frame pair archived for this measurement")
     try:
-        low, high = _frame(pair.low, pair.low_sha256), _frame(pair.high, pair.high_sha256)
+        camera = chain.cfg.camera
+        low, high = _frame(pair.low, pair.low_sha256, camera), _frame(pair.high, pair.high_sha256, camera)
     except FileNotFoundError as exc:
         return PairResult(mid, "missing", str(exc))
     except InputError as exc:
@@ -165,12 +195,15 @@ def analyse_chunk(spec: ChainSpec, pairs: tuple[PairSpec, ...]) -> list[PairResu
 
 
 def analyse_timed(groups: tuple[tuple[ChainSpec, tuple[PairSpec, ...]], ...]
-                  ) -> tuple[list[PairResult], float]:
+                  ) -> tuple[list[PairResult], float] | Refused:
     """One task of several chunks (a night's passes are campaigns of their own: one task may
     hold many): :func:`analyse_chunk` of each, and the seconds they took on the worker (the
     client sizes the next tasks from them, :class:`controller.calibration.reprocess.plan.TaskSizer`)."""
     t0 = time.perf_counter()
-    out = [r for spec, pairs in groups for r in analyse_chunk(spec, pairs)]
+    try:
+        out = [r for spec, pairs in groups for r in analyse_chunk(spec, pairs)]
+    except HeliocalError as exc:
+        return Refused(exc)
     return out, time.perf_counter() - t0
 
 
@@ -229,7 +262,15 @@ def moved_terms(old: ModelRecord | None, new: ModelRecord | None) -> dict[str, t
     return out
 
 
-def refit_heliostat(spec: RefitSpec) -> RefitResult:
+def refit_heliostat(spec: RefitSpec) -> RefitResult | Refused:
+    """One task: :func:`refit` (its :class:`HeliocalError` returned, module docstring)."""
+    try:
+        return refit(spec)
+    except HeliocalError as exc:
+        return Refused(exc)
+
+
+def refit(spec: RefitSpec) -> RefitResult:
     """One task: fit the heliostat's model to ``spec.measurements`` exactly as a campaign does
     (:func:`controller.calibration.cycle.pointing.fit_measurements`) and compare it with the old
     model. ``changed``: a term moved by more than its σ, or a heliostat without a model got

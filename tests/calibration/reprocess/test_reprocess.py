@@ -1,11 +1,9 @@
 """``heliocal reprocess`` against a real Dask scheduler and workers on 127.0.0.1.
 
-The source is a demo database recorded by the product on the simulated plant (small cameras, three
-heliostats, the calibration night and one planned night), with the plant's camera responses in
-its configuration, so the records were made with exactly the configuration they name. The
-checks that do not share the code under test: the recorded centroids and models (made live by
-the campaign), a real ``dask scheduler`` and ``dask worker`` processes of the project's
-environment, SHA-256 of the source before and after, and a worker process killed with SIGKILL.
+The source is the demo database of ``conftest.py``. The checks that do not share the code under
+test: the recorded centroids and models (made live by the campaign), a real ``dask scheduler``
+and ``dask worker`` processes of the project's environment, SHA-256 of the source before and
+after, and a worker process killed with SIGKILL.
 """
 
 from __future__ import annotations
@@ -23,25 +21,17 @@ from pathlib import Path
 import pytest
 import yaml
 
-from controller.commands.simulated import plant_crf_config
 from controller.storage.reprocess.archive import fingerprint
 from simplant.archive import replicate
+from tests.calibration.reprocess.conftest import REPO
+from tests.calibration.reprocess.conftest import heliocal as _heliocal
 from tests.conftest import scaled_s
 
 pytestmark = pytest.mark.xdist_group("reprocess")
 
-REPO = Path(__file__).resolve().parents[3]
 DASK = Path(sys.executable).with_name("dask")
 # Figures that say how the run went, not what it found.
 RUN_KEYS = {"workers", "scheduler", "local", "wall_s", "out", "report", "resumed_pairs"}
-
-
-def _heliocal(*args: str, check: bool = True) -> subprocess.CompletedProcess:
-    r = subprocess.run([sys.executable, "-m", "controller.cli", *args], cwd=REPO, capture_output=True,
-                       text=True, timeout=scaled_s(600))
-    if check:
-        assert r.returncode == 0, r.stderr
-    return r
 
 
 def _figures(r: subprocess.CompletedProcess) -> dict:
@@ -50,19 +40,6 @@ def _figures(r: subprocess.CompletedProcess) -> dict:
 
 def _found(f: dict) -> dict:
     return {k: v for k, v in f.items() if k not in RUN_KEYS and k != "db"}
-
-
-@pytest.fixture(scope="module")
-def field(tmp_path_factory) -> dict[str, Path]:
-    """A demo database recorded with the configuration it names (module docstring)."""
-    d = tmp_path_factory.mktemp("reprocess")
-    config = plant_crf_config(d)
-    r = _heliocal("demo", "--config", str(config), "--heliostats", "3", "--nights", "1", "--out",
-                  str(d / "demo"), "--json", check=False)
-    # The demo exits with its worst night: 3 when a night left planned geometries unmeasured.
-    partial = any(n["status"] == "partial" for n in json.loads(r.stdout)["nights"])
-    assert r.returncode == (3 if partial else 0), r.stderr
-    return {"db": d / "demo" / "campaign.db", "config": config, "dir": d}
 
 
 # One BLAS thread per worker, as Dask's nanny sets for the workers it starts: a worker without a
