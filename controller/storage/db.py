@@ -3,7 +3,9 @@
 One database file holds any number of campaigns. The connection runs in WAL mode with
 ``synchronous=FULL`` (durable commits), foreign keys on, and every write inside one
 transaction (``with store.tx():``). The schema is versioned with ``PRAGMA user_version`` and
-upgraded by the ordered :data:`MIGRATIONS` on open, each migration in its own transaction.
+upgraded by the ordered :data:`MIGRATIONS` on open, all of them in one transaction (a failed
+upgrade changes nothing). A file the open created is removed again when the open is refused,
+and a database's folder is never created.
 
 Resumability contract (docs/campaigns.md): a heliostat's whole run — run row, measurements,
 corrections, images and fitted model — is committed in ONE transaction by
@@ -74,21 +76,28 @@ class CampaignStore:
         self._lock = threading.RLock()
         self.campaign_lock = CampaignLock(self.path)
         check_regular(self.path, "database")  # a FIFO would block sqlite's first read
+        # A new (or empty) file this open creates: removed again, with SQLite's side files, when
+        # the open is refused, so a refusal leaves nothing behind.
+        self._existed = self.path.exists()
+        self._created = not readonly and (not self._existed or self.path.stat().st_size == 0)
+        self._db: sqlite3.Connection | None = None
         try:
             if readonly:
                 self._db = self._open_readonly()
             else:
-                self.path.parent.mkdir(parents=True, exist_ok=True)
+                if not self.path.parent.is_dir():
+                    raise InputError(f"{self.path}: folder {self.path.parent} does not exist "
+                                     "(create it first)")
                 self._db = sqlite3.connect(str(self.path), isolation_level=None, check_same_thread=False,
                                            timeout=10.0, factory=CheckedConnection)
                 self._db.path = self.path
             self._db.row_factory = sqlite3.Row
             self._check_foreign()
             if not readonly:
+                self._db.execute("PRAGMA foreign_keys=ON")
+                self._migrate()  # before WAL: a refused upgrade leaves the file's journal mode as it was
                 self._db.execute("PRAGMA journal_mode=WAL")
                 self._db.execute("PRAGMA synchronous=FULL")
-                self._db.execute("PRAGMA foreign_keys=ON")
-                self._migrate()
             elif self.schema_version > SCHEMA_VERSION:
                 raise InputError(f"{self.path}: database schema v{self.schema_version} is newer than this "
                                  f"heliocal understands (v{SCHEMA_VERSION})")
@@ -97,7 +106,25 @@ class CampaignStore:
             if readonly:
                 check_pages(self._db, self.path)
         except sqlite3.DatabaseError as exc:
+            self._abandon()
             raise InputError(f"{self.path}: not a usable heliocal database ({exc})") from None
+        except BaseException:
+            self._abandon()
+            raise
+
+    def _abandon(self) -> None:
+        """A refused open: close the connection; a file this open created is removed (an empty
+        file that was there is left empty), with SQLite's side files."""
+        if self._db is not None:
+            self._db.close()
+        if not self._created:
+            return
+        for suffix in ("-wal", "-shm", "-journal"):
+            Path(f"{self.path}{suffix}").unlink(missing_ok=True)
+        if self._existed:
+            os.truncate(self.path, 0)
+        else:
+            self.path.unlink(missing_ok=True)
 
     def _open_readonly(self) -> sqlite3.Connection:
         try:
@@ -142,12 +169,21 @@ class CampaignStore:
         if version > SCHEMA_VERSION:
             raise InputError(f"{self.path}: database schema v{version} is newer than this "
                              f"heliocal understands (v{SCHEMA_VERSION})")
-        for v in range(version, SCHEMA_VERSION):
-            with self.tx() as db:
-                for stmt in MIGRATIONS[v].split(";"):
-                    if stmt.strip():
-                        db.execute(stmt)
-                db.execute(f"PRAGMA user_version={v + 1}")
+        if version == SCHEMA_VERSION:
+            return
+        if version:  # an older heliocal database: it must hold that version's schema before the upgrade
+            check_schema(self._db, self.path, MIGRATIONS[:version])
+        try:
+            with self.tx() as db:  # every step in one transaction: a failed upgrade changes nothing
+                for v in range(version, SCHEMA_VERSION):
+                    for stmt in MIGRATIONS[v].split(";"):
+                        if stmt.strip():
+                            db.execute(stmt)
+                db.execute(f"PRAGMA user_version={SCHEMA_VERSION}")
+        except (sqlite3.Error, InputError) as exc:
+            why = str(exc).removeprefix(f"{self.path}: ")
+            raise InputError(f"{self.path}: upgrading the schema from v{version} to v{SCHEMA_VERSION} failed "
+                             f"({why}); nothing was changed") from None
 
     @contextmanager
     def tx(self) -> Iterator[sqlite3.Connection]:

@@ -13,7 +13,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from controller.commands.common import campaign_heliostats, check_db_field, print_json
+from controller.commands.common import campaign_heliostats, check_db_field, output_file, print_json
 from controller.errors import InputError
 
 
@@ -22,6 +22,7 @@ def run_night_cli(args: argparse.Namespace) -> int:
     from controller.config import load_config
     from controller.storage.nights import NightBook
 
+    output_file(args.db, "--db")  # its folder exists: never created
     cfg = load_config(args.config)
     ids = campaign_heliostats(args, cfg)
     if not args.simulate and cfg.lamps is None:

@@ -33,6 +33,7 @@ from controller.commands.common import (
     campaign_heliostats,
     check_db_field,
     output_dir,
+    output_file,
     print_json,
 )
 
@@ -128,6 +129,7 @@ def default_name(config: str) -> str:
 def run(args: argparse.Namespace) -> int:
     from controller.config import load_config
 
+    output_file(args.db, "--db")  # its folder exists: never created
     cfg = load_config(args.config)
     ids = campaign_heliostats(args, cfg)
     check_db_field(args.db, cfg, ids, args)  # the models in DB were fitted on this field
