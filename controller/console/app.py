@@ -34,6 +34,7 @@ from controller.console.steps import STEPS, run_step
 from controller.devices.drive import DriveError, LinkError, NakError
 from controller.errors import HeliocalError, InputError, LimitError
 from controller.io.json_files import parse_json
+from controller.io.text_numbers import is_ascii_index
 from controller.storage.audit import AuditTrail
 from controller.storage.lock import DatabaseBusy
 from controller.storage.users import AccessDenied, require
@@ -78,7 +79,7 @@ async def _bounded_json(request: Request):
     """The request's JSON body, refused (413, 400) before parsing when it is too large, nested
     too deep, not UTF-8, not JSON or has a key twice — never a 500."""
     declared = request.headers.get("content-length", "")
-    if declared.isdigit() and int(declared) > MAX_BODY_BYTES:
+    if not is_ascii_index(declared) or int(declared) > MAX_BODY_BYTES:
         raise _Refused(413, f"request body of {declared} bytes is too large (at most {MAX_BODY_BYTES})")
     data = bytearray()
     async for chunk in request.stream():

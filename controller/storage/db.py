@@ -41,6 +41,7 @@ from controller.calibration.records import (
 )
 from controller.errors import InputError
 from controller.io.files import check_regular
+from controller.io.text_numbers import is_ascii_index
 from controller.storage.checks import (
     CheckedConnection,
     check_pages,
@@ -276,7 +277,7 @@ class CampaignStore:
         by_name = self.campaign_by_name(str(ref))
         if by_name is not None:
             return by_name
-        if str(ref).isdigit():
+        if is_ascii_index(str(ref)):
             return self.campaign(int(ref))
         raise InputError(f"{self.path}: no campaign named {ref!r} (see heliocal campaign list)")
 

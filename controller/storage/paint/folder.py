@@ -27,6 +27,7 @@ from controller.geometry.paint_io import (
     read_record,
 )
 from controller.io.files import read_bytes
+from controller.io.text_numbers import is_ascii_index
 
 RECORD_SUFFIX = "_calibration_properties.json"
 
@@ -73,7 +74,7 @@ def heliostat_folders(folder: str | Path) -> dict[str, tuple[Path, list[Path]]]:
 
 
 def _id_key(record_id: str) -> tuple:
-    return (0, int(record_id), "") if record_id.isdigit() else (1, 0, record_id)
+    return (0, int(record_id), "") if is_ascii_index(record_id) else (1, 0, record_id)
 
 
 def read_folder(folder: str | Path, towers: Towers, timestamps: dict[str, str]) -> list[FolderHeliostat]:
