@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import signal
@@ -17,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from controller.errors import InputError
+from controller.io.json_files import dumps_json
 
 # The demo plant's configuration ships inside the package, so every command works from any
 # folder; configs/demo.yaml in the repository is the same file.
@@ -71,7 +71,7 @@ def _plain(value: Any) -> Any:
 
 def print_json(obj: Any) -> None:
     """Print ``obj`` as one line of JSON (numpy values converted, non-finite floats as null)."""
-    print(json.dumps(_plain(obj)))
+    print(dumps_json(_plain(obj)))
 
 
 def existing_file(path: str | Path, what: str = "file") -> Path:

@@ -367,7 +367,7 @@ class CampaignStore:
             args.append(heliostat_id)
         with self._lock:
             rows = self._db.execute(sql + " ORDER BY m.id", args).fetchall()
-        return [measurement_from_row(r) for r in rows]
+        return [measurement_from_row(r, self.path) for r in rows]
 
     def corrections(self, run_id: int) -> list[CorrectionRecord]:
         with self._lock:

@@ -23,7 +23,7 @@ def measurements_by_heliostat(store: CampaignStore, heliostat_ids=None) -> dict[
     out: dict[str, list[MeasurementRecord]] = {}
     for r in rows:
         if wanted is None or r["heliostat_id"] in wanted:
-            out.setdefault(r["heliostat_id"], []).append(measurement_from_row(r))
+            out.setdefault(r["heliostat_id"], []).append(measurement_from_row(r, store.path))
     return out
 
 

@@ -36,6 +36,7 @@ from controller.commands.common import (
     output_file,
     print_json,
 )
+from controller.io.json_files import dumps_json
 
 SPEEDUP = Number(0, 1000, lo_open=True)  # the simulated plant clock's speedup (SimulationSettings)
 
@@ -107,11 +108,10 @@ def register(subparsers) -> None:
 def notify(command: str, summary: dict) -> None:
     """Hand the summary to a scheduler's hook; its failure is reported, never fatal (the
     campaign's outcome is already recorded)."""
-    import json
     import subprocess
 
     try:
-        r = subprocess.run(command, shell=True, input=json.dumps(summary), text=True, timeout=60,
+        r = subprocess.run(command, shell=True, input=dumps_json(summary), text=True, timeout=60,
                            capture_output=True)
     except subprocess.TimeoutExpired:
         print(f"heliocal campaign run: --notify command did not finish within 60 s: {command}",
