@@ -42,7 +42,7 @@ def run(args: argparse.Namespace) -> int:
     from controller.commands.field import open_store
     from controller.config import load_config
     from controller.storage.db import open_existing
-    from controller.storage.field_records import measurements_by_heliostat, record_models
+    from controller.storage.field_records import check_fit_inputs, measurements_by_heliostat, record_models
 
     open_existing(args.db).close()  # an existing heliocal database (not any file), before writing
     cfg = load_config(args.config)
@@ -56,6 +56,7 @@ def run(args: argparse.Namespace) -> int:
         history = measurements_by_heliostat(store, ids)
         for hid in history:
             cfg.heliostat(hid)  # a heliostat recorded but no longer configured: refused, named
+        check_fit_inputs(store.path, cfg, history)  # an edited record: refused, named
         r = refit_models(cfg, history, workers=args.workers)
         fitted = {hid: (history[hid][-1], m) for hid, m in r.models.items() if m is not None}
         record_models(store, fitted)

@@ -23,6 +23,8 @@ from controller.geometry.paint_io import (
     FOCAL_SPOT_METHODS,
     PaintRecord,
     Towers,
+    check_reach,
+    kinematics_from_properties,
     read_heliostat_properties,
     read_record,
 )
@@ -84,11 +86,13 @@ def read_folder(folder: str | Path, towers: Towers, timestamps: dict[str, str]) 
     out = []
     for hid, (props_path, paths) in heliostat_folders(folder).items():
         props = read_heliostat_properties(props_path)
+        kin = kinematics_from_properties(props, towers.origin_wgs84, hid)
         records = []
         for p in paths:
             rid = p.name.removesuffix(RECORD_SUFFIX)
             sha = hashlib.sha256(read_bytes(p, "calibration record")).hexdigest()
             rec = read_record(p, towers, methods=FOCAL_SPOT_METHODS)
+            check_reach(rec, kin)
             records.append(FolderRecord(hid, rid, p, sha, rec, timestamps.get(f"{hid}_{rid}")))
         records.sort(key=lambda r: (r.utc or "", _id_key(r.record_id)))
         out.append(FolderHeliostat(hid, props_path, props, records))
