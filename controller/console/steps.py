@@ -14,7 +14,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from controller.console.backend import Conflict, Console, read_limits
+from controller.console.backend import Conflict, Console, only_keys, read_limits
 from controller.console.events import plain
 from controller.errors import HeliocalError, InputError, LimitError
 from controller.io.images import write_atomic
@@ -44,6 +44,7 @@ def run_step(console: Console, hid: str, step: str, body: dict) -> dict:
     if step not in STEPS:
         raise InputError(f"unknown step {step!r}; one of {', '.join(STEPS)}")
     moves, safe, names = STEPS[step]
+    only_keys(body, names + (("label",) if step == "record" else ()), step)
     params = [_int(body, n) for n in names]
     with console.command(hid, moves=moves, beam_safe=safe) as c:
         before = c.needs_parking

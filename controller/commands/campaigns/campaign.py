@@ -22,6 +22,7 @@ import sys
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
+from controller.commands._id_lists import campaign_name
 from controller.commands._numbers import SEED, Number
 from controller.commands.campaigns._campaign_list import list_campaigns
 from controller.commands.campaigns._flags import flags_command
@@ -133,7 +134,7 @@ def run(args: argparse.Namespace) -> int:
     cfg = load_config(args.config)
     ids = campaign_heliostats(args, cfg)
     check_db_field(args.db, cfg, ids, args)  # the models in DB were fitted on this field
-    name = args.name or default_name(args.config)
+    name = campaign_name(args.name, "--name") if args.name is not None else default_name(args.config)
     quiet = args.json or not sys.stderr.isatty()
     db = Path(args.db)
     if args.report:

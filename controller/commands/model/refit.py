@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 
+from controller.commands._id_lists import split_ids
 from controller.commands._numbers import Number
 
 
@@ -48,9 +49,7 @@ def run(args: argparse.Namespace) -> int:
     cfg = load_config(args.config)
     ids = None
     if args.heliostats:
-        ids = [h.strip() for h in args.heliostats.split(",") if h.strip()]
-        for hid in ids:
-            cfg.heliostat(hid)  # ConfigError naming an unknown id, before anything is read
+        ids = split_ids(args.heliostats, "--heliostats", cfg.heliostat)  # before anything is read
     store = open_store(args.db)
     try:
         history = measurements_by_heliostat(store, ids)
