@@ -50,6 +50,7 @@ from controller.storage.checks import (
     json_column,
     resolved_image_path,
 )
+from controller.storage.db_file import check_foreign, records_nothing, remove_new_database, upgrade
 from controller.storage.images import insert_images
 from controller.storage.lock import CampaignLock
 from controller.storage.rows import campaign_from_row, measurement_from_row, model_from_row, run_from_row
@@ -93,10 +94,10 @@ class CampaignStore:
                                            timeout=10.0, factory=CheckedConnection)
                 self._db.path = self.path
             self._db.row_factory = sqlite3.Row
-            self._check_foreign()
+            check_foreign(self._db, self.path, self.readonly)
             if not readonly:
                 self._db.execute("PRAGMA foreign_keys=ON")
-                self._migrate()  # before WAL: a refused upgrade leaves the file's journal mode as it was
+                upgrade(self, MIGRATIONS)  # before WAL: a refused upgrade leaves the journal mode as it was
                 self._db.execute("PRAGMA journal_mode=WAL")
                 self._db.execute("PRAGMA synchronous=FULL")
             elif self.schema_version > SCHEMA_VERSION:
@@ -114,18 +115,11 @@ class CampaignStore:
             raise
 
     def _abandon(self) -> None:
-        """A refused open: close the connection; a file this open created is removed (an empty
-        file that was there is left empty), with SQLite's side files."""
+        """A refused open: close the connection; a file this open created is removed."""
         if self._db is not None:
             self._db.close()
-        if not self._created:
-            return
-        for suffix in ("-wal", "-shm", "-journal"):
-            Path(f"{self.path}{suffix}").unlink(missing_ok=True)
-        if self._existed:
-            os.truncate(self.path, 0)
-        else:
-            self.path.unlink(missing_ok=True)
+        if self._created:
+            remove_new_database(self.path, self._existed)
 
     def _open_readonly(self) -> sqlite3.Connection:
         try:
@@ -148,43 +142,10 @@ class CampaignStore:
             raise
         return db
 
-    def _check_foreign(self) -> None:
-        """Refuse a database that another program made (tables but no heliocal schema version),
-        and, read-only, an empty one."""
-        if self.schema_version:
-            return
-        tables = [r[0] for r in self._db.execute("SELECT name FROM sqlite_master WHERE type='table'")]
-        if tables:
-            raise InputError(f"{self.path}: not a heliocal database (it holds other tables: "
-                             f"{', '.join(sorted(tables)[:5])}); nothing was written")
-        if self.readonly:
-            raise InputError(f"{self.path}: empty database, no campaign recorded")
-
     # -- schema -----------------------------------------------------------------------------
     @property
     def schema_version(self) -> int:
         return int(self._db.execute("PRAGMA user_version").fetchone()[0])
-
-    def _migrate(self) -> None:
-        version = self.schema_version
-        if version > SCHEMA_VERSION:
-            raise InputError(f"{self.path}: database schema v{version} is newer than this "
-                             f"heliocal understands (v{SCHEMA_VERSION})")
-        if version == SCHEMA_VERSION:
-            return
-        if version:  # an older heliocal database: it must hold that version's schema before the upgrade
-            check_schema(self._db, self.path, MIGRATIONS[:version])
-        try:
-            with self.tx() as db:  # every step in one transaction: a failed upgrade changes nothing
-                for v in range(version, SCHEMA_VERSION):
-                    for stmt in MIGRATIONS[v].split(";"):
-                        if stmt.strip():
-                            db.execute(stmt)
-                db.execute(f"PRAGMA user_version={SCHEMA_VERSION}")
-        except (sqlite3.Error, InputError) as exc:
-            why = str(exc).removeprefix(f"{self.path}: ")
-            raise InputError(f"{self.path}: upgrading the schema from v{version} to v{SCHEMA_VERSION} failed "
-                             f"({why}); nothing was changed") from None
 
     @contextmanager
     def tx(self) -> Iterator[sqlite3.Connection]:
@@ -198,16 +159,24 @@ class CampaignStore:
                 raise
             self._db.execute("COMMIT")
 
-    def close(self) -> None:
+    def close(self, refused: BaseException | None = None) -> None:
+        """Close; after a refusal (``refused``: an InputError), a database this open created that
+        still records nothing is removed — a refused command leaves no new file."""
         with self._lock:
+            if self._db is None:  # closed already
+                return
+            discard = isinstance(refused, InputError) and self._created and records_nothing(self._db)
             self._db.close()
+            if discard:
+                self._db = None
+                remove_new_database(self.path, self._existed)
             self.campaign_lock.release()
 
     def __enter__(self) -> CampaignStore:
         return self
 
-    def __exit__(self, *exc) -> None:
-        self.close()
+    def __exit__(self, exc_type, exc, tb) -> None:
+        self.close(exc)
 
     # -- campaigns --------------------------------------------------------------------------
     def open_campaign(self, name: str, *, config_path: str, config_sha256: str, light_source: str,

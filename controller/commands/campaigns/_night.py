@@ -33,6 +33,7 @@ def run_night_cli(args: argparse.Namespace) -> int:
     quiet = args.json or not sys.stderr.isatty()
     progress = None if quiet else (lambda text: print(text, file=sys.stderr))
     store = open_store(db)
+    refused = None
     try:
         book = NightBook(store)
         base = book.base_name() or Path(args.config).stem
@@ -44,8 +45,11 @@ def run_night_cli(args: argparse.Namespace) -> int:
             print(f"heliocal campaign night: interrupted; {lamps}heliostats in motion parked. Rerun the same "
                   "command to resume the night.", file=sys.stderr)
             return 130
+    except BaseException as exc:
+        refused = exc
+        raise
     finally:
-        store.close()
+        store.close(refused)  # a refusal on a database this run created leaves no file
     summary["db"] = str(db)
     if args.json:
         print_json(summary)
