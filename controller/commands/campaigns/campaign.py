@@ -39,6 +39,7 @@ from controller.commands.common import (
 )
 from controller.io.json_files import dumps_json
 
+DB_HELP = "campaign database (SQLite; created if missing, in an existing folder)"
 SPEEDUP = Number(0, 1000, lo_open=True)  # the simulated plant clock's speedup (SimulationSettings)
 
 
@@ -59,7 +60,7 @@ def register(subparsers) -> None:
     sub = p.add_subparsers(dest="campaign_command", metavar="SUBCOMMAND")
     r = sub.add_parser("run", help="run or resume a campaign", description=__doc__)
     add_config_option(r)
-    r.add_argument("--db", required=True, metavar="DB", help="campaign database (SQLite, created if missing)")
+    r.add_argument("--db", required=True, metavar="DB", help=DB_HELP)
     r.add_argument("--name", default=None, help="campaign name (default: <config stem>-<night>)")
     r.add_argument("--heliostats", default=None, metavar="IDS", help="comma-separated ids (default: all)")
     r.add_argument("--camera-manifest", default=None, metavar="FILE", help="replay frame pairs (FileCamera)")
@@ -76,7 +77,7 @@ def register(subparsers) -> None:
                                    "dark, run the passes of every target in parallel, refit, summarise. "
                                    "Rerun after Ctrl-C or kill -9 to resume the same night.")
     add_config_option(n)
-    n.add_argument("--db", required=True, metavar="DB", help="campaign database (SQLite, created if missing)")
+    n.add_argument("--db", required=True, metavar="DB", help=DB_HELP)
     n.add_argument("--heliostats", default=None, metavar="IDS", help="comma-separated ids (default: all)")
     n.add_argument("--camera-manifest", default=None, metavar="FILE",
                    help="replay frame pairs for the calibration target (FileCamera)")
