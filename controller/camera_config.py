@@ -18,6 +18,7 @@ from controller.config_rules import (
     Section,
     TangentialDistortion,
 )
+from controller.io.text_numbers import is_ascii_index
 
 Vec3 = tuple[float, float, float]
 _Model = Section  # as every configuration section (controller.config_rules)
@@ -54,7 +55,7 @@ class Gige(_Model):
     @field_validator("trigger")
     @classmethod
     def _trigger(cls, v: str) -> str:
-        if v not in ("software", "free") and not (v.startswith("Line") and v[4:].isdigit()):
+        if v not in ("software", "free") and not (v.startswith("Line") and is_ascii_index(v[4:])):
             raise ValueError(f"{v!r}: must be software, free or LineN (a hardware input, e.g. Line1)")
         return v
 

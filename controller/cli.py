@@ -14,7 +14,6 @@ their exit code; argparse usage errors exit 2 as usual.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import re
 import signal
@@ -26,6 +25,7 @@ from controller.commands._groups import command_modules
 from controller.commands._numbers import Number
 from controller.commands.common import resolve_config
 from controller.errors import HeliocalError
+from controller.io.json_files import dumps_json
 
 
 class HeliocalParser(argparse.ArgumentParser):
@@ -45,7 +45,7 @@ class HeliocalParser(argparse.ArgumentParser):
         """One line, as every other bad input (``--help`` shows the usage): on stderr, or as
         ``{"ok": false, "error": ...}`` on stdout with ``--json``; exit status 2."""
         if HeliocalParser.json_errors:
-            print(json.dumps({"ok": False, "error": message}))
+            print(dumps_json({"ok": False, "error": message}))
         else:
             print(f"{self.prog}: error: {message} (see {self.prog} --help)", file=sys.stderr)
         sys.exit(2)
@@ -119,7 +119,7 @@ def _main(argv: list[str] | None) -> int:
             out = {"ok": False, "error": str(exc)}
             if exc.outcome is not None:
                 out["outcome"] = exc.outcome
-            print(json.dumps(out))
+            print(dumps_json(out))
         else:
             print(f"heliocal {args.command}: error: {exc}", file=sys.stderr)
         return exc.exit_code

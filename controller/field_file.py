@@ -26,6 +26,7 @@ from pydantic import ValidationError
 from controller.errors import ConfigError, InputError
 from controller.heliostat_config import FieldFile, Heliostat, Mirror
 from controller.io.files import read_bytes
+from controller.io.text_numbers import is_ascii_index
 from controller.io.yaml_files import parse_yaml
 
 COLUMNS = ("id", "east_m", "north_m", "up_m", "kinematics", "bus", "station")
@@ -147,10 +148,9 @@ class _Rows:
         if bus is None:
             raise self.fail(line, "bus", f"{cells['bus']!r} is not a name of field.buses "
                             f"(known: {', '.join(sorted(self.spec.buses))})")
-        try:
-            station = int(cells["station"])
-        except ValueError:
-            raise self.fail(line, "station", f"{cells['station']!r} is not a whole number") from None
+        if not is_ascii_index(cells["station"]):
+            raise self.fail(line, "station", f"{cells['station']!r} is not a whole number (ASCII digits)")
+        station = int(cells["station"])
         if not 1 <= station <= 247:
             raise self.fail(line, "station", f"{station} is not a bus address or unit id (1 … 247)")
         link = bus.link(station)

@@ -357,6 +357,8 @@ def _check(argv: list[str], code: int, out: str, err: str, bad: Path, outdir: Pa
     assert code == expect, f"{where}: exit {code}\n{err}"
     assert len(lines) == 1 and bad.name in lines[0], f"{where}: expected one line naming {bad.name}:\n{err}"
     assert not any(outdir.iterdir()), f"{where}: created {sorted(p.name for p in outdir.iterdir())}"
+    beside = sorted(p.name for p in bad.parent.iterdir() if p.name.startswith(bad.name) and p != bad)
+    assert not beside, f"{where}: left {beside} beside the file it refused (a lock, a journal)"
 
 
 @pytest.mark.parametrize("path,index,slot", list(_cases()))

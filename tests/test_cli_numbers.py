@@ -47,7 +47,7 @@ def test_every_numeric_option_has_a_range():
 
 
 def _bad_values(n: Number) -> list[str]:
-    out = ["nan", "-inf", "1e308", "-1e308", "x"]
+    out = ["nan", "-inf", "1e308", "-1e308", "x", "١", "１", "²", "1_0"]  # int() takes ١, １ and 1_0
     if not n.infinite:
         out.append("inf")
     step = 1 if n.integer else max(abs(n.lo), abs(n.hi), 1.0) * 1e-9

@@ -126,7 +126,7 @@ def unshelved(alarm: Alarm, now: datetime) -> Alarm:
     return replace(alarm, shelved_until_utc=None, shelved_by=None)
 
 
-_PART = re.compile(r"(\d+(?:\.\d+)?)\s*([dhms])")
+_PART = re.compile(r"([0-9]{1,9}(?:\.[0-9]{1,9})?)\s*([dhms])", re.ASCII)  # ASCII digits only
 _UNIT_S = {"d": 86400.0, "h": 3600.0, "m": 60.0, "s": 1.0}
 
 

@@ -11,6 +11,9 @@ from __future__ import annotations
 import argparse
 import math
 
+from controller.errors import InputError
+from controller.io.text_numbers import parse_float, parse_int
+
 INT32 = 2**31 - 1
 SEED_MAX = 2**32 - 1  # numpy's SeedSequence takes any non-negative integer; scripts pass 32-bit ones
 
@@ -29,11 +32,11 @@ class Number:
         return text + (" or inf" if self.infinite else "")
 
     def __call__(self, text: str) -> int | float:
-        try:
-            value = int(text) if self.integer else float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(
-                f"{text!r} is not {'an integer' if self.integer else 'a number'}") from None
+        try:  # ASCII only: int() would take "١" or "１" for 1
+            value = parse_int(text, "") if self.integer else parse_float(text, "")
+        except InputError:
+            kind = "an integer" if self.integer else "a number"
+            raise argparse.ArgumentTypeError(f"{text[:40]!r} is not {kind} (ASCII digits)") from None
         if self.infinite and value == math.inf:
             return value
         if not math.isfinite(value):

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import signal
@@ -17,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from controller.errors import InputError
+from controller.io.json_files import dumps_json
 
 # The demo plant's configuration ships inside the package, so every command works from any
 # folder; configs/demo.yaml in the repository is the same file.
@@ -71,7 +71,7 @@ def _plain(value: Any) -> Any:
 
 def print_json(obj: Any) -> None:
     """Print ``obj`` as one line of JSON (numpy values converted, non-finite floats as null)."""
-    print(json.dumps(_plain(obj)))
+    print(dumps_json(_plain(obj)))
 
 
 def existing_file(path: str | Path, what: str = "file") -> Path:
@@ -220,15 +220,10 @@ def add_hidden_errors_option(parser: argparse.ArgumentParser) -> None:
 def campaign_heliostats(args, cfg) -> list[str]:
     """The heliostats of ``heliocal campaign run|night``: ``--heliostats`` (ids separated by
     commas, each one of ``cfg``) or every heliostat of ``cfg``; the camera checked for them."""
+    from controller.commands._id_lists import split_ids
+
     ids = [h.id for h in cfg.heliostats]
     if args.heliostats is not None:
-        ids = [i.strip() for i in args.heliostats.split(",") if i.strip()]
-        if not ids:
-            raise InputError(f"--heliostats: no heliostat id in {args.heliostats!r} "
-                             "(give ids separated by commas)")
-        if len(set(ids)) != len(ids):
-            raise InputError(f"--heliostats: an id is given twice in {args.heliostats!r}")
-        for hid in ids:
-            cfg.heliostat(hid)
+        ids = split_ids(args.heliostats, "--heliostats", cfg.heliostat)
     check_camera(cfg, args, f"campaign {args.campaign_command}")
     return ids

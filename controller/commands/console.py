@@ -20,6 +20,7 @@ import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 
+from controller.commands._id_lists import split_ids
 from controller.commands._numbers import SEED, Number
 from controller.commands.common import (
     add_config_option,
@@ -114,11 +115,7 @@ def run(args: argparse.Namespace) -> int:
     cfg = load_config(args.config)
     ids = [h.id for h in cfg.heliostats]
     if args.heliostats is not None:
-        ids = list(dict.fromkeys(i.strip() for i in args.heliostats.split(",") if i.strip()))
-        if not ids:
-            raise InputError(f"--heliostats: no heliostat id in {args.heliostats!r}")
-        for hid in ids:
-            cfg.heliostat(hid)
+        ids = split_ids(args.heliostats, "--heliostats", cfg.heliostat)
     check_camera(cfg, args, "console")
     check_db_field(args.db, cfg, ids, args)  # the models it aims with were fitted on this field
     if args.reports and not Path(args.reports).is_dir():

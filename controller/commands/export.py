@@ -32,6 +32,7 @@ from controller.commands.common import (
 )
 from controller.commands.integration._plant import heliostat_ids
 from controller.errors import InputError
+from controller.io.json_files import dumps_json
 
 WHAT = ("tracking-table", "models")
 FORMATS = {None: ("paint",), "tracking-table": ("csv",), "models": ("json", "csv")}
@@ -120,7 +121,6 @@ def _tracking_table(args: argparse.Namespace) -> int:
 
 
 def _models(args: argparse.Namespace, fmt: str) -> int:
-    import json
 
     from controller.hfcs.models import model_versions, models_csv
     from controller.io.images import write_atomic
@@ -132,7 +132,7 @@ def _models(args: argparse.Namespace, fmt: str) -> int:
     out = output_file(args.out) if args.out else None
     with open_existing(args.db) as store:
         models = model_versions(store, heliostat_ids(args.heliostats))
-    text = json.dumps(models) + "\n" if fmt == "json" else models_csv(models)
+    text = dumps_json(models) + "\n" if fmt == "json" else models_csv(models)
     if out is None:
         sys.stdout.write(text)
     else:

@@ -43,8 +43,8 @@ def open_store(db: str | Path) -> CampaignStore:
     store = CampaignStore(db)
     try:
         store.campaign_lock.acquire()
-    except BaseException:
-        store.close()
+    except BaseException as exc:
+        store.close(exc)
         raise
     return store
 

@@ -17,15 +17,17 @@ from urllib.parse import urlsplit
 
 from starlette.applications import Starlette
 from starlette.concurrency import run_in_threadpool
+from starlette.exceptions import HTTPException
 from starlette.requests import Request
 from starlette.responses import FileResponse, JSONResponse, RedirectResponse, Response, StreamingResponse
 from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
 
 from controller.calibration.cycle.beam_safety import UnsafePath
+from controller.commands._id_lists import campaign_name
 from controller.console import views
 from controller.console.access import ConsoleAccess
-from controller.console.backend import Conflict, Console
+from controller.console.backend import Conflict, Console, only_keys
 from controller.console.campaigns import CampaignControl
 from controller.console.events import plain
 from controller.console.nights import NightControl
@@ -34,6 +36,7 @@ from controller.console.steps import STEPS, run_step
 from controller.devices.drive import DriveError, LinkError, NakError
 from controller.errors import HeliocalError, InputError, LimitError
 from controller.io.json_files import parse_json
+from controller.io.text_numbers import is_ascii_index
 from controller.storage.audit import AuditTrail
 from controller.storage.lock import DatabaseBusy
 from controller.storage.users import AccessDenied, require
@@ -78,7 +81,7 @@ async def _bounded_json(request: Request):
     """The request's JSON body, refused (413, 400) before parsing when it is too large, nested
     too deep, not UTF-8, not JSON or has a key twice — never a 500."""
     declared = request.headers.get("content-length", "")
-    if declared.isdigit() and int(declared) > MAX_BODY_BYTES:
+    if not is_ascii_index(declared) or int(declared) > MAX_BODY_BYTES:
         raise _Refused(413, f"request body of {declared} bytes is too large (at most {MAX_BODY_BYTES})")
     data = bytearray()
     async for chunk in request.stream():
@@ -182,14 +185,16 @@ def create_app(console: Console, *, token: str | None = None) -> Starlette:
 
     def api_campaign_action(request, body):
         action = request.path_params["action"]
+        only_keys(body, ("name", "heliostats") if action == "start" else (), f"campaign {action}")
         if action == "start":
             from controller.commands.campaigns.campaign import default_name
 
+            ids = c.heliostats_for("campaign", body.get("heliostats"))  # checked before anything changes
+            name = body.get("name")
+            if name is not None:
+                name = campaign_name(name, "name")
             c.field.audit = AuditTrail(c.store, request.state.who.name)  # the runs' model changes
-            ids = body.get("heliostats")
-            if ids is not None and not (isinstance(ids, list) and all(isinstance(i, str) for i in ids)):
-                raise InputError("heliostats must be a list of heliostat ids")
-            return c.campaign.start(body.get("name") or default_name(c.config_path), ids)
+            return c.campaign.start(name or default_name(c.config_path), ids)
         if action in ("pause", "resume", "abort"):
             return getattr(c.campaign, action)()
         raise InputError(f"unknown campaign action {action!r}; one of start, pause, resume, abort")
@@ -199,11 +204,10 @@ def create_app(console: Console, *, token: str | None = None) -> Starlette:
 
     def api_night_action(request, body):
         action = request.path_params["action"]
+        only_keys(body, ("heliostats",) if action == "start" else (), f"night {action}")
         if action == "start":
+            ids = c.heliostats_for("night", body.get("heliostats"))  # checked before anything changes
             c.field.audit = AuditTrail(c.store, request.state.who.name)  # the night's lamps, models, end
-            ids = body.get("heliostats")
-            if ids is not None and not (isinstance(ids, list) and all(isinstance(i, str) for i in ids)):
-                raise InputError("heliostats must be a list of heliostat ids")
             return c.night.start(ids)
         if action == "stop":
             return c.night.stop()
@@ -260,7 +264,21 @@ def create_app(console: Console, *, token: str | None = None) -> Starlette:
         *plant_routes(c, access, post, get, page),
         Mount("/static", StaticFiles(directory=STATIC), name="static"),
     ]
-    return Starlette(routes=routes)
+    return Starlette(routes=routes, exception_handlers={HTTPException: _http_error, Exception: _server_error})
+
+
+async def _http_error(request: Request, exc: HTTPException) -> Response:
+    """Starlette's own answers (no such route 404, wrong method 405, …) as JSON like every other."""
+    kind = {404: "not_found", 405: "method_not_allowed"}.get(exc.status_code, "refused")
+    message = {404: f"no such page or API: {request.url.path}",
+               405: f"{request.method} is not allowed on {request.url.path}"}.get(exc.status_code, exc.detail)
+    return JSONResponse({"ok": False, "error": message, "kind": kind}, exc.status_code, headers=exc.headers)
+
+
+async def _server_error(request: Request, exc: Exception) -> Response:
+    """A bug: still JSON (the traceback goes to the server's log, not to the page)."""
+    return JSONResponse({"ok": False, "error": f"internal error ({type(exc).__name__})", "kind": "internal"},
+                        500)
 
 
 def _needed(request: Request, default: str) -> str:

@@ -27,6 +27,7 @@ from pathlib import Path
 from controller.alarms.conditions import DRIVE_LINK_DOWN
 from controller.calibration.campaign.field import Field
 from controller.calibration.cycle.commissioning import Commissioning
+from controller.commands._id_lists import id_list
 from controller.console.events import EventBus
 from controller.devices.drive import Drive, DriveError, DriveLimits, DriveStatus
 from controller.devices.lamp_panel import fiducial_hook
@@ -74,6 +75,15 @@ def status_json(st: DriveStatus) -> dict:
     """A drive status with targets and limit switches (more than the CLI's ``to_json``)."""
     return {**st.to_json(), "az_target": st.az_target, "el_target": st.el_target,
             "limit_az": st.limit_az, "limit_el": st.limit_el}
+
+
+def only_keys(body: dict, allowed: tuple[str, ...], what: str) -> None:
+    """A request body names only the fields its request takes (argparse refuses an unknown
+    option likewise); InputError naming the first other one."""
+    other = [k for k in body if k not in allowed]
+    if other:
+        takes = ", ".join(allowed) if allowed else "no field"
+        raise InputError(f"{what}: unknown field {other[0]!r} (takes {takes})")
 
 
 class Console:
@@ -230,12 +240,11 @@ class Console:
     def heliostats_for(self, what: str, ids: list[str] | None) -> list[str]:
         """The heliostats a campaign or night started from the page runs on: the ticked ones
         (at least one), else all of the console's."""
-        if ids is not None and not ids:
+        if ids is None:
+            return list(self.ids)
+        if ids == []:
             raise InputError(f"{what}: tick at least one heliostat")
-        ids = ids or list(self.ids)
-        for hid in ids:
-            self.known(hid)
-        return ids
+        return id_list(ids, "heliostats", self.known)  # as the CLI checks --heliostats
 
     def take_over(self) -> None:
         """Before a campaign or a night drives the heliostats: nothing else drives them, no beam

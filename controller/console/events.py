@@ -9,7 +9,6 @@ events rather than holding up the plant (the page re-reads the JSON state on rec
 from __future__ import annotations
 
 import asyncio
-import json
 import math
 import threading
 import time
@@ -17,6 +16,8 @@ from collections.abc import AsyncIterator
 from typing import Any
 
 import numpy as np
+
+from controller.io.json_files import dumps_json
 
 QUEUE_SIZE = 500
 KEEPALIVE_S = 15.0
@@ -33,7 +34,7 @@ class EventBus:
     def publish(self, event: str, data: dict) -> None:
         """Send ``data`` (JSON-able; ``t`` = wall time of publication, s since the epoch) to
         every subscriber as SSE event ``event``."""
-        payload = json.dumps(plain({**data, "t": time.time()}))
+        payload = dumps_json(plain({**data, "t": time.time()}))
         with self._lock:
             subs = list(self._subs)
         for loop, q in subs:

@@ -21,7 +21,7 @@ from starlette.routing import Route
 
 from controller.alarms.states import now_utc, parse_duration
 from controller.console.access import ConsoleAccess
-from controller.console.backend import Console
+from controller.console.backend import Console, only_keys
 from controller.errors import InputError
 from controller.storage.alarms import AlarmBook
 from controller.storage.audit import AuditTrail, audit_entries, parse_since
@@ -60,6 +60,7 @@ def plant_routes(c: Console, access: ConsoleAccess, post, get, page) -> list[Rou
 
     def api_alarm_action(request, body):
         aid, action, who = request.path_params["aid"], request.path_params["action"], request.state.who
+        only_keys(body, ("comment", "for"), f"alarm {action}")
         comment = body.get("comment") or ""
         if not isinstance(comment, str):
             raise InputError("comment must be text")
@@ -79,6 +80,7 @@ def plant_routes(c: Console, access: ConsoleAccess, post, get, page) -> list[Rou
         return {"audit": audit_entries(c.store, since, limit=None if since else 500)}
 
     def api_login(request, body):
+        only_keys(body, ("user", "password"), "login")
         name, password = body.get("user"), body.get("password")
         if not isinstance(name, str) or not isinstance(password, str):
             raise InputError("send {\"user\": NAME, \"password\": PASSWORD}")
@@ -89,6 +91,7 @@ def plant_routes(c: Console, access: ConsoleAccess, post, get, page) -> list[Rou
         return {"ok": True, "token": token, "user": who.name, "role": who.role}
 
     def api_logout(request, body):
+        only_keys(body, (), "logout")
         access.logout(request.headers.get("X-Heliocal-Token", ""))
         return {"ok": True}
 

@@ -9,16 +9,16 @@ moves are those of the CLI: ``Drive.move_and_wait`` with the soft limits checked
 
 from __future__ import annotations
 
-import json
 import time
 from collections.abc import Callable
 
 import numpy as np
 
-from controller.console.backend import Conflict, Console, read_limits
+from controller.console.backend import Conflict, Console, only_keys, read_limits
 from controller.console.events import plain
 from controller.errors import HeliocalError, InputError, LimitError
 from controller.io.images import write_atomic
+from controller.io.json_files import dumps_json
 
 # step -> (moves the heliostat, path keeps the beam off the target, parameter names)
 STEPS: dict[str, tuple[bool, bool, tuple[str, ...]]] = {
@@ -44,6 +44,7 @@ def run_step(console: Console, hid: str, step: str, body: dict) -> dict:
     if step not in STEPS:
         raise InputError(f"unknown step {step!r}; one of {', '.join(STEPS)}")
     moves, safe, names = STEPS[step]
+    only_keys(body, names + (("label",) if step == "record" else ()), step)
     params = [_int(body, n) for n in names]
     with console.command(hid, moves=moves, beam_safe=safe) as c:
         before = c.needs_parking
@@ -123,7 +124,7 @@ def _record(console: Console, c, body: dict) -> dict:
     stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
     path = console.store.path.parent / "commissioning" / f"{hid}-{stamp}.json"
     record = {"heliostat": hid, "steps": console.logs[hid], **out}
-    write_atomic(path, lambda t: t.write_text(json.dumps(plain(record), indent=1), encoding="utf-8"))
+    write_atomic(path, lambda t: t.write_text(dumps_json(plain(record), indent=1), encoding="utf-8"))
     return {"record": str(path), "steps": len(console.logs[hid]), **out}
 
 

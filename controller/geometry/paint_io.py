@@ -34,6 +34,7 @@ from controller.geometry.kinematics import HeliostatKinematics
 from controller.geometry.model.fit import Sample
 from controller.geometry.vectors import azel_to_vector
 from controller.io.json_files import parse_json
+from controller.io.text_numbers import is_ascii_index
 from controller.io.yaml_files import read_text
 
 FOCAL_SPOT_METHODS = ("UTIS", "HeliOS")
@@ -62,6 +63,39 @@ def _numbers(value, n: int, key: str, source: str) -> np.ndarray:
     if not ok:
         raise InputError(f"{source}: {key} must be a list of {n} finite numbers, got {str(value)[:60]}")
     return np.asarray(value, dtype=float)
+
+
+# Physical ranges of a record's values, checked before any fit (a latitude of 91° or a spot 600 km
+# from its tower fitted "successfully" before): WGS84 degrees; altitude, m; a measured focal spot lies
+# on its target, within MAX_SPOT_OFFSET_M of the surveyed centre (targets are a few metres wide).
+ALTITUDE_M = (-500.0, 9000.0)
+MAX_SPOT_OFFSET_M = 100.0
+SUN_AZIMUTH_DEG = (-360.0, 360.0)  # PAINT's (-180, 180], or the same angle written from 0 to 360
+
+
+def _wgs84(value, key: str, source: str) -> np.ndarray:
+    """[lat_deg, lon_deg, alt_m]: three finite numbers within lat [-90, 90], lon [-180, 180] and
+    :data:`ALTITUDE_M`; InputError naming the key and value."""
+    v = _numbers(value, 3, key, source)
+    for x, (lo, hi), what in zip(v, ((-90.0, 90.0), (-180.0, 180.0), ALTITUDE_M), ("latitude", "longitude",
+                                                                                  "altitude"), strict=True):
+        if not lo <= x <= hi:
+            raise InputError(f"{source}: {key}: {what} {x:g} is outside [{lo:g}, {hi:g}]")
+    return v
+
+
+def check_reach(record: PaintRecord, kinematics: HeliostatKinematics) -> None:
+    """The record's motor positions are steps the heliostat's actuators can take: inside each
+    actuator's hard range [min_increment, max_increment] of the properties file; InputError
+    naming the record, key and value. (Not the nominal triangle: a wrong initial stroke is
+    re-seated by the fit, :mod:`controller.geometry.model.fit`.)"""
+    axes = (("axis_1_motor_position", record.sample.el_steps, kinematics.elevation),
+            ("axis_2_motor_position", record.sample.az_steps, kinematics.azimuth))
+    for key, steps, act in axes:
+        lo, hi = act.min_increment, act.max_increment
+        if not lo <= steps <= hi:
+            raise InputError(f"{record.source}: motor_position.{key} {steps:g} is outside what the "
+                             f"{act.name} actuator can take ([{lo:.0f}, {hi:.0f}] steps)")
 
 
 def _number(value, key: str, source: str) -> float:
@@ -103,20 +137,19 @@ def read_towers(path: str | Path) -> Towers:
     """The targets of a ``tower-measurements.json`` file."""
     src = str(path)
     data = _load_json(path, "towers file")
-    origin = tuple(float(v) for v in _numbers(_get(data, "power_plant_properties.coordinates", src), 3,
-                                              "power_plant_properties.coordinates", src))
+    origin = tuple(float(v) for v in _wgs84(_get(data, "power_plant_properties.coordinates", src),
+                                            "power_plant_properties.coordinates", src))
     targets = {}
     for name, t in data.items():
         if name == "power_plant_properties":
             continue
-        center = _numbers(_get(t, "coordinates.center", f"{src}: {name}"), 3, f"{name}.coordinates.center",
-                          src)
+        center = _wgs84(_get(t, "coordinates.center", f"{src}: {name}"), f"{name}.coordinates.center", src)
         normal = _numbers(_get(t, "normal_vector", f"{src}: {name}"), 3, f"{name}.normal_vector", src)
         if np.linalg.norm(normal) == 0:
             raise InputError(f"{src}: {name}.normal_vector is zero")
         normal = normal / np.linalg.norm(normal)
         center_enu = wgs84_to_enu(*center, *origin)
-        points = [wgs84_to_enu(*_numbers(v, 3, f"{name}.coordinates.{key}", src), *origin)
+        points = [wgs84_to_enu(*_wgs84(v, f"{name}.coordinates.{key}", src), *origin)
                   for key, v in t["coordinates"].items() if key != "center"]
         targets[name] = TargetPlane(name, center_enu, normal, plane_extent(center_enu, normal, points))
     if not targets:
@@ -148,7 +181,7 @@ def read_heliostat_properties(path: str | Path) -> dict:
 
 def check_heliostat_properties(data: dict, src: str) -> None:
     """InputError naming the key when ``data`` lacks what :func:`kinematics_from_properties` reads."""
-    _numbers(_get(data, "heliostat_position", src), 3, "heliostat_position", src)
+    _wgs84(_get(data, "heliostat_position", src), "heliostat_position", src)
     acts = _get(data, "kinematics_properties.actuators", src)
     if not isinstance(acts, list) or len(acts) != 2:
         raise InputError(f"{src}: kinematics_properties.actuators must list two actuators")
@@ -196,6 +229,9 @@ def read_record(path: str | Path, towers: Towers, *, with_spot: bool = True,
     target = towers.target(name, src)
     sun_el = _number(_get(data, "sun_elevation", src), "sun_elevation", src)
     paint_az = _number(_get(data, "sun_azimuth", src), "sun_azimuth", src)
+    if not SUN_AZIMUTH_DEG[0] <= paint_az <= SUN_AZIMUTH_DEG[1]:
+        raise InputError(f"{src}: sun_azimuth {paint_az:g} is outside [{SUN_AZIMUTH_DEG[0]:g}, "
+                         f"{SUN_AZIMUTH_DEG[1]:g}] degrees")
     sun_az = float(paint_azimuth_to_north(paint_az)) % 360.0
     if not 0.0 < sun_el <= 90.0:
         raise InputError(f"{src}: sun_elevation {sun_el} is not above the horizon")
@@ -204,8 +240,13 @@ def read_record(path: str | Path, towers: Towers, *, with_spot: bool = True,
         fs = _get(data, "focal_spot", src)
         for method in FOCAL_SPOT_METHODS:
             if isinstance(fs, dict) and method in fs:
-                spots[method] = wgs84_to_enu(*_numbers(fs[method], 3, f"focal_spot.{method}", src),
+                spots[method] = wgs84_to_enu(*_wgs84(fs[method], f"focal_spot.{method}", src),
                                              *towers.origin_wgs84)
+                off = float(np.linalg.norm(spots[method] - target.center_enu))
+                if off > MAX_SPOT_OFFSET_M:
+                    raise InputError(f"{src}: focal_spot.{method} lies {off:.4g} m from target {name}'s "
+                                     "centre (a measured spot is on its target: at most "
+                                     f"{MAX_SPOT_OFFSET_M:g} m)")
     method = next((m for m in methods if m in spots), None)
     if with_spot and method is None:
         raise InputError(f"{src}: missing key 'focal_spot.{methods[0]}'"
@@ -270,12 +311,12 @@ def record_times(heliostat_id: str, records: list[str],
         stamp = timestamps.get(f"{heliostat_id}_{record_id_of(r)}")
         days.append(None if stamp is None else datetime.fromisoformat(stamp).timestamp() / 86400.0)
     ids = [record_id_of(r) for r in records]
-    known = [(int(i), d) for i, d in zip(ids, days, strict=True) if d is not None and i.isdigit()]
+    known = [(int(i), d) for i, d in zip(ids, days, strict=True) if d is not None and is_ascii_index(i)]
     notes = []
     for k, (rid, d) in enumerate(zip(ids, days, strict=True)):
         if d is not None:
             continue
-        if rid.isdigit() and known:
+        if is_ascii_index(rid) and known:
             xs, ys = zip(*sorted(known), strict=True)
             days[k] = float(np.interp(int(rid), xs, ys))
             notes.append(f"{records[k]}: no time in the timestamps; placed by its id at "
@@ -296,6 +337,8 @@ def read_paint_set(records: list[str], properties: str | Path, towers: str | Pat
     hid = heliostat_id_of(properties)
     kin = kinematics_from_properties(props, tw.origin_wgs84, hid)
     recs = [read_record(r, tw, methods=methods) for r in records]
+    for r in recs:
+        check_reach(r, kin)
     notes = [f"{r.source}: no {methods[0]} spot; {r.method}'s used" for r in recs if r.method != methods[0]]
     if timestamps is not None:
         days, time_notes = record_times(hid, records, timestamps)

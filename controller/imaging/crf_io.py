@@ -11,6 +11,7 @@ import numpy as np
 from controller.errors import InputError
 from controller.imaging.crf import Crf, SensorFit, fit_crf
 from controller.imaging.crf_yaml_io import read_crf_document, write_crf_document
+from controller.io.text_numbers import parse_float
 from controller.io.yaml_files import read_text
 
 MAX_SPHERE_ROWS = 1_000_000
@@ -43,9 +44,9 @@ def read_sphere_csv(path: str | Path) -> dict[str, tuple[np.ndarray, np.ndarray]
                     raise InputError(f"{p}: more than {MAX_SPHERE_ROWS} rows")
                 row = {k.strip(): (v or "").strip() for k, v in row.items() if k}
                 try:
-                    xv = float(row["exposure_value"])
-                    zv = float(row["pixel_mean"])
-                except ValueError:
+                    xv = parse_float(row["exposure_value"], "exposure_value")
+                    zv = parse_float(row["pixel_mean"], "pixel_mean")
+                except InputError:
                     raise InputError(f"{p}: line {line}: exposure_value and pixel_mean must be "
                                      "numbers") from None
                 if not (np.isfinite(xv) and np.isfinite(zv)) or xv < 0 or zv < 0:

@@ -6,11 +6,12 @@ last silently), so a hostile or broken file ends in one line naming it (exit 2).
 from __future__ import annotations
 
 import json
+import math
 import re
 from pathlib import Path
 from typing import Any
 
-from controller.errors import InputError
+from controller.errors import HeliocalError, InputError
 from controller.io.yaml_files import MAX_BYTES, read_text
 
 MAX_DEPTH = 32  # PAINT records and model files nest 4 levels
@@ -35,13 +36,52 @@ def parse_json(text: str, source: str, max_depth: int = MAX_DEPTH) -> Any:
     if depth > max_depth:
         raise InputError(f"{source}: nested {depth} levels deep (at most {max_depth})")
     try:
-        return json.loads(text, object_pairs_hook=_unique)
+        return json.loads(text, object_pairs_hook=_unique, parse_constant=_not_json)
     except _DuplicateKey as dup:
         line, first = _duplicate_lines(text, dup.key)
         raise InputError(f"{source}: line {line}: duplicate key {dup.key!r} "
                          f"(first at line {first})") from None
     except ValueError as exc:  # JSONDecodeError says line and column
         raise InputError(f"{source}: invalid JSON: {str(exc)[:120]}") from None
+
+
+def _not_json(name: str) -> float:
+    # json.loads takes NaN, Infinity and -Infinity, which are not JSON (RFC 8259).
+    raise ValueError(f"{name} is not a JSON number")
+
+
+class NotJsonError(HeliocalError):
+    """An output that would hold NaN or ±Infinity, which JSON has no word for (exit 1): the
+    writer's bug, said rather than written."""
+
+
+def dumps_json(obj: Any, *, indent: int | None = None, sort_keys: bool = False,
+               what: str = "JSON output") -> str:
+    """``json.dumps`` for every JSON heliocal writes (stdout, files, HTTP, events): NaN and
+    ±Infinity are refused (``allow_nan=False``) with a :class:`NotJsonError` naming where in
+    ``obj`` the value is, never written as invalid JSON."""
+    try:
+        return json.dumps(obj, indent=indent, sort_keys=sort_keys, allow_nan=False)
+    except ValueError:
+        where = _non_finite(obj, "")
+        if where is None:
+            raise
+        raise NotJsonError(f"{what}: {where[0] or 'the value'} is {where[1]}, which JSON cannot "
+                           "hold") from None
+
+
+def _non_finite(obj: Any, path: str) -> tuple[str, float] | None:
+    """The path and value of the first NaN/±inf float in ``obj`` (dicts, lists, tuples)."""
+    stack = [(obj, path)]
+    while stack:
+        value, where = stack.pop()
+        if isinstance(value, float) and not math.isfinite(value):
+            return where, value
+        if isinstance(value, dict):
+            stack.extend((v, f"{where}.{k}" if where else str(k)) for k, v in reversed(value.items()))
+        elif isinstance(value, (list, tuple)):
+            stack.extend((v, f"{where}[{i}]") for i, v in reversed(list(enumerate(value))))
+    return None
 
 
 class _DuplicateKey(Exception):

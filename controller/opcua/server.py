@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import asyncio
 import functools
-import json
 import logging
 import math
 import socket
@@ -39,6 +38,7 @@ from controller.alarms.states import parse_duration
 from controller.config import PlantConfig
 from controller.devices.lamp_panel import LampError
 from controller.errors import HeliocalError, InputError
+from controller.io.json_files import dumps_json
 from controller.opcua.access import AccountUsers, Callers, caller
 from controller.opcua.address_space import Nodes, build
 from controller.opcua.plant import OpcPlant
@@ -177,7 +177,7 @@ class HeliocalServer:
 
         self._last = {"method": name, "target": target, "user": user, "state": state, "detail": detail,
                       "time_utc": now_utc().isoformat(timespec="milliseconds")}
-        await self._write("LastCommand", json.dumps(self._last), ua.VariantType.String)
+        await self._write("LastCommand", dumps_json(self._last), ua.VariantType.String)
 
     def _park(self, hid: str, user: str) -> None:
         self.plant.park(hid, user)
@@ -240,7 +240,7 @@ class HeliocalServer:
         active = [a for a in s.alarms if a["active"]]
         await self._write("Alarms/ActiveCount", len(active), U)
         await self._write("Alarms/UnacknowledgedCount", sum(not a["acknowledged"] for a in s.alarms), U)
-        await self._write("Alarms/List", json.dumps(s.alarms), S)
+        await self._write("Alarms/List", dumps_json(s.alarms), S)
         gone = {a["source"] for a in active if a["condition"] == "camera_gone"}
         for t in self.cfg.targets:
             await self._write(f"Targets/{t.id}/CameraOk", t.id not in gone, B)

@@ -22,6 +22,7 @@ import yaml
 
 from controller.errors import InputError
 from controller.io.images import read_image, write_atomic
+from controller.io.text_numbers import parse_float
 from controller.io.yaml_files import load_yaml, read_text
 from controller.recognition.library import Library, build_library
 from controller.recognition.library_doc import library_from_dict, library_to_dict
@@ -52,8 +53,8 @@ def _opt_float(value: str | None, where: str, key: str) -> float | None:
     if value is None or value.strip() == "":
         return None
     try:
-        v = float(value)
-    except ValueError:
+        v = parse_float(value.strip(), key)
+    except InputError:
         raise InputError(f"{where}: {key} is not a number: {value!r}") from None
     if not math.isfinite(v):
         raise InputError(f"{where}: {key} must be finite, got {value!r}")
@@ -121,8 +122,8 @@ def _params(extra: dict[str, str]) -> dict | None:
     out: dict = {}
     for k, v in extra.items():
         try:
-            out[k] = float(v)
-        except ValueError:
+            out[k] = parse_float(v, k)
+        except InputError:
             out[k] = v
     return out or None
 

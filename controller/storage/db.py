@@ -3,7 +3,9 @@
 One database file holds any number of campaigns. The connection runs in WAL mode with
 ``synchronous=FULL`` (durable commits), foreign keys on, and every write inside one
 transaction (``with store.tx():``). The schema is versioned with ``PRAGMA user_version`` and
-upgraded by the ordered :data:`MIGRATIONS` on open, each migration in its own transaction.
+upgraded by the ordered :data:`MIGRATIONS` on open, all of them in one transaction (a failed
+upgrade changes nothing). A file the open created is removed again when the open is refused,
+and a database's folder is never created.
 
 Resumability contract (docs/campaigns.md): a heliostat's whole run — run row, measurements,
 corrections, images and fitted model — is committed in ONE transaction by
@@ -39,6 +41,7 @@ from controller.calibration.records import (
 )
 from controller.errors import InputError
 from controller.io.files import check_regular
+from controller.io.text_numbers import is_ascii_index
 from controller.storage.checks import (
     CheckedConnection,
     check_pages,
@@ -47,6 +50,7 @@ from controller.storage.checks import (
     json_column,
     resolved_image_path,
 )
+from controller.storage.db_file import check_foreign, records_nothing, remove_new_database, upgrade
 from controller.storage.images import insert_images
 from controller.storage.lock import CampaignLock
 from controller.storage.rows import campaign_from_row, measurement_from_row, model_from_row, run_from_row
@@ -74,21 +78,28 @@ class CampaignStore:
         self._lock = threading.RLock()
         self.campaign_lock = CampaignLock(self.path)
         check_regular(self.path, "database")  # a FIFO would block sqlite's first read
+        # A new (or empty) file this open creates: removed again, with SQLite's side files, when
+        # the open is refused, so a refusal leaves nothing behind.
+        self._existed = self.path.exists()
+        self._created = not readonly and (not self._existed or self.path.stat().st_size == 0)
+        self._db: sqlite3.Connection | None = None
         try:
             if readonly:
                 self._db = self._open_readonly()
             else:
-                self.path.parent.mkdir(parents=True, exist_ok=True)
+                if not self.path.parent.is_dir():
+                    raise InputError(f"{self.path}: folder {self.path.parent} does not exist "
+                                     "(create it first)")
                 self._db = sqlite3.connect(str(self.path), isolation_level=None, check_same_thread=False,
                                            timeout=10.0, factory=CheckedConnection)
                 self._db.path = self.path
             self._db.row_factory = sqlite3.Row
-            self._check_foreign()
+            check_foreign(self._db, self.path, self.readonly)
             if not readonly:
+                self._db.execute("PRAGMA foreign_keys=ON")
+                upgrade(self, MIGRATIONS)  # before WAL: a refused upgrade leaves the journal mode as it was
                 self._db.execute("PRAGMA journal_mode=WAL")
                 self._db.execute("PRAGMA synchronous=FULL")
-                self._db.execute("PRAGMA foreign_keys=ON")
-                self._migrate()
             elif self.schema_version > SCHEMA_VERSION:
                 raise InputError(f"{self.path}: database schema v{self.schema_version} is newer than this "
                                  f"heliocal understands (v{SCHEMA_VERSION})")
@@ -97,7 +108,18 @@ class CampaignStore:
             if readonly:
                 check_pages(self._db, self.path)
         except sqlite3.DatabaseError as exc:
+            self._abandon()
             raise InputError(f"{self.path}: not a usable heliocal database ({exc})") from None
+        except BaseException:
+            self._abandon()
+            raise
+
+    def _abandon(self) -> None:
+        """A refused open: close the connection; a file this open created is removed."""
+        if self._db is not None:
+            self._db.close()
+        if self._created:
+            remove_new_database(self.path, self._existed)
 
     def _open_readonly(self) -> sqlite3.Connection:
         try:
@@ -120,34 +142,10 @@ class CampaignStore:
             raise
         return db
 
-    def _check_foreign(self) -> None:
-        """Refuse a database that another program made (tables but no heliocal schema version),
-        and, read-only, an empty one."""
-        if self.schema_version:
-            return
-        tables = [r[0] for r in self._db.execute("SELECT name FROM sqlite_master WHERE type='table'")]
-        if tables:
-            raise InputError(f"{self.path}: not a heliocal database (it holds other tables: "
-                             f"{', '.join(sorted(tables)[:5])}); nothing was written")
-        if self.readonly:
-            raise InputError(f"{self.path}: empty database, no campaign recorded")
-
     # -- schema -----------------------------------------------------------------------------
     @property
     def schema_version(self) -> int:
         return int(self._db.execute("PRAGMA user_version").fetchone()[0])
-
-    def _migrate(self) -> None:
-        version = self.schema_version
-        if version > SCHEMA_VERSION:
-            raise InputError(f"{self.path}: database schema v{version} is newer than this "
-                             f"heliocal understands (v{SCHEMA_VERSION})")
-        for v in range(version, SCHEMA_VERSION):
-            with self.tx() as db:
-                for stmt in MIGRATIONS[v].split(";"):
-                    if stmt.strip():
-                        db.execute(stmt)
-                db.execute(f"PRAGMA user_version={v + 1}")
 
     @contextmanager
     def tx(self) -> Iterator[sqlite3.Connection]:
@@ -161,16 +159,24 @@ class CampaignStore:
                 raise
             self._db.execute("COMMIT")
 
-    def close(self) -> None:
+    def close(self, refused: BaseException | None = None) -> None:
+        """Close; after a refusal (``refused``: an InputError), a database this open created that
+        still records nothing is removed — a refused command leaves no new file."""
         with self._lock:
+            if self._db is None:  # closed already
+                return
+            discard = isinstance(refused, InputError) and self._created and records_nothing(self._db)
             self._db.close()
+            if discard:
+                self._db = None
+                remove_new_database(self.path, self._existed)
             self.campaign_lock.release()
 
     def __enter__(self) -> CampaignStore:
         return self
 
-    def __exit__(self, *exc) -> None:
-        self.close()
+    def __exit__(self, exc_type, exc, tb) -> None:
+        self.close(exc)
 
     # -- campaigns --------------------------------------------------------------------------
     def open_campaign(self, name: str, *, config_path: str, config_sha256: str, light_source: str,
@@ -240,7 +246,7 @@ class CampaignStore:
         by_name = self.campaign_by_name(str(ref))
         if by_name is not None:
             return by_name
-        if str(ref).isdigit():
+        if is_ascii_index(str(ref)):
             return self.campaign(int(ref))
         raise InputError(f"{self.path}: no campaign named {ref!r} (see heliocal campaign list)")
 
@@ -330,7 +336,7 @@ class CampaignStore:
             args.append(heliostat_id)
         with self._lock:
             rows = self._db.execute(sql + " ORDER BY m.id", args).fetchall()
-        return [measurement_from_row(r) for r in rows]
+        return [measurement_from_row(r, self.path) for r in rows]
 
     def corrections(self, run_id: int) -> list[CorrectionRecord]:
         with self._lock:

@@ -31,6 +31,7 @@ class CampaignLock:
         self.db = Path(db)
         self.path = self.db.with_name(self.db.name + ".lock")
         self._fd: int | None = None
+        self._created = False
 
     @property
     def held(self) -> bool:
@@ -40,16 +41,27 @@ class CampaignLock:
         """Take the lock or raise :class:`DatabaseBusy` naming the owner."""
         if self._fd is not None:
             return
-        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            owner = self.owner() or {}
-            os.close(fd)
-            raise DatabaseBusy(
-                f"{self.db}: in use by another {owner.get('what', 'campaign')} (pid {owner.get('pid', '?')} "
-                f"on {owner.get('host', '?')} since {owner.get('since', '?')}); wait for it or stop it "
-                "first") from None
+        while True:
+            try:
+                fd, created = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o644), True
+            except FileExistsError:
+                try:
+                    fd, created = os.open(self.path, os.O_RDWR), False
+                except FileNotFoundError:
+                    continue  # its holder removed it in between: create it
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                owner = self.owner() or {}
+                os.close(fd)
+                raise DatabaseBusy(
+                    f"{self.db}: in use by another {owner.get('what', 'campaign')} "
+                    f"(pid {owner.get('pid', '?')} on {owner.get('host', '?')} "
+                    f"since {owner.get('since', '?')}); wait for it or stop it first") from None
+            if _same_file(fd, self.path):
+                break
+            os.close(fd)  # locked a file its holder removed on release: lock the one at the path now
+        self._created = created
         info = json.dumps({"pid": os.getpid(), "host": socket.gethostname(), "since": utc_now(),
                            "what": what}).encode()
         os.ftruncate(fd, 0)
@@ -64,8 +76,23 @@ class CampaignLock:
             return None
 
     def release(self) -> None:
+        """Unlock; a lock file this process created is removed (while still locked, so a process
+        waiting on it sees it gone and locks the path afresh), one it found is left empty."""
         if self._fd is not None:
-            os.ftruncate(self._fd, 0)
+            if self._created:
+                self.path.unlink(missing_ok=True)
+            else:
+                os.ftruncate(self._fd, 0)
             fcntl.flock(self._fd, fcntl.LOCK_UN)
             os.close(self._fd)
             self._fd = None
+
+
+def _same_file(fd: int, path: Path) -> bool:
+    """Whether the open file ``fd`` is still the one at ``path``."""
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        return False
+    here = os.fstat(fd)
+    return (st.st_dev, st.st_ino) == (here.st_dev, here.st_ino)

@@ -8,7 +8,6 @@ without the files it was fitted from.
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -24,7 +23,7 @@ from controller.geometry.model.fit import ModelFit
 from controller.geometry.model.tracking import NAMES, PRIOR_SIGMA_SI, TERMS, TrackingModel
 from controller.geometry.paint_io import check_heliostat_properties, kinematics_from_properties
 from controller.io.images import write_atomic
-from controller.io.json_files import parse_json
+from controller.io.json_files import dumps_json, parse_json
 from controller.io.yaml_files import read_text
 
 FORMAT = "heliocal-tracking-model/1"
@@ -110,7 +109,7 @@ def model_document(heliostat_id: str, properties: dict, origin_wgs84, fit: Model
 
 def write_model(path: str | Path, document: dict) -> None:
     """Write atomically (nothing half-written on failure)."""
-    text = json.dumps(document, indent=1)
+    text = dumps_json(document, indent=1)
     write_atomic(path, lambda tmp: Path(tmp).write_text(text, encoding="utf-8"))
 
 

@@ -3,6 +3,7 @@ JSON columns must parse to the kind of value written, the statuses must be known
 
 from __future__ import annotations
 
+import math
 import sqlite3
 from pathlib import Path
 
@@ -14,7 +15,7 @@ from controller.calibration.records import (
     ModelRecord,
     RunRecord,
 )
-from controller.storage.checks import enum_column, json_column
+from controller.storage.checks import RecordError, enum_column, json_column
 
 
 def campaign_from_row(row: sqlite3.Row, path: Path) -> CampaignRecord:
@@ -38,7 +39,14 @@ def run_from_row(row: sqlite3.Row, path: Path) -> RunRecord:
         finished_utc=row["finished_utc"])
 
 
-def measurement_from_row(row: sqlite3.Row) -> MeasurementRecord:
+def measurement_from_row(row: sqlite3.Row, path: object = "<database>") -> MeasurementRecord:
+    """A ``measurements`` row as its record; RecordError naming the row and column when a value
+    is ±inf (SQLite stores NaN as NULL): an edited or damaged record, which no output may carry."""
+    for key in row.keys():
+        v = row[key]
+        if isinstance(v, float) and not math.isfinite(v):
+            raise RecordError(f"{path}: table measurements, row {row['id']}: {key} is {v} "
+                              "(not a finite number)")
     def xyz(prefix: str):
         v = (row[f"{prefix}_e"], row[f"{prefix}_n"], row[f"{prefix}_u"])
         return None if v[0] is None else v

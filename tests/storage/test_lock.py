@@ -80,8 +80,8 @@ def test_cli_campaign_on_a_busy_database_exits_2_before_any_work(holder, tmp_pat
     err = json.loads(r.stdout)["error"]
     assert str(db) in err and f"pid {p.pid}" in err
     assert not (tmp_path / "c-sim").exists()  # no error set rendered, no plant started
-    with sqlite3.connect(db) as c:
-        assert c.execute("SELECT COUNT(*) FROM campaigns").fetchone()[0] == 0
+    assert not db.exists()  # the refused run created the database and removed it again
+    assert (tmp_path / "c.db.lock").exists()  # the holder's lock file is not removed by the refused run
 
 
 def test_readers_open_read_only_and_refuse_foreign_files(tmp_path):

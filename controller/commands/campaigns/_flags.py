@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 
+from controller.commands._id_lists import split_ids
 from controller.commands.common import print_json
 from controller.errors import InputError
 
@@ -27,9 +28,7 @@ def flags_command(args: argparse.Namespace) -> int:
             rows = flagged(store)
         return _show(args, "flagged", rows, f"{args.db}: {len(rows)} flagged geometr"
                      f"{'y' if len(rows) == 1 else 'ies'}")
-    ids = None if args.clear.strip() == "all" else [i.strip() for i in args.clear.split(",") if i.strip()]
-    if ids == []:
-        raise InputError(f"--clear: no heliostat id in {args.clear!r} (ids separated by commas, or all)")
+    ids = None if args.clear.strip() == "all" else split_ids(args.clear, "--clear")
     open_existing(args.db).close()  # an existing heliocal database, before taking its lock
     store = open_store(args.db)
     try:

@@ -13,7 +13,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from controller.commands.common import campaign_heliostats, check_db_field, print_json
+from controller.commands.common import campaign_heliostats, check_db_field, output_file, print_json
 from controller.errors import InputError
 
 
@@ -22,6 +22,7 @@ def run_night_cli(args: argparse.Namespace) -> int:
     from controller.config import load_config
     from controller.storage.nights import NightBook
 
+    output_file(args.db, "--db")  # its folder exists: never created
     cfg = load_config(args.config)
     ids = campaign_heliostats(args, cfg)
     if not args.simulate and cfg.lamps is None:
@@ -32,6 +33,7 @@ def run_night_cli(args: argparse.Namespace) -> int:
     quiet = args.json or not sys.stderr.isatty()
     progress = None if quiet else (lambda text: print(text, file=sys.stderr))
     store = open_store(db)
+    refused = None
     try:
         book = NightBook(store)
         base = book.base_name() or Path(args.config).stem
@@ -43,8 +45,11 @@ def run_night_cli(args: argparse.Namespace) -> int:
             print(f"heliocal campaign night: interrupted; {lamps}heliostats in motion parked. Rerun the same "
                   "command to resume the night.", file=sys.stderr)
             return 130
+    except BaseException as exc:
+        refused = exc
+        raise
     finally:
-        store.close()
+        store.close(refused)  # a refusal on a database this run created leaves no file
     summary["db"] = str(db)
     if args.json:
         print_json(summary)

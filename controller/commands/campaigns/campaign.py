@@ -22,6 +22,7 @@ import sys
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
+from controller.commands._id_lists import campaign_name
 from controller.commands._numbers import SEED, Number
 from controller.commands.campaigns._campaign_list import list_campaigns
 from controller.commands.campaigns._flags import flags_command
@@ -33,9 +34,12 @@ from controller.commands.common import (
     campaign_heliostats,
     check_db_field,
     output_dir,
+    output_file,
     print_json,
 )
+from controller.io.json_files import dumps_json
 
+DB_HELP = "campaign database (SQLite; created if missing, in an existing folder)"
 SPEEDUP = Number(0, 1000, lo_open=True)  # the simulated plant clock's speedup (SimulationSettings)
 
 
@@ -56,7 +60,7 @@ def register(subparsers) -> None:
     sub = p.add_subparsers(dest="campaign_command", metavar="SUBCOMMAND")
     r = sub.add_parser("run", help="run or resume a campaign", description=__doc__)
     add_config_option(r)
-    r.add_argument("--db", required=True, metavar="DB", help="campaign database (SQLite, created if missing)")
+    r.add_argument("--db", required=True, metavar="DB", help=DB_HELP)
     r.add_argument("--name", default=None, help="campaign name (default: <config stem>-<night>)")
     r.add_argument("--heliostats", default=None, metavar="IDS", help="comma-separated ids (default: all)")
     r.add_argument("--camera-manifest", default=None, metavar="FILE", help="replay frame pairs (FileCamera)")
@@ -73,7 +77,7 @@ def register(subparsers) -> None:
                                    "dark, run the passes of every target in parallel, refit, summarise. "
                                    "Rerun after Ctrl-C or kill -9 to resume the same night.")
     add_config_option(n)
-    n.add_argument("--db", required=True, metavar="DB", help="campaign database (SQLite, created if missing)")
+    n.add_argument("--db", required=True, metavar="DB", help=DB_HELP)
     n.add_argument("--heliostats", default=None, metavar="IDS", help="comma-separated ids (default: all)")
     n.add_argument("--camera-manifest", default=None, metavar="FILE",
                    help="replay frame pairs for the calibration target (FileCamera)")
@@ -106,11 +110,10 @@ def register(subparsers) -> None:
 def notify(command: str, summary: dict) -> None:
     """Hand the summary to a scheduler's hook; its failure is reported, never fatal (the
     campaign's outcome is already recorded)."""
-    import json
     import subprocess
 
     try:
-        r = subprocess.run(command, shell=True, input=json.dumps(summary), text=True, timeout=60,
+        r = subprocess.run(command, shell=True, input=dumps_json(summary), text=True, timeout=60,
                            capture_output=True)
     except subprocess.TimeoutExpired:
         print(f"heliocal campaign run: --notify command did not finish within 60 s: {command}",
@@ -128,10 +131,11 @@ def default_name(config: str) -> str:
 def run(args: argparse.Namespace) -> int:
     from controller.config import load_config
 
+    output_file(args.db, "--db")  # its folder exists: never created
     cfg = load_config(args.config)
     ids = campaign_heliostats(args, cfg)
     check_db_field(args.db, cfg, ids, args)  # the models in DB were fitted on this field
-    name = args.name or default_name(args.config)
+    name = campaign_name(args.name, "--name") if args.name is not None else default_name(args.config)
     quiet = args.json or not sys.stderr.isatty()
     db = Path(args.db)
     if args.report:

@@ -90,6 +90,7 @@ def run(args: argparse.Namespace) -> int:
     name = f"demo-n{len(ids)}-seed{args.seed}" + ("-sequential" if args.sequential else "")
     quiet = args.json or not sys.stderr.isatty()
     settings = simulation_settings(seed=args.seed, hidden_errors=args.hidden_errors)
+    Path(args.out).mkdir(exist_ok=True)  # the run folder (its parent checked above)
     summary, sim = simulated_campaign(cfg, args.config, Path(args.out), Path(args.out) / "campaign.db", ids,
                                       settings, name, sequential=args.sequential,
                                       quiet=quiet, library_dir=Path(args.out), nights=args.nights)

@@ -13,7 +13,6 @@ naming the imager; nothing is written then.
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 from controller.commands.common import (
@@ -25,6 +24,7 @@ from controller.commands.common import (
     print_json,
 )
 from controller.errors import InputError
+from controller.io.json_files import dumps_json
 
 
 def register(subparsers) -> None:
@@ -92,4 +92,4 @@ def _write(out: Path, pair, meta: dict) -> None:
             if not cv2.imwrite(str(tmp), image):
                 raise InputError(f"--out {out}: could not write {name}")
         write_atomic(out / name, writer)
-    write_atomic(out / "metadata.json", lambda tmp: tmp.write_text(json.dumps(meta, indent=2) + "\n"))
+    write_atomic(out / "metadata.json", lambda tmp: tmp.write_text(dumps_json(meta, indent=2) + "\n"))

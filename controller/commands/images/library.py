@@ -22,6 +22,7 @@ from pathlib import Path
 from controller.commands.common import add_json_option, existing_file, output_file, print_json
 from controller.commands.devices.beam import add_threshold_option
 from controller.errors import InputError
+from controller.io.text_numbers import parse_float
 from controller.recognition.library import FEATURE_KINDS
 from controller.recognition.library_doc import check_widen
 from controller.recognition.library_io import build_library_from_manifest, save_library
@@ -74,7 +75,7 @@ def _widen(text: str) -> tuple[float, ...] | None:
     if text in ("auto", "no"):
         return None if text == "auto" else ()
     try:
-        return check_widen([float(v) for v in text.split(",")], "--widen")
+        return check_widen([parse_float(v, "--widen") for v in text.split(",")], "--widen")
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected auto, no or numbers like 0.1,0.2, not {text!r}") from None
     except InputError as exc:

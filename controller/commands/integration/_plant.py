@@ -36,12 +36,9 @@ def heliostat_ids(text: str | None, cfg=None) -> list[str] | None:
     ``cfg`` when given), or None without the option; InputError when it names none."""
     if text is None:
         return None
-    ids = list(dict.fromkeys(i.strip() for i in text.split(",") if i.strip()))
-    if not ids:
-        raise InputError(f"--heliostats: no heliostat id in {text!r}")
-    for hid in ids if cfg is not None else ():
-        cfg.heliostat(hid)
-    return ids
+    from controller.commands._id_lists import split_ids
+
+    return split_ids(text, "--heliostats", None if cfg is None else cfg.heliostat)
 
 
 def cli_user() -> str:

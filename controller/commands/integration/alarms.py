@@ -19,6 +19,7 @@ from __future__ import annotations
 from controller.commands.common import add_json_option, print_json
 from controller.commands.integration._plant import add_db_option, cli_user, database
 from controller.errors import InputError
+from controller.io.text_numbers import is_ascii_index
 
 ACTIONS = ("list", "ack", "shelve", "unshelve")
 
@@ -50,7 +51,7 @@ def run(args) -> int:
         raise InputError("--for DURATION goes with shelve, and shelve needs it")
     duration = parse_duration(args.duration) if args.duration is not None else None
     if args.id is not None:
-        if not args.id.isdigit() or len(args.id) > 18:
+        if not is_ascii_index(args.id) or len(args.id) > 18:
             raise InputError(f"alarms {args.action}: ID must be an alarm's number, got {args.id!r}")
         args.id = int(args.id)
     with CampaignStore(database(args)) as store:

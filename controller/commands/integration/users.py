@@ -49,7 +49,7 @@ def run(args) -> int:
         raise InputError(f"users {args.action}: --role and --password-file go with add")
     password = check_password(read_password(args.password_file), args.password_file) \
         if args.action == "add" else None
-    with CampaignStore(database(args, must_exist=args.action == "list")) as store:
+    with CampaignStore(database(args, must_exist=args.action != "add")) as store:
         accounts = Accounts(store)
         if args.action == "add":
             acc = accounts.add(args.name, args.role, password, by=cli_user())

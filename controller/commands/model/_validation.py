@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from controller.commands._id_lists import split_ids
 from controller.errors import InputError
 
 
@@ -64,7 +65,7 @@ def paint_sets(args: argparse.Namespace) -> list:
         stamps = read_timestamps(stamps_file) if Path(stamps_file).is_file() else None
         wanted = list(folders)
         if args.heliostats:
-            wanted = [h.strip() for h in args.heliostats.split(",") if h.strip()]
+            wanted = split_ids(args.heliostats, "--heliostats")
         unknown = [h for h in wanted if h not in folders]
         if unknown:
             raise InputError(f"{root}: no heliostat {', '.join(unknown)} (known: {', '.join(folders)})")

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 
+from controller.commands._id_lists import split_ids
 from controller.commands._numbers import Number
 
 
@@ -42,20 +43,19 @@ def run(args: argparse.Namespace) -> int:
     from controller.commands.field import open_store
     from controller.config import load_config
     from controller.storage.db import open_existing
-    from controller.storage.field_records import measurements_by_heliostat, record_models
+    from controller.storage.field_records import check_fit_inputs, measurements_by_heliostat, record_models
 
     open_existing(args.db).close()  # an existing heliocal database (not any file), before writing
     cfg = load_config(args.config)
     ids = None
     if args.heliostats:
-        ids = [h.strip() for h in args.heliostats.split(",") if h.strip()]
-        for hid in ids:
-            cfg.heliostat(hid)  # ConfigError naming an unknown id, before anything is read
+        ids = split_ids(args.heliostats, "--heliostats", cfg.heliostat)  # before anything is read
     store = open_store(args.db)
     try:
         history = measurements_by_heliostat(store, ids)
         for hid in history:
             cfg.heliostat(hid)  # a heliostat recorded but no longer configured: refused, named
+        check_fit_inputs(store.path, cfg, history)  # an edited record: refused, named
         r = refit_models(cfg, history, workers=args.workers)
         fitted = {hid: (history[hid][-1], m) for hid, m in r.models.items() if m is not None}
         record_models(store, fitted)

@@ -14,6 +14,7 @@ from controller.commands.common import (
     staged_output_dir,
 )
 from controller.errors import InputError
+from controller.io.text_numbers import is_ascii_index
 
 
 def register(subparsers) -> None:
@@ -63,6 +64,6 @@ def _night(store, ref: str | None):
         whole = [n for n in nights if n.status in ("finished", "partial")]
         return whole[-1] if whole else None
     for n in nights:
-        if n.name == ref or (ref.isdigit() and n.index == int(ref)):
+        if n.name == ref or (is_ascii_index(ref) and n.index == int(ref)):
             return n
     raise InputError(f"{store.path}: no night {ref!r} (see heliocal campaign list)")

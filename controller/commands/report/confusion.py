@@ -19,13 +19,13 @@ from __future__ import annotations
 import argparse
 import csv
 import io
-import json
 from pathlib import Path
 
 from controller.commands.common import _plain, add_json_option, existing_file, output_dir, print_json
 from controller.commands.images.library import progress
 from controller.errors import InputError
 from controller.io.images import read_image, write_atomic
+from controller.io.json_files import dumps_json
 from controller.recognition.confusion import (
     MECHANISM_SEP,
     UNKNOWN,
@@ -133,7 +133,7 @@ def write_report(conf: Confusion, report: dict, out: Path,
     out.mkdir(parents=True, exist_ok=True)
     csv_text = confusion_csv(conf)
     md_text = confusion_markdown(conf, report.get("features", ""), splits) + _mechanism_table(report)
-    json_text = json.dumps(_plain(report), indent=2) + "\n"
+    json_text = dumps_json(_plain(report), indent=2) + "\n"
     plot_confusion(conf.matrix, conf.unknown, list(conf.labels), out / "confusion.png",
                    title=f"recognition rate {conf.recognition_rate:.2f} % ({report.get('features', '')})")
     write_atomic(out / "confusion.csv", lambda t: t.write_text(csv_text, encoding="utf-8"))

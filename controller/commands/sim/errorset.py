@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 
+from controller.commands._id_lists import split_ids
 from controller.commands._numbers import SEED, Number
 from controller.commands.common import (
     add_config_option,
@@ -25,6 +26,7 @@ from controller.commands.common import (
 from controller.commands.images.library import progress
 from controller.config import load_config
 from controller.errors import InputError
+from controller.io.text_numbers import parse_float
 
 
 def register(subparsers) -> None:
@@ -59,16 +61,13 @@ def register(subparsers) -> None:
 
 
 def _ids(text: str | None, option: str) -> list[str]:
-    ids = [t.strip() for t in (text or "").split(",") if t.strip()]
-    if text is not None and not ids:
-        raise InputError(f"{option}: give one or more ids separated by commas")
-    return ids
+    return [] if text is None else split_ids(text, option)
 
 
 def _numbers(text: str, option: str) -> list[float]:
     try:
-        vals = [float(t) for t in text.split(",") if t.strip()]
-    except ValueError:
+        vals = [parse_float(t.strip(), option) for t in text.split(",") if t.strip()]
+    except InputError:
         raise InputError(f"{option}: not a list of numbers: {text!r}") from None
     if not vals or not all(0 < v <= 10 for v in vals):
         raise InputError(f"{option}: give positive numbers up to 10, got {text!r}")

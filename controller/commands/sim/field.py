@@ -168,10 +168,10 @@ def register(subparsers) -> None:
 def run(args) -> int:
     import yaml
 
-    from controller.commands.common import PACKAGED_CONFIG
+    from controller.commands.common import PACKAGED_CONFIG, output_dir
     from simplant.cheap_night import CheapField, field_data
 
-    out = Path(args.out)
+    out = output_dir(args.out)  # a folder, or one to create in an existing folder: else refused, named
     if out.exists() and any(out.iterdir()):
         raise InputError(f"--out {out}: not empty; give a new folder")
     data = field_data(yaml.safe_load(Path(PACKAGED_CONFIG).read_text(encoding="utf-8")), int(args.heliostats),

@@ -4,7 +4,6 @@ it and ``heliocal model fit --prior`` and the nights (``calibration.model.field_
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
@@ -14,7 +13,7 @@ from controller.errors import InputError
 from controller.geometry.model.field_prior import FieldPrior
 from controller.geometry.model.tracking import TERMS, TrackingModel
 from controller.io.images import write_atomic
-from controller.io.json_files import parse_json
+from controller.io.json_files import dumps_json, parse_json
 from controller.io.yaml_files import read_text
 
 FORMAT = "heliocal-field-prior/1"
@@ -33,7 +32,7 @@ def prior_document(prior: FieldPrior, heliostats: list[str]) -> dict:
 
 def write_prior(path: str | Path, document: dict) -> None:
     """Write atomically (nothing half-written on failure)."""
-    text = json.dumps(document, indent=1)
+    text = dumps_json(document, indent=1)
     write_atomic(path, lambda tmp: Path(tmp).write_text(text, encoding="utf-8"))
 
 

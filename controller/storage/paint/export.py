@@ -20,13 +20,13 @@ A ``heliocal`` object adds what PAINT has no key for (ids, ENU centroid, error, 
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 from controller.calibration.records import CampaignRecord, MeasurementRecord
 from controller.errors import InputError
 from controller.geometry.frames import enu_to_wgs84
 from controller.io.images import write_atomic
+from controller.io.json_files import dumps_json
 from controller.storage.db import CampaignStore
 
 
@@ -99,7 +99,7 @@ def export_paint(
         camp = campaigns[cid]
         rec = paint_record(m, camp, site or tuple(camp.meta["site"]), targets.get(m.id), imported.get(m.id))
         p = out / f"{m.heliostat_id}-c{cid}-m{m.id}-calibration-properties.json"
-        text = json.dumps(rec, indent=4) + "\n"
+        text = dumps_json(rec, indent=4) + "\n"
         write_atomic(p, lambda t, text=text: t.write_text(text, encoding="utf-8"))
         paths.append(p)
     return paths

@@ -23,10 +23,13 @@ from controller.geometry.paint_io import (
     FOCAL_SPOT_METHODS,
     PaintRecord,
     Towers,
+    check_reach,
+    kinematics_from_properties,
     read_heliostat_properties,
     read_record,
 )
 from controller.io.files import read_bytes
+from controller.io.text_numbers import is_ascii_index
 
 RECORD_SUFFIX = "_calibration_properties.json"
 
@@ -73,7 +76,7 @@ def heliostat_folders(folder: str | Path) -> dict[str, tuple[Path, list[Path]]]:
 
 
 def _id_key(record_id: str) -> tuple:
-    return (0, int(record_id), "") if record_id.isdigit() else (1, 0, record_id)
+    return (0, int(record_id), "") if is_ascii_index(record_id) else (1, 0, record_id)
 
 
 def read_folder(folder: str | Path, towers: Towers, timestamps: dict[str, str]) -> list[FolderHeliostat]:
@@ -83,11 +86,13 @@ def read_folder(folder: str | Path, towers: Towers, timestamps: dict[str, str]) 
     out = []
     for hid, (props_path, paths) in heliostat_folders(folder).items():
         props = read_heliostat_properties(props_path)
+        kin = kinematics_from_properties(props, towers.origin_wgs84, hid)
         records = []
         for p in paths:
             rid = p.name.removesuffix(RECORD_SUFFIX)
             sha = hashlib.sha256(read_bytes(p, "calibration record")).hexdigest()
             rec = read_record(p, towers, methods=FOCAL_SPOT_METHODS)
+            check_reach(rec, kin)
             records.append(FolderRecord(hid, rid, p, sha, rec, timestamps.get(f"{hid}_{rid}")))
         records.sort(key=lambda r: (r.utc or "", _id_key(r.record_id)))
         out.append(FolderHeliostat(hid, props_path, props, records))

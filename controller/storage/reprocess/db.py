@@ -95,7 +95,9 @@ def open_output(source: CampaignStore, out: Path, source_fingerprint: str, optio
     lock = CampaignLock(out)
     lock.acquire("reprocess")
     try:
-        if not out.exists():
+        if out.exists():
+            _check_output(out)  # read-only: a file that is not a reprocessing output is never written
+        else:
             create_output(source, out, source_fingerprint, options)
         db = ReprocessDb(out, lock)
     except BaseException:
@@ -111,6 +113,23 @@ def open_output(source: CampaignStore, out: Path, source_fingerprint: str, optio
         raise InputError(f"--out {out}: was started with {json.dumps(info['options'], sort_keys=True)}; "
                          "rerun with the same --since and --images, or choose a new --out")
     return db
+
+
+def _check_output(out: Path) -> None:
+    """An existing ``--out`` must be a reprocessing output (checked without writing to it)."""
+    refusal = InputError(f"--out {out}: exists and is not a reprocessing output; choose a new file "
+                         "(it is never overwritten)")
+    if not out.is_file() or out.stat().st_size == 0:
+        raise refusal
+    try:
+        with CampaignStore(out, readonly=True) as store:
+            if not store.query("SELECT name FROM sqlite_master WHERE name='reprocess_run'"):
+                raise refusal
+    except InputError as exc:
+        if exc is refusal:
+            raise
+        raise InputError(f"--out {out}: exists and is not a reprocessing output ({exc}); choose a new file "
+                         "(it is never overwritten)") from None
 
 
 class ReprocessDb:
