@@ -35,12 +35,13 @@ def id_list(ids: object, option: str, known: Callable[[str], object] | None = No
     return ids
 
 
-def split_ids(text: str, option: str, known: Callable[[str], object] | None = None) -> list[str]:
+def split_ids(text: str, option: str, known: Callable[[str], object] | None = None,
+              what: str = "heliostat id") -> list[str]:
     """The ids of a comma-separated option (``H01,H02``; blanks around commas ignored), as
     :func:`id_list` checks them."""
     ids = [i.strip() for i in text.split(",") if i.strip()]
     if not ids:
-        raise InputError(f"{option}: no id in {text!r} (give ids separated by commas)")
+        raise InputError(f"{option}: no {what} in {text!r} (give ids separated by commas)")
     return id_list(ids, option, known)
 
 

@@ -6,6 +6,11 @@ process runs a campaign; it names its owner (pid, host, since when). The kernel 
 ``flock`` when its process dies, even by ``kill -9``, so a lock file left by a dead process is
 stale by construction and is simply taken over. (``flock`` is local to one machine: keep the
 database on a local disk, not a network share.)
+
+The process that created the lock file removes it on release — a refused run leaves no
+``<db>.lock`` — and only that one: a lock file found there is left (emptied). It is removed
+while still locked, and a process that locked a file no longer at the path locks again, so two
+processes never hold "the" lock at once.
 """
 
 from __future__ import annotations

@@ -42,11 +42,10 @@ def run_from_row(row: sqlite3.Row, path: Path) -> RunRecord:
 def measurement_from_row(row: sqlite3.Row, path: object = "<database>") -> MeasurementRecord:
     """A ``measurements`` row as its record; RecordError naming the row and column when a value
     is ±inf (SQLite stores NaN as NULL): an edited or damaged record, which no output may carry."""
-    for key in row.keys():
-        v = row[key]
-        if isinstance(v, float) and not math.isfinite(v):
-            raise RecordError(f"{path}: table measurements, row {row['id']}: {key} is {v} "
-                              "(not a finite number)")
+    if any(v.__class__ is float and v - v != 0.0 for v in row):  # ±inf - ±inf is NaN (one pass, no lookups)
+        key = next(k for k in row.keys() if isinstance(row[k], float) and not math.isfinite(row[k]))
+        raise RecordError(f"{path}: table measurements, row {row['id']}: {key} is {row[key]} "
+                          "(not a finite number)")
     def xyz(prefix: str):
         v = (row[f"{prefix}_e"], row[f"{prefix}_n"], row[f"{prefix}_u"])
         return None if v[0] is None else v

@@ -59,6 +59,22 @@ def test_lock_of_a_killed_process_is_taken_over(holder):
     lock.release()
 
 
+def test_the_lock_file_is_removed_by_the_process_that_made_it_only(tmp_path, holder):
+    lock = CampaignLock(tmp_path / "own.db")
+    lock.acquire()
+    assert lock.path.exists()
+    lock.release()
+    assert not lock.path.exists()  # made here: removed
+    lock.path.write_text("")  # made by someone else (an older heliocal, a dead process)
+    lock.acquire()
+    lock.release()
+    assert lock.path.exists()
+    db, p = holder  # a live holder's lock: a refused acquire leaves it
+    with pytest.raises(DatabaseBusy):
+        CampaignLock(db).acquire()
+    assert CampaignLock(db).path.exists() and CampaignLock(db).owner()["pid"] == p.pid
+
+
 def test_store_takes_the_lock_when_a_campaign_opens(tmp_path):
     args = {"config_path": "c.yaml", "config_sha256": "ab", "light_source": "lamp", "target": "t",
             "queue": ["H1"]}

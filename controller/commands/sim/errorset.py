@@ -61,7 +61,7 @@ def register(subparsers) -> None:
 
 
 def _ids(text: str | None, option: str) -> list[str]:
-    return [] if text is None else split_ids(text, option)
+    return [] if text is None else split_ids(text, option, what="id")
 
 
 def _numbers(text: str, option: str) -> list[float]:
