@@ -20,6 +20,7 @@ import numpy as np
 from controller.errors import InputError
 from controller.io.files import read_bytes
 from controller.io.image_headers import MAX_FILE_BYTES, check_header, image_header
+from controller.io.png_stream import check_png
 
 
 def read_image(path: str | Path) -> np.ndarray:
@@ -31,10 +32,14 @@ def read_image(path: str | Path) -> np.ndarray:
     return decode_image(_read_bytes(p), str(p))
 
 
-def decode_image(data: bytes, name: str, *, shape: tuple[int, int] | None = None) -> np.ndarray:
+def decode_image(data: bytes, name: str, *, shape: tuple[int, int] | None = None,
+                 written_here: bool = False) -> np.ndarray:
     """The 2-D grey image in ``data``, the bytes of the file ``name`` (read by a bounded reader,
     :func:`controller.io.files.read_bytes`), as :func:`read_image` returns it. With ``shape``
-    (rows, cols) the header must claim exactly that size, checked before decoding."""
+    (rows, cols) the header must claim exactly that size, checked before decoding.
+    ``written_here``: the bytes are those this product wrote (their SHA-256 matched its record),
+    so a PNG's stream check (:mod:`controller.io.png_stream`, about as long as the decode) is
+    skipped."""
     header = image_header(data, name)
     check_header(header, name)
     if shape is not None and (header.height, header.width) != tuple(shape):
@@ -46,6 +51,8 @@ def decode_image(data: bytes, name: str, *, shape: tuple[int, int] | None = None
         except (ValueError, OSError, EOFError) as exc:
             raise InputError(f"{name}: not a readable .npy array ({exc})") from None
     else:
+        if header.format == "png" and not written_here:  # libpng would print a line of its own first
+            check_png(data, name)
         # OpenCV logs its own warnings for corrupt files on stderr; our InputError says it once.
         level = cv2.utils.logging.getLogLevel()
         cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)

@@ -79,6 +79,11 @@ def corpus() -> dict[str, bytes]:
         "three_d.npy": npy(np.ones((2, 3, 4), np.float32)),
         "complex.npy": npy(np.ones((4, 4), np.complex64)),
         "pickled.npy": npy(np.array([[{"a": 1}]], dtype=object), allow_pickle=True),
+        # garbled pixel streams libpng would report on stderr itself (controller/io/png_stream.py)
+        "crc_flipped.png": good_png[:45] + bytes([good_png[45] ^ 0x20]) + good_png[46:],
+        "not_zlib.png": png(4, 3, idat=b"\x78\x9cgarbage, not deflate"),
+        "short_stream.png": png(4, 3, idat=zlib.compress(b"\0\x10\x20\x30\x40" * 2)),
+        "bad_filter.png": png(4, 3, idat=zlib.compress(b"\x07\x10\x20\x30\x40" * 3)),
         "yaml_named.png": b"sensors:\n  - name: ccd1\n",
         "png_named.yaml": good_png,
         "png_named.json": good_png,

@@ -150,7 +150,7 @@ def _frame(path: str, sha256: str, camera) -> np.ndarray:
     data = read_bytes(path, "frame", frame_limit(camera.width_px, camera.height_px))
     if sha256 and hashlib.sha256(data).hexdigest() != sha256:
         raise InputError(f"{path}: frame differs from the archive record (SHA-256)")
-    return decode_image(data, path, shape=(camera.height_px, camera.width_px))
+    return decode_image(data, path, shape=(camera.height_px, camera.width_px), written_here=bool(sha256))
 
 
 def analyse_pair(chain: BeamChain, heliostat_pos: np.ndarray, pair: PairSpec) -> PairResult:
