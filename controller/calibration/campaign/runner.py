@@ -202,7 +202,7 @@ class Campaign:
                 return GeometryPointing(self.cfg.heliostat(hid), target, source, self.chain.frame,
                                         cal.standby_offset_m, current.get(hid), cal.model, aim,
                                         others=self.cfg.targets, zones=self.cfg.person_zones,
-                                        model=models[hid])
+                                        model=models[hid], search=cal.search)
 
             self._pointing_at = pointing_at
             pointing = {hid: pointing_at(hid, aims.get(hid)) for hid in self.ids}

@@ -1,0 +1,101 @@
+"""The beam search of one cycle (``calibration.search``, docs/commissioning.md "First light on a
+new field"): when a look finds no spot in the camera's view, the cycle aims at the next point of
+the pattern around where its model (the nominal one for a new heliostat) puts the beam
+(:meth:`controller.calibration.cycle.pointing.GeometryPointing.search_pattern`), each pose and
+the slew to it checked by beam safety first (a point refused is skipped), until a spot is in view
+or ``max_looks`` looks were taken; what it did goes into the run's
+:class:`controller.calibration.records.SearchRecord`.
+
+Only under a lamp and for one beam on the target (no slots): a search under the sun would sweep
+concentrated sunlight over the tower.
+
+Units: m in the target plane (u, v of the camera's view), motor steps, plant-clock s.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from controller.calibration.cycle.observations import NoBeam
+from controller.calibration.records import ModelRecord, SearchRecord
+
+
+def cycle_search(ctx) -> SpotSearch | None:
+    """The beam search of a cycle's context (:class:`controller.calibration.cycle.context.CycleContext`):
+    a pointing with one, under a lamp, one beam on the target, not a planned observation."""
+    p = ctx.pointing
+    if getattr(p, "search", None) is None or p.source_pos is None or ctx.group is not None \
+            or ctx.observe_only:
+        return None
+    return SpotSearch(p, ctx.model, p.search.max_looks)
+
+
+class SpotSearch:
+    """The search state of one cycle: ``pointing`` (a GeometryPointing with a search), the
+    model the cycle aims with, the search's look budget."""
+
+    def __init__(self, pointing, model: ModelRecord | None, max_looks: int) -> None:
+        self.pointing = pointing
+        self.model = model
+        self.max_looks = max_looks
+        self.record = SearchRecord(offsets_m=[(0.0, 0.0)])
+        self.offset = (0.0, 0.0)  # where the present look aims, m from the aim point
+        self._pattern: np.ndarray | None = None
+        self._next = 1  # the pattern's first point is the aim itself: the cycle's first look
+        self._t0: float | None = None
+
+    def next_pose(self, at: tuple[int, int] | None, now_s: float) -> tuple[int, int] | None:
+        """The pose of the next look (its offset in :attr:`offset`), or None when the budget or
+        the pattern is used up (the plant time spent is then recorded)."""
+        if self._t0 is None:
+            self._t0 = now_s
+        if self._pattern is None:
+            self._pattern = self.pointing.search_pattern(self.model)
+        rec = self.record
+        while self._next < len(self._pattern) and rec.looks < self.max_looks:
+            off = (float(self._pattern[self._next][0]), float(self._pattern[self._next][1]))
+            self._next += 1
+            pose = self.pointing.search_pose(off, self.model, at)
+            if pose is None:
+                rec.skipped += 1
+                continue
+            rec.looks += 1
+            rec.offsets_m.append((round(off[0], 3), round(off[1], 3)))
+            self.offset = off
+            return pose
+        rec.seconds = now_s - self._t0
+        return None
+
+    def next_look(self, at: tuple[int, int] | None, now_s: float, missed: Exception) -> tuple[int, int]:
+        """:meth:`next_pose`; :class:`NoBeam` naming ``missed`` (the last look's refusal) and where
+        it searched when the search is spent."""
+        pose = self.next_pose(at, now_s)
+        if pose is None:
+            raise NoBeam(f"{missed}; {self.summary()}", getattr(missed, "statistic", 0.0),
+                         getattr(missed, "threshold", 0.0))
+        return pose
+
+    def seen(self, centroid_enu, now_s: float) -> str:
+        """A spot is in view at the present look: where the starting pose's beam landed (the
+        centroid less the look's offset), the search's time; once. Returns the cycle's next
+        trigger, ``analysed``."""
+        rec = self.record
+        if rec.found:
+            return "analysed"
+        rec.found = True
+        rec.seconds = 0.0 if self._t0 is None else now_s - self._t0
+        frame = self.pointing.frame
+        d = np.asarray(centroid_enu, float) - self.pointing.aim_point
+        rec.miss_m = (round(float(d @ frame.u) - self.offset[0], 3),
+                      round(float(d @ frame.v) - self.offset[1], 3))
+        return "analysed"
+
+    def summary(self) -> str:
+        """Where it searched, for the run's cause."""
+        rec = self.record
+        us = [o[0] for o in rec.offsets_m]
+        vs = [o[1] for o in rec.offsets_m]
+        return (f"beam search: no spot in view in {rec.looks + 1} looks over u {min(us):+.1f} … "
+                f"{max(us):+.1f} m, "
+                f"v {min(vs):+.1f} … {max(vs):+.1f} m about the aim point ({rec.skipped} points refused by "
+                f"beam safety or out of reach, {rec.seconds:.0f} s)")
