@@ -35,10 +35,10 @@ multiplies all of them) comes in two kinds (:data:`HIDDEN_ERRORS`):
   how it was measured): references −10.6 ± 4.3 and −2.1 ± 3.0 mrad, yaw 28 ± 44 mrad, tilt east
   −1.9 ± 6.7 mrad, canting 10.1 ± 4.1 mrad, nightly drift 0.14 mrad, repeatability 0.25 mrad;
 * ``first-light``: a new field as the Jülich heliostats were before their first calibration
-  (:data:`FIRST_LIGHT`): the assumed as-built spread plus one whole-mirror error per heliostat
-  drawn from the nominal-vs-measured normals of the real field's first records
-  (:data:`FIRST_LIGHT_NORMAL_MRAD`, median 35 mrad), outliers included
-  (:data:`FIRST_LIGHT_OUTLIER`).
+  (:data:`FIRST_LIGHT`): the assumed as-built spread plus one whole-mirror error per heliostat,
+  the error of one of the real field's heliostats at its first record, nominal vs measured
+  normal (:data:`FIRST_LIGHT_NORMAL_MRAD`: median 35 mrad, mostly in azimuth, −21 mrad on
+  average), outliers included (:data:`FIRST_LIGHT_OUTLIER`).
 
 The numbers are copied here from those measurements; nothing of the controller computes them.
 """
@@ -161,9 +161,10 @@ class ErrorSpread:
     droop: tuple[float, float] = (0.3, 0.1)
     drift_per_night: float = 0.1
     repeatability: float = 0.07
-    # A whole-mirror error per heliostat, mrad, drawn from this sample (empty: none), and one
-    # of ``outlier[1]`` heliostats off by ``outlier[0]`` mrad instead (draw_truth).
-    normal_error_mrad: tuple[float, ...] = ()
+    # A whole-mirror error per heliostat drawn from this sample (empty: none), each (azimuth
+    # error times the cosine of the elevation, elevation error) of the normal, mrad; one of
+    # ``outlier[1]`` heliostats off by ``outlier[0]`` mrad in a random direction instead.
+    normal_error_mrad: tuple[tuple[float, float], ...] = ()
     outlier: tuple[float, float] = (0.0, 0.0)
 
 
@@ -188,13 +189,16 @@ PAINT_FIELD = ErrorSpread(
     tilt=(1.5, 6.7), tilt_mean=(0.0, -1.9), yaw=44.0, yaw_mean=28.0, non_orthogonality=0.8,
     canting=(4.1, 1.0), canting_mean=(10.1, 0.0), drift_per_night=0.14, repeatability=0.25)
 
-# The angle between the nominal mirror normal (the heliostat's properties file: its kinematics
-# at the record's motor steps) and the measured one (the sun's direction and the UTIS focal
-# spot from the heliostat's surveyed position) of the first record of each of the 16 Jülich
-# heliostats of PAINT (tests/data/real/paint-field; tests/simulation/test_first_light_errors.py
-# computes it again from the files): median 34.8 mrad, quartiles 19.5 and 41.9 mrad.
-FIRST_LIGHT_NORMAL_MRAD = (2.6, 12.2, 12.6, 12.9, 21.7, 21.7, 32.5, 34.1, 35.5, 35.5, 38.9, 41.3, 43.5,
-                           62.4, 79.7, 92.6)
+# The measured mirror normal (the sun's direction and the UTIS focal spot from the heliostat's
+# surveyed position) less the nominal one (the heliostat's properties file: its kinematics at
+# the record's motor steps) at the first record of each of the 16 Jülich heliostats of PAINT
+# (tests/data/real/paint-field; tests/simulation/test_first_light_errors.py computes them again
+# from the files), as (azimuth error × cos elevation, elevation error), mrad: angles median
+# 34.8 mrad, quartiles 19.5 and 41.9 mrad; the azimuth errors −21 ± 41 mrad, elevation −2 ± 5.
+FIRST_LIGHT_NORMAL_MRAD = (
+    (-27.9, -16.3), (-35.4, -1.3), (11.8, -2.9), (-79.7, -0.7), (-2.4, 0.8), (34.1, -0.5), (-38.9, 1.5),
+    (-35.5, -0.5), (21.7, -0.1), (12.9, 0.9), (-21.5, -2.3), (-40.7, -6.9), (43.5, -1.4), (-12.5, -1.5),
+    (-92.7, 4.4), (-62.0, -6.6))
 # The same measurement on 31 heliostats of that field (the 16 above among them) found one
 # heliostat off by 1 rad (median 34, quartiles 16 and 55 mrad): one in 31 is drawn that far off.
 FIRST_LIGHT_OUTLIER = (1000.0, 31.0)
@@ -215,9 +219,9 @@ def draw_truth(position, elevation: dict, azimuth: dict, concentrator, rng: np.r
     offset of the mirror centre, m. ``spread``: how the field is built (:class:`ErrorSpread`);
     ``scale`` multiplies every error (0: exactly as surveyed); ``extra`` adds an error case's
     own pointing (``az_offset``, ``el_offset``, ``tilt_east``, rad). A spread with a
-    ``normal_error_mrad`` sample turns the pedestal, last, by one of its angles (or the outlier's)
-    about a random axis perpendicular to ``facing`` (unit ENU, the mirror's nominal normal at
-    work; default up), so that the normal there is off by that angle."""
+    ``normal_error_mrad`` sample turns the pedestal, last, so that the normal along ``facing``
+    (unit ENU, the mirror's nominal normal at work; default up) is off as one of its errors
+    (:func:`whole_mirror_turn`)."""
     extra = extra or {}
     mrad = 1e-3 * scale
     mm = 1e-3 * scale
@@ -255,19 +259,23 @@ def draw_truth(position, elevation: dict, azimuth: dict, concentrator, rng: np.r
 
 
 def whole_mirror_turn(rng: np.random.Generator, sp: ErrorSpread, facing) -> np.ndarray:
-    """The rotation (3, 3) of a whole-mirror error: by an angle drawn from
-    ``sp.normal_error_mrad`` (with probability 1/``sp.outlier[1]`` the outlier's ``sp.outlier[0]``),
-    about an axis perpendicular to ``facing`` at a uniform random bearing: a normal along
-    ``facing`` turns by exactly that angle."""
+    """The rotation (3, 3) of a whole-mirror error drawn from ``sp.normal_error_mrad``: a turn
+    about the vertical by the azimuth error (over cos elevation of ``facing``), then about the
+    horizontal axis across ``facing`` by the elevation error, so that a normal along ``facing``
+    is off by (azimuth × cos elevation, elevation). With probability 1/``sp.outlier[1]`` instead a
+    turn by ``sp.outlier[0]`` mrad about an axis across ``facing`` at a random bearing."""
     f = np.asarray(facing, float) / np.linalg.norm(facing)
-    a = np.cross(f, EAST if abs(f @ EAST) < 0.9 else NORTH)
-    a /= np.linalg.norm(a)
-    b = np.cross(f, a)
+    across = np.cross(UP, f) if np.linalg.norm(np.cross(UP, f)) > 1e-6 else EAST
+    across = across / np.linalg.norm(across)
+    d_az, d_el = np.asarray(sp.normal_error_mrad, float)[int(rng.integers(0, len(sp.normal_error_mrad)))]
     phi = float(rng.uniform(0.0, 2.0 * math.pi))
-    angle = float(rng.choice(np.asarray(sp.normal_error_mrad, float)))
     if sp.outlier[1] > 0 and rng.uniform() < 1.0 / sp.outlier[1]:
-        angle = sp.outlier[0]
-    return rodrigues(math.cos(phi) * a + math.sin(phi) * b, 1e-3 * angle)
+        axis = math.cos(phi) * across + math.sin(phi) * np.cross(f, across)
+        return rodrigues(axis, 1e-3 * sp.outlier[0])
+    cos_el = max(math.sqrt(max(1.0 - float(f @ UP) ** 2, 0.0)), 0.1)
+    # Azimuth runs clockwise from north (a turn about up by −angle); elevation up turns the
+    # normal towards the zenith (about −across).
+    return rodrigues(-across, 1e-3 * d_el) @ rodrigues(UP, -1e-3 * d_az / cos_el)
 
 
 def hidden_truth(h, rng: np.random.Generator, scale: float, case=None,

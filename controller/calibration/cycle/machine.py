@@ -251,7 +251,7 @@ class CalibrationCycle:
             self._check_current("standby")
             raise RuntimeError("target blocked: another heliostat's beam may still be on it")
         self.holds_target = True
-        self.az, self.el = self.aim
+        self.az, self.el = self.search.first_pose(self.aim) if self.search else self.aim
         return "approach"
 
     def do_slewing(self) -> str:

@@ -58,15 +58,19 @@ class GeometryPointing(BeamSafety):
     (config ``person_zones``), which the beam must never enter — at standby, on a slew, on the
     approach or at the aim point. ``search``: the beam search (``calibration.search``): with looks
     to take, a heliostat without a model is as uncertain as its ``normal_sigma_mrad`` says (it
-    parks farther, :meth:`park_clearance_m`, and its search covers that, :meth:`search_pattern`).
+    parks farther, :meth:`park_clearance_m`, and its search covers that, :meth:`search_pattern`)
+    until ``field_misses`` (:class:`controller.calibration.cycle.search.FieldMisses`, shared by a
+    campaign's heliostats) knows better.
     """
 
     def __init__(self, heliostat: Heliostat, target: Target, source, frame: TargetFrame,
                  standby_offset_m: float, current_steps: tuple[int, int] | None = None,
                  model_settings: ModelSettings | None = None, aim_point=None,
                  others: tuple[Target, ...] = (), zones: tuple[PersonZone, ...] = (),
-                 model: ModelRecord | None = None, search: BeamSearch | None = None) -> None:
+                 model: ModelRecord | None = None, search: BeamSearch | None = None,
+                 field_misses=None) -> None:
         self.search = search if search is not None and search.max_looks > 0 else None
+        self.field_misses = field_misses
         self.source = source
         self.model_settings = model_settings or ModelSettings()
         model_prior(self.model_settings)  # an unknown term is refused before anything moves
@@ -171,24 +175,32 @@ class GeometryPointing(BeamSafety):
 
     def first_light_sigma_m(self) -> float:
         """1-σ (m, per axis) of where the beam of a heliostat never measured lands: its normal's
-        ``search.normal_sigma_mrad`` doubled by the reflection, at the aim point's distance; 0
-        without a search."""
+        ``search.normal_sigma_mrad`` doubled by the reflection, at the aim point's distance —
+        once the field's misses know, their σ, at least half of that; 0 without a search."""
         if self.search is None:
             return 0.0
-        distance = float(np.linalg.norm(self.aim_point - self.heliostat_pos))
-        return 2e-3 * self.search.normal_sigma_mrad * distance
+        beam = 2.0 * self.search.normal_sigma_mrad
+        known = self.field_misses.expected() if self.field_misses is not None else None
+        if known is not None:
+            beam = max(known[1], beam / 2.0)
+        return 1e-3 * beam * float(np.linalg.norm(self.aim_point - self.heliostat_pos))
 
     def search_pattern(self, model: ModelRecord | None) -> np.ndarray:
         """The beam search's look offsets (N, 2), m (u, v) from the aim point in the target
         plane, nearest first (:mod:`controller.geometry.search_pattern`): steps of the view less
         the overlap of ``search.overlap_sigma`` spot σ, out to ``search.extent_sigma`` σ of the
-        spot's position. Empty without a search."""
+        spot's position, about the aim point — for a heliostat without a model, once the field's
+        misses know, about where they put its beam (the first point, then). Empty without a search."""
         if self.search is None:
             return np.zeros((0, 2))
         spot, position = self.spot_sigmas_m(self.source, model) or (0.0, self.first_light_sigma_m())
         step = search_steps((self.frame.width_m, self.frame.height_m), spot, self.search.overlap_sigma)
         reach = self.search.extent_sigma * position
-        return spiral_offsets(step, (reach, reach), 100_000)
+        known = self.field_misses.expected() if self.field_misses is not None and model is None else None
+        # The beam lands at (look + miss): to see it, look at −miss.
+        centre = (0.0, 0.0) if known is None else tuple(-1e-3 * m * float(np.linalg.norm(
+            self.aim_point - self.heliostat_pos)) for m in known[0])
+        return spiral_offsets(step, (reach, reach), 100_000) + np.asarray(centre)
 
     def search_pose(self, offset_m, model: ModelRecord | None, start: tuple[int, int] | None
                     ) -> tuple[int, int] | None:

@@ -6,6 +6,7 @@ limits as every move."""
 from __future__ import annotations
 
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -204,10 +205,17 @@ def test_demo_uncalibrated_field_runs_the_same_heliostats_with_and_without_the_c
                   "applied_heliostats": ["H01"] if with_coarse else [],
                   "iterations_mean": 2.5 if with_coarse else 2.75,
                   "corrections_mean": 1.5 if with_coarse else 2.0}
-        return {"coarse_correction": coarse, "calibrated": 3,
-                "error_after_mrad": {"mean": 0.2, "max": 0.4}}, None
+        sim = SimpleNamespace(safety={"samples": 10, "violations": 0, "max_on_target": 1},
+                              result=SimpleNamespace(campaign_id=1))
+        return {"coarse_correction": coarse, "calibrated": 3, "heliostats_per_hour": 100.0, "db": str(db),
+                "error_after_mrad": {"mean": 0.2, "max": 0.4}}, sim
 
     monkeypatch.setattr(demo, "simulated_campaign", campaign)
+    import controller.reports.first_light as first_light
+
+    report = {"heliostats": [], "totals": {"search_looks": 7, "search_s": 30.0}}
+    monkeypatch.setattr(first_light, "first_light", lambda db, cid: report)
+    monkeypatch.setattr(first_light, "write_first_light", lambda fl, folder: Path(folder) / "first-light.md")
     ids = ["H01", "H02", "H03"]
     u = demo_coarse.uncalibrated_field(REPO / "configs" / "demo.yaml", tmp_path, ids, 5, 12.0)
     threshold = load_config(REPO / "configs" / "demo.yaml").calibration.coarse_correction
@@ -220,9 +228,12 @@ def test_demo_uncalibrated_field_runs_the_same_heliostats_with_and_without_the_c
     assert (u["tracking_error_mrad"], u["heliostats"], u["clipped_first_looks"]) == (12.0, 3, 4)
     assert {"calibrated", "calibrated_centroid_only", "error_after_mrad", "error_after_centroid_only_mrad",
             "applied_heliostats", "threshold"} <= set(u)
+    # The beam search a commissioning configuration turns on, told the field's σ at scale 12.
+    assert u["search"] == {"max_looks": demo_coarse.SEARCH_LOOKS, "normal_sigma_mrad": 1.4 * 12.0}
+    assert (u["search_steps"], u["search_s"], u["beam_safety"]["violations"]) == (7, 30.0, 0)
 
 
-@pytest.mark.parametrize("value", ["0", "-3", "51", "nan"])
+@pytest.mark.parametrize("value", ["0", "-3", "201", "nan", "realistic"])
 def test_demo_refuses_a_bad_uncalibrated_scale_before_any_work(value, tmp_path, capsys):
     from controller.cli import main
     from tests.calibration.conftest import REPO
