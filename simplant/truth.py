@@ -192,7 +192,7 @@ PAINT_FIELD = ErrorSpread(
 # The measured mirror normal (the sun's direction and the UTIS focal spot from the heliostat's
 # surveyed position) less the nominal one (the heliostat's properties file: its kinematics at
 # the record's motor steps) at the first record of each of the 16 Jülich heliostats of PAINT
-# (tests/data/real/paint-field; tests/simulation/test_first_light_errors.py computes them again
+# (tests/data/real/paint-field; tests/geometry/test_first_light_errors.py computes them again
 # from the files), as (azimuth error × cos elevation, elevation error), mrad: angles median
 # 34.8 mrad, quartiles 19.5 and 41.9 mrad; the azimuth errors −21 ± 41 mrad, elevation −2 ± 5.
 FIRST_LIGHT_NORMAL_MRAD = (
