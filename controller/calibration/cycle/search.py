@@ -77,6 +77,7 @@ class SpotSearch:
         self.offset = (0.0, 0.0)  # where the present look aims, m from the aim point
         self._pattern: np.ndarray | None = None
         self._next = 1  # the pattern's first point is the cycle's first look
+        self._retry: list[tuple[tuple[float, float], int]] = []  # (offset, looks when its slew was refused)
         self._t0: float | None = None
 
     def first_pose(self, aim: tuple[int, int]) -> tuple[int, int]:
@@ -93,18 +94,30 @@ class SpotSearch:
 
     def next_pose(self, at: tuple[int, int] | None, now_s: float) -> tuple[int, int] | None:
         """The pose of the next look (its offset in :attr:`offset`), or None when the budget or
-        the pattern is used up (the plant time spent is then recorded)."""
+        the pattern is used up (the plant time spent is then recorded). A point whose pose is
+        safe but not the slew there from where the beam is now is tried again after the next
+        look (from elsewhere), once; a point refused for good is counted in ``skipped``."""
         if self._t0 is None:
             self._t0 = now_s
         if self._pattern is None:
             self._pattern = self.pointing.search_pattern(self.model)
         rec = self.record
-        while self._next < len(self._pattern) and rec.looks < self.max_looks:
-            off = (float(self._pattern[self._next][0]), float(self._pattern[self._next][1]))
-            self._next += 1
+        while rec.looks < self.max_looks:
+            due = [k for k, (_, looks) in enumerate(self._retry) if looks < rec.looks]
+            if due or (self._retry and self._next >= len(self._pattern)):
+                off, retried = self._retry.pop(due[0] if due else 0)[0], True
+            elif self._next < len(self._pattern):
+                u, v = self._pattern[self._next]
+                off, retried = (float(u), float(v)), False
+                self._next += 1
+            else:
+                break
             pose = self.pointing.search_pose(off, self.model, at)
             if pose is None:
-                rec.skipped += 1
+                if not retried and self.pointing.search_pose(off, self.model, None) is not None:
+                    self._retry.append((off, rec.looks))
+                else:
+                    rec.skipped += 1
                 continue
             rec.looks += 1
             rec.offsets_m.append((round(off[0], 3), round(off[1], 3)))

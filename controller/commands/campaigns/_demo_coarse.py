@@ -115,7 +115,7 @@ def uncalibrated_field(config: Path, out: Path, ids: list[str], seed: int, scale
         if name == "coarse":
             res |= {k: c[k] for k in ("clipped_first_looks", "applied", "applied_heliostats")}
             res["heliostats_per_hour"] = s["heliostats_per_hour"]
-            res["beam_safety"] = {k: sim.safety.get(k) for k in ("samples", "violations", "max_on_target")}
+            res["beam_safety"] = beam_safety(sim, base.target)
             fl = first_light(s["db"], sim.result.campaign_id)
             res["search_steps"] = fl["totals"]["search_looks"]
             res["search_s"] = fl["totals"]["search_s"]
@@ -125,6 +125,16 @@ def uncalibrated_field(config: Path, out: Path, ids: list[str], seed: int, scale
                 f"corrections{suffix}_mean": c["corrections_mean"], f"calibrated{suffix}": s["calibrated"],
                 f"error_after{suffix}_mrad": s["error_after_mrad"]}
     return res
+
+
+def beam_safety(sim, target: str) -> dict:
+    """The plant truth's beam-safety monitor over a simulated campaign on ``target``: ``samples``,
+    ``violations`` (samples with more beams on a target than allowed), ``max_beams_on_target``,
+    and the spans a beam spent on the other targets (``other_target_spans``, ``other_target_s``:
+    an unmeasured heliostat's beam lands where the nominal model does not put it)."""
+    other = [s for tid, spans in sim.on_target.items() if tid != target for s in spans]
+    return {**{k: sim.safety.get(k) for k in ("samples", "violations", "max_beams_on_target")},
+            "other_target_spans": len(other), "other_target_s": round(sum(b - a for a, b, _ in other), 1)}
 
 
 def print_uncalibrated(con, u: dict) -> None:

@@ -205,8 +205,10 @@ def test_demo_uncalibrated_field_runs_the_same_heliostats_with_and_without_the_c
                   "applied_heliostats": ["H01"] if with_coarse else [],
                   "iterations_mean": 2.5 if with_coarse else 2.75,
                   "corrections_mean": 1.5 if with_coarse else 2.0}
-        sim = SimpleNamespace(safety={"samples": 10, "violations": 0, "max_on_target": 1},
-                              result=SimpleNamespace(campaign_id=1))
+        sim = SimpleNamespace(safety={"samples": 10, "violations": 0, "max_beams_on_target": 1},
+                              result=SimpleNamespace(campaign_id=1),
+                              on_target={"tower-target": [(0.0, 5.0, "H01")],
+                                         "tower-lower": [(1.0, 1.5, "H02")]})
         return {"coarse_correction": coarse, "calibrated": 3, "heliostats_per_hour": 100.0, "db": str(db),
                 "error_after_mrad": {"mean": 0.2, "max": 0.4}}, sim
 
@@ -231,6 +233,7 @@ def test_demo_uncalibrated_field_runs_the_same_heliostats_with_and_without_the_c
     # The beam search a commissioning configuration turns on, told the field's σ at scale 12.
     assert u["search"] == {"max_looks": demo_coarse.SEARCH_LOOKS, "normal_sigma_mrad": 1.4 * 12.0}
     assert (u["search_steps"], u["search_s"], u["beam_safety"]["violations"]) == (7, 30.0, 0)
+    assert (u["beam_safety"]["other_target_spans"], u["beam_safety"]["other_target_s"]) == (1, 0.5)
 
 
 @pytest.mark.parametrize("value", ["0", "-3", "201", "nan", "realistic"])
