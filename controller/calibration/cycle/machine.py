@@ -12,8 +12,7 @@ in a ``do_`` method polls :meth:`_check_current` and gives up once the machine l
 An exception in a ``do_`` method fires ``fail``.
 
 Beam safety:
-* a heliostat approaches the target only from its standby point (``preparing`` parks it
-  there first, ``slewing`` starts from ``standby``);
+* a heliostat approaches the target only from standby (``preparing`` parks it there first);
 * :class:`TargetGate` hands the target out in queue order, one beam at a time, back once the beam
   is parked off it (K beams under lamps, each slot once its beam is off: calibration.group);
 * after its measurement (or a fault) the beam is always moved back to standby before the
@@ -330,8 +329,9 @@ class CalibrationCycle:
         return "correct"
 
     def do_correcting(self) -> str:
-        kind, step = correction_step(self.ctx.pointing, self.az, self.el, self.obs, self.match,
-                                     first=not self.coarse_done, min_confidence=self.ctx.coarse_confidence)
+        c = self.ctx
+        kind, step = correction_step(c.pointing, self.az, self.el, self.obs, self.match, run=self.run_rec,
+                                     first=not self.coarse_done, min_confidence=c.coarse_confidence)
         self.coarse_done = True
         self.run_rec.corrections.append(CorrectionRecord(self.iteration, kind, step.daz_deg, step.del_deg,
                                                          step.daz_steps, step.del_steps))

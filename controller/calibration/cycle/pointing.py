@@ -71,6 +71,7 @@ class GeometryPointing(BeamSafety):
                  field_misses=None) -> None:
         self.search = search if search is not None and search.max_looks > 0 else None
         self.field_misses = field_misses
+        self.search_step_m = (frame.width_m, frame.height_m)  # the pattern's steps (search_pattern)
         self.source = source
         self.model_settings = model_settings or ModelSettings()
         model_prior(self.model_settings)  # an unknown term is refused before anything moves
@@ -195,6 +196,7 @@ class GeometryPointing(BeamSafety):
             return np.zeros((0, 2))
         spot, position = self.spot_sigmas_m(self.source, model) or (0.0, self.first_light_sigma_m())
         step = search_steps((self.frame.width_m, self.frame.height_m), spot, self.search.overlap_sigma)
+        self.search_step_m = step
         reach = self.search.extent_sigma * position
         known = self.field_misses.expected() if self.field_misses is not None and model is None else None
         # The beam lands at (look + miss): to see it, look at −miss.

@@ -4,7 +4,9 @@ the pattern around where its model (the nominal one for a new heliostat) and the
 beam (:meth:`controller.calibration.cycle.pointing.GeometryPointing.search_pattern`), each pose
 and the slew to it checked by beam safety first (a point refused is skipped), until a spot is in
 view or ``max_looks`` looks were taken; what it did goes into the run's
-:class:`controller.calibration.records.SearchRecord`.
+:class:`controller.calibration.records.SearchRecord`. A point whose pose is refused is looked at
+half a step aside if that is safe; one whose slew from the present look is refused, again after
+the next look.
 
 What the field already knows (:class:`FieldMisses`): the heliostats of a new field share much of
 their error (mounting, survey), so once :data:`MIN_FOUND` heliostats of a campaign were found,
@@ -114,10 +116,13 @@ class SpotSearch:
                 break
             pose = self.pointing.search_pose(off, self.model, at)
             if pose is None:
-                if not retried and self.pointing.search_pose(off, self.model, None) is not None:
+                if self.pointing.search_pose(off, self.model, None) is None:
+                    off, pose = self._nudged(off, at)  # the pose itself refused: half a step aside
+                elif not retried:
                     self._retry.append((off, rec.looks))
-                else:
-                    rec.skipped += 1
+                    continue
+            if pose is None:
+                rec.skipped += 1
                 continue
             rec.looks += 1
             rec.offsets_m.append((round(off[0], 3), round(off[1], 3)))
@@ -125,6 +130,18 @@ class SpotSearch:
             return pose
         rec.seconds = now_s - self._t0
         return None
+
+    def _nudged(self, off: tuple[float, float], at) -> tuple[tuple[float, float], tuple[int, int] | None]:
+        """A pattern point whose pose beam safety refuses, moved half a step along u or v (the
+        side away from the refused area first) to a pose it accepts: the look still covers most of
+        the point's cell (a cell beside another target is otherwise never looked at)."""
+        su, sv = self.pointing.search_step_m
+        for du, dv in ((0.5 * su, 0.0), (-0.5 * su, 0.0), (0.0, -0.5 * sv), (0.0, 0.5 * sv)):
+            moved = (off[0] + du, off[1] + dv)
+            pose = self.pointing.search_pose(moved, self.model, at)
+            if pose is not None:
+                return moved, pose
+        return off, None
 
     def next_look(self, at: tuple[int, int] | None, now_s: float, missed: Exception) -> tuple[int, int]:
         """:meth:`next_pose`; :class:`NoBeam` naming ``missed`` (the last look's refusal) and where

@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from controller.calibration.cycle.coarse import clipped_applies, correction_step
-from controller.calibration.cycle.observations import Observation
+from controller.calibration.cycle.observations import Observation, Step
+from controller.calibration.records import CorrectionRecord, MeasurementRecord, RunRecord
 from controller.config import load_config
 from controller.recognition.library import Match
 
@@ -246,3 +247,37 @@ def test_demo_refuses_a_bad_uncalibrated_scale_before_any_work(value, tmp_path, 
     out, err = capsys.readouterr()
     assert out == "" and len(err.strip().splitlines()) == 1 and "--uncalibrated" in err
     assert not (tmp_path / "o").exists()
+
+
+def _measured(iteration: int, centroid) -> MeasurementRecord:
+    return MeasurementRecord(iteration, 0, 0, (0.0, 1.0, 0.0), 0.0, 0.0, (0.0, 0.0, 30.0), 0.0,
+                             centroid_enu=tuple(centroid))
+
+
+class _Planner:
+    """A pointing whose fine step is the offset itself (the move it plans is −offset)."""
+
+    aim_point = np.array([0.0, 0.0, 30.0])
+
+    def fine_correction(self, az, el, offset):
+        return Step(0.0, 0.0, int(round(-1000 * offset[0])), int(round(-1000 * offset[2])))
+
+
+def test_later_fine_steps_are_planned_by_the_first_steps_response():
+    """The first fine step was to move the spot 2 m east and 1 m up and moved it 1.8 m east and
+    1.1 m up (Eq. 1 of coarse.py): the next step, for a spot 0.2 m west of the aim, is planned so
+    that the same response moves it 0.2 m east."""
+    run = RunRecord("H01", 0, "running", "idle", 0, 0.0, 0.0)
+    run.measurements = [_measured(1, (-2.0, 0.0, 29.0)), _measured(2, (-0.2, 0.0, 30.1))]
+    run.corrections = [CorrectionRecord(1, "fine", 0.0, 0.0, 2000, 1000)]
+    obs = Observation((0, 0), (-0.2, 0.0, 30.1), np.zeros(7), 1.0)
+    kind, step = correction_step(_Planner(), 0, 0, obs, None, first=False, min_confidence=None, run=run)
+    w, g = np.array([2.0, 0.0, 1.0]), np.array([1.8, 0.0, 1.1])
+    planned = np.array([step.daz_steps, 0.0, step.del_steps]) / 1000.0  # the move it plans
+    moved = planned + (g - w) * float(w @ planned) / float(w @ w)  # as the first step responded (M)
+    assert kind == "fine" and moved == pytest.approx([0.2, 0.0, -0.1], abs=2e-3)
+    assert (step.daz_steps, step.del_steps) != (200, -100)  # not the plain centroid step
+    plain = correction_step(_Planner(), 0, 0, obs, None, first=False, min_confidence=None)[1]
+    assert (plain.daz_steps, plain.del_steps) == (200, -100)
+    run.corrections.insert(0, CorrectionRecord(1, "coarse", 0.0, 0.0, 1, 1))  # not one fine step: no response
+    assert correction_step(_Planner(), 0, 0, obs, None, first=False, min_confidence=None, run=run)[1] == plain
