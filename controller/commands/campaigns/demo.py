@@ -94,8 +94,11 @@ def run(args: argparse.Namespace) -> int:
     coarse = summary["coarse_correction"]
     centroid_only_twin(coarse, cfg, Path(args.config), Path(args.out), sim, args)
     if args.uncalibrated is not None:
-        summary["coarse_correction_uncalibrated"] = uncalibrated_field(Path(args.config), Path(args.out), ids,
-                                                                       args.seed, args.uncalibrated)
+        u = uncalibrated_field(Path(args.config), Path(args.out), ids, args.seed, args.uncalibrated)
+        # How many times longer a heliostat takes on the new field than on the near-calibrated one.
+        fast, slow = summary["heliostats_per_hour"], u["heliostats_per_hour"]
+        u["slowdown_vs_calibrated"] = round(fast / slow, 2) if fast and slow else None
+        summary["coarse_correction_uncalibrated"] = u
     if args.json:
         # The demo's --json keys are a contract (docs/campaigns.md); the outcome is the exit code.
         print_json({k: v for k, v in summary.items() if k not in ("status", "cause")})
