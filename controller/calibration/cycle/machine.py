@@ -4,27 +4,25 @@ The whole behaviour is the two tables :data:`STATES` (name, timeout, what happen
 :data:`TRANSITIONS` (trigger, sources, destination), read by a ``LockedMachine`` shared by every cycle
 (:mod:`controller.calibration.cycle.shared_machine`); docs/state-machine.md draws them (tested current).
 
-How it runs (``transitions`` pitfalls in docs/architecture.md): the work of a state is a short ``do_<state>``
-method that returns the name of the next trigger. :meth:`CalibrationCycle.run` calls it *outside*
-the machine's lock, then fires the trigger. A state's timeout fires ``timeout`` from its own
-thread, which moves the machine to *fault*; it cannot interrupt a blocking call, so every wait
-in a ``do_`` method polls :meth:`_check_current` and gives up once the machine left that state.
-An exception in a ``do_`` method fires ``fail``.
+How it runs (``transitions`` pitfalls in docs/architecture.md): a state's work is a short ``do_<state>``
+method returning the next trigger, which :meth:`CalibrationCycle.run` calls *outside* the machine's
+lock, then fires. A state's timeout fires ``timeout`` from its own thread (to *fault*); it cannot
+interrupt a blocking call, so every wait in a ``do_`` method polls :meth:`_check_current` and gives up
+once the machine left that state. An exception in a ``do_`` method fires ``fail``.
 
 Beam safety:
 * a heliostat approaches the target only from standby (``preparing`` parks it there first);
 * :class:`TargetGate` hands the target out in queue order, one beam at a time, back once the beam
   is parked off it (K beams under lamps, each slot once its beam is off: calibration.group);
-* after its measurement (or a fault) the beam is always moved back to standby before the
-  cycle ends; if that fails the heliostat is stowed, and if even that fails the cycle ends
-  *aborted* with ``beam_maybe_on_target`` set, so the campaign stops using the target.
+* after its measurement (or a fault) the beam is always moved back to standby before the cycle
+  ends; failing that the heliostat is stowed, failing that too the cycle ends *aborted*
+  (``beam_maybe_on_target``: the campaign stops using the target).
 
 Correction (docs/campaigns.md): coarse (:mod:`controller.calibration.cycle.coarse`) or fine (the
 centroid, ``Pointing.fine_correction``) until within ``tolerance_mrad`` or ``max_iterations``
 measurements (one on a planned observation); then ``Pointing.fit`` refits the model. Measuring
-moves end moving up on both axes (:mod:`controller.calibration.cycle.approach`, backlash). A look
-without a spot in view, with a beam search configured, goes on to the next look of the search
-(:mod:`controller.calibration.cycle.search`) until a spot is in view or the search is spent.
+moves end moving up on both axes (:mod:`controller.calibration.cycle.approach`, backlash). A look without
+a spot in view goes on to a beam search's next look (:mod:`controller.calibration.cycle.search`).
 
 Units: motor steps (int), degrees at this edge, mrad (reflected beam), ENU m, plant-clock s.
 """
@@ -39,12 +37,13 @@ from transitions import MachineError
 from controller.calibration.cycle.approach import approach_path
 from controller.calibration.cycle.coarse import correction_step
 from controller.calibration.cycle.context import CycleContext, CycleObserver
-from controller.calibration.cycle.observations import BeamNotFound, NoBeam
+from controller.calibration.cycle.observations import BeamNotFound, NoBeam, Observation
 from controller.calibration.cycle.park import park
 from controller.calibration.cycle.search import cycle_search
 from controller.calibration.cycle.shared_machine import shared_machine
 from controller.calibration.records import CorrectionRecord, RunRecord, measurement_record
 from controller.devices.drive import DriveError, LinkError, MoveCancelled
+from controller.recognition.library import Match
 
 # -- the tables ---------------------------------------------------------------------------------
 # (state, timeout in wall s, what it does): generous upper bounds for a real field (a full-range
@@ -120,7 +119,8 @@ class CalibrationCycle:
         self.cause = self.fault_state = None  # str | None
         self.frame = self.hdr = None  # the frame pair, its HDR image
         self.isolate = None  # HDR -> the HDR with only this heliostat's spot (several beams)
-        self.obs, self.match = None, None  # Observation, Match | None
+        self.obs: Observation | None = None
+        self.match: Match | None = None
         self.coarse_done = False
         self.clipped_looks, self.no_beam = 0, False  # no_beam: a frame held none (status "no_beam")
         self.search, self.missed = cycle_search(ctx), None  # the beam search (None: none), last miss
