@@ -48,6 +48,7 @@ from controller.link_config import (  # noqa: F401 - the links section
     SerialBus,
     SerialLink,
 )
+from controller.search_config import BeamSearch
 
 Vec3 = tuple[float, float, float]
 _Model = Section  # every section: unknown keys refused, only finite numbers (controller.config_rules)
@@ -193,6 +194,7 @@ class Calibration(_Model):
     coarse_correction: float | None = Field(default=None, ge=0, le=1, description="min. confidence of "
                                             "a clipped spot's centre estimate to move on; null: centroid")
     model: ModelSettings = Field(default_factory=ModelSettings)
+    search: BeamSearch = Field(default_factory=BeamSearch, description="the beam search (first light)")
     lamps: tuple[str, ...] = Field(default=(), description="ids of the lamps planned nights may light "
                                    "(default: light_source only)")
     aim_grid: AimGrid = Field(default_factory=AimGrid)

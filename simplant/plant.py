@@ -114,8 +114,13 @@ class SimulatedPlant:
             # One generator per heliostat: its truth does not depend on which others are in the run.
             rng = np.random.default_rng([self.seed, 7, index[hid]])
             case = CASES[int(rng.integers(0, cases))]
+            # The mirror's nominal normal at work: halfway between the calibration light and target.
+            pos = np.asarray(h.position_enu_m, float)
+            facing = unit(unit(np.asarray(cfg.light_source().position_enu_m, float) - pos)
+                          + unit(np.asarray(cfg.target().center_enu_m, float) - pos)) \
+                if getattr(cfg.light_source(), "kind", "") == "lamp" else None
             truth = hidden_truth(h, rng, sim.tracking_error_mrad / 3.0, case,
-                                 HIDDEN_ERRORS[sim.hidden_errors])
+                                 HIDDEN_ERRORS[sim.hidden_errors], facing)
             mirror = replace(MirrorSurface.from_config(h.mirror), deformation=case.deformation,
                              focal_length_m=h.mirror.focal_length_m / case.focus_factor)
             ctl = SimController(unit=h.link.station,

@@ -33,7 +33,12 @@ multiplies all of them) comes in two kinds (:data:`HIDDEN_ERRORS`):
   droop 0.3 ± 0.1 mrad, nightly drift 0.1 mrad, repeatability 0.07 mrad per axis;
 * ``paint-field``: what 16 real Jülich heliostats show (:data:`PAINT_FIELD`, its comment says
   how it was measured): references −10.6 ± 4.3 and −2.1 ± 3.0 mrad, yaw 28 ± 44 mrad, tilt east
-  −1.9 ± 6.7 mrad, canting 10.1 ± 4.1 mrad, nightly drift 0.14 mrad, repeatability 0.25 mrad.
+  −1.9 ± 6.7 mrad, canting 10.1 ± 4.1 mrad, nightly drift 0.14 mrad, repeatability 0.25 mrad;
+* ``first-light``: a new field as the Jülich heliostats were before their first calibration
+  (:data:`FIRST_LIGHT`): the assumed as-built spread plus one whole-mirror error per heliostat,
+  the error of one of the real field's heliostats at its first record, nominal vs measured
+  normal (:data:`FIRST_LIGHT_NORMAL_MRAD`: median 35 mrad, mostly in azimuth, −21 mrad on
+  average), outliers included (:data:`FIRST_LIGHT_OUTLIER`).
 
 The numbers are copied here from those measurements; nothing of the controller computes them.
 """
@@ -156,6 +161,11 @@ class ErrorSpread:
     droop: tuple[float, float] = (0.3, 0.1)
     drift_per_night: float = 0.1
     repeatability: float = 0.07
+    # A whole-mirror error per heliostat drawn from this sample (empty: none), each (azimuth
+    # error times the cosine of the elevation, elevation error) of the normal, mrad; one of
+    # ``outlier[1]`` heliostats off by ``outlier[0]`` mrad in a random direction instead.
+    normal_error_mrad: tuple[tuple[float, float], ...] = ()
+    outlier: tuple[float, float] = (0.0, 0.0)
 
 
 # The simulator's own assumptions (module docstring): at or below the controller's prior σ.
@@ -179,12 +189,29 @@ PAINT_FIELD = ErrorSpread(
     tilt=(1.5, 6.7), tilt_mean=(0.0, -1.9), yaw=44.0, yaw_mean=28.0, non_orthogonality=0.8,
     canting=(4.1, 1.0), canting_mean=(10.1, 0.0), drift_per_night=0.14, repeatability=0.25)
 
-HIDDEN_ERRORS = {"assumed": ASSUMED, "paint-field": PAINT_FIELD}
+# The measured mirror normal (the sun's direction and the UTIS focal spot from the heliostat's
+# surveyed position) less the nominal one (the heliostat's properties file: its kinematics at
+# the record's motor steps) at the first record of each of the 16 Jülich heliostats of PAINT
+# (tests/data/real/paint-field; tests/geometry/test_first_light_errors.py computes them again
+# from the files), as (azimuth error × cos elevation, elevation error), mrad: angles median
+# 34.8 mrad, quartiles 19.5 and 41.9 mrad; the azimuth errors −21 ± 41 mrad, elevation −2 ± 5.
+FIRST_LIGHT_NORMAL_MRAD = (
+    (-27.9, -16.3), (-35.4, -1.3), (11.8, -2.9), (-79.7, -0.7), (-2.4, 0.8), (34.1, -0.5), (-38.9, 1.5),
+    (-35.5, -0.5), (21.7, -0.1), (12.9, 0.9), (-21.5, -2.3), (-40.7, -6.9), (43.5, -1.4), (-12.5, -1.5),
+    (-92.7, 4.4), (-62.0, -6.6))
+# The same measurement on 31 heliostats of that field (the 16 above among them) found one
+# heliostat off by 1 rad (median 34, quartiles 16 and 55 mrad): one in 31 is drawn that far off.
+FIRST_LIGHT_OUTLIER = (1000.0, 31.0)
+# The rest as assumed, the drives' repeatability included: the real field's 0.25 mrad (PAINT_FIELD)
+# is its records' scatter about a fit, the two spot methods' floor in it, not this plant's drives.
+FIRST_LIGHT = ErrorSpread(normal_error_mrad=FIRST_LIGHT_NORMAL_MRAD, outlier=FIRST_LIGHT_OUTLIER)
+
+HIDDEN_ERRORS = {"assumed": ASSUMED, "paint-field": PAINT_FIELD, "first-light": FIRST_LIGHT}
 
 
 def draw_truth(position, elevation: dict, azimuth: dict, concentrator, rng: np.random.Generator, *,
                scale: float = 1.0, nights: int = 8, extra: dict | None = None,
-               spread: ErrorSpread = ASSUMED) -> HeliostatTruth:
+               spread: ErrorSpread = ASSUMED, facing=None) -> HeliostatTruth:
     """A hidden heliostat about its surveyed description.
 
     ``elevation``/``azimuth``: surveyed actuator values (keys ``increment``,
@@ -192,7 +219,10 @@ def draw_truth(position, elevation: dict, azimuth: dict, concentrator, rng: np.r
     ``clockwise_axis_movement``); ``position``: surveyed pivot, m ENU; ``concentrator``: body
     offset of the mirror centre, m. ``spread``: how the field is built (:class:`ErrorSpread`);
     ``scale`` multiplies every error (0: exactly as surveyed); ``extra`` adds an error case's
-    own pointing (``az_offset``, ``el_offset``, ``tilt_east``, rad)."""
+    own pointing (``az_offset``, ``el_offset``, ``tilt_east``, rad). A spread with a
+    ``normal_error_mrad`` sample turns the pedestal, last, so that the normal along ``facing``
+    (unit ENU, the mirror's nominal normal at work; default up) is off as one of its errors
+    (:func:`whole_mirror_turn`)."""
     extra = extra or {}
     mrad = 1e-3 * scale
     mm = 1e-3 * scale
@@ -215,25 +245,48 @@ def draw_truth(position, elevation: dict, azimuth: dict, concentrator, rng: np.r
     tilt_e += float(extra.get("tilt_east", 0.0))
     pedestal = (rodrigues(UP, rng.normal(sp.yaw_mean * mrad, sp.yaw * mrad)) @ rodrigues(NORTH, tilt_e)
                 @ rodrigues(EAST, -tilt_n))
+    position = np.asarray(position, float) + rng.normal(0.0, sp.position * mm, 3)
+    rest = (float(rng.normal(0.0, sp.non_orthogonality * mrad)),
+            (float(rng.normal(sp.canting_mean[0] * mrad, sp.canting[0] * mrad)),
+             float(rng.normal(sp.canting_mean[1] * mrad, sp.canting[1] * mrad))),
+            float(rng.normal(*sp.droop)) * mrad, rng.normal(0.0, sp.drift_per_night * mrad, (nights, 2)))
+    if sp.normal_error_mrad:
+        pedestal = whole_mirror_turn(rng, sp, UP if facing is None else facing) @ pedestal
     return HeliostatTruth(
-        position=np.asarray(position, float) + rng.normal(0.0, sp.position * mm, 3),
-        elevation=el, azimuth=az, pedestal=pedestal,
-        non_orthogonality=float(rng.normal(0.0, sp.non_orthogonality * mrad)),
-        canting=(float(rng.normal(sp.canting_mean[0] * mrad, sp.canting[0] * mrad)),
-                 float(rng.normal(sp.canting_mean[1] * mrad, sp.canting[1] * mrad))),
-        concentrator=np.asarray(concentrator, float),
-        droop=float(rng.normal(*sp.droop)) * mrad,
-        drift_per_night=rng.normal(0.0, sp.drift_per_night * mrad, (nights, 2)),
+        position=position,
+        elevation=el, azimuth=az, pedestal=pedestal, non_orthogonality=rest[0], canting=rest[1],
+        concentrator=np.asarray(concentrator, float), droop=rest[2], drift_per_night=rest[3],
         repeatability=sp.repeatability * 1e-3)
 
 
+def whole_mirror_turn(rng: np.random.Generator, sp: ErrorSpread, facing) -> np.ndarray:
+    """The rotation (3, 3) of a whole-mirror error drawn from ``sp.normal_error_mrad``: a turn
+    about the vertical by the azimuth error (over cos elevation of ``facing``), then about the
+    horizontal axis across ``facing`` by the elevation error, so that a normal along ``facing``
+    is off by (azimuth × cos elevation, elevation). With probability 1/``sp.outlier[1]`` instead a
+    turn by ``sp.outlier[0]`` mrad about an axis across ``facing`` at a random bearing."""
+    f = np.asarray(facing, float) / np.linalg.norm(facing)
+    across = np.cross(UP, f) if np.linalg.norm(np.cross(UP, f)) > 1e-6 else EAST
+    across = across / np.linalg.norm(across)
+    d_az, d_el = np.asarray(sp.normal_error_mrad, float)[int(rng.integers(0, len(sp.normal_error_mrad)))]
+    phi = float(rng.uniform(0.0, 2.0 * math.pi))
+    if sp.outlier[1] > 0 and rng.uniform() < 1.0 / sp.outlier[1]:
+        axis = math.cos(phi) * across + math.sin(phi) * np.cross(f, across)
+        return rodrigues(axis, 1e-3 * sp.outlier[0])
+    cos_el = max(math.sqrt(max(1.0 - float(f @ UP) ** 2, 0.0)), 0.1)
+    # Azimuth runs clockwise from north (a turn about up by −angle); elevation up turns the
+    # normal towards the zenith (about −across).
+    return rodrigues(-across, 1e-3 * d_el) @ rodrigues(UP, -1e-3 * d_az / cos_el)
+
+
 def hidden_truth(h, rng: np.random.Generator, scale: float, case=None,
-                 spread: ErrorSpread = ASSUMED) -> HeliostatTruth:
+                 spread: ErrorSpread = ASSUMED, facing=None) -> HeliostatTruth:
     """A hidden heliostat about the surveyed description of ``h`` (a configured heliostat:
     ``position_enu_m``, ``axes.elevation``/``axes.azimuth`` with the actuator fields,
     ``concentrator_translation_m``), with an
     error ``case``'s own pointing error (``case.params``: az_offset, el_offset, tilt_east, rad)
-    added. Duck-typed, so this module needs nothing of the controller."""
+    added; ``facing``: :func:`draw_truth`. Duck-typed, so this module needs nothing of the
+    controller."""
     def axis(a) -> dict:
         return {k: getattr(a, k) for k in ("increment", "initial_stroke_length", "offset", "pivot_radius",
                                             "initial_angle", "clockwise_axis_movement")}
@@ -241,4 +294,5 @@ def hidden_truth(h, rng: np.random.Generator, scale: float, case=None,
     pointing = ("az_offset", "el_offset", "tilt_east")
     extra = {} if case is None else {k: getattr(case.params, k) for k in pointing}
     return draw_truth(h.position_enu_m, axis(h.axes.elevation), axis(h.axes.azimuth),
-                      h.concentrator_translation_m, rng, scale=scale, extra=extra, spread=spread)
+                      h.concentrator_translation_m, rng, scale=scale, extra=extra, spread=spread,
+                      facing=facing)

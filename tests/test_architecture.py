@@ -23,7 +23,7 @@ PRODUCT = ("controller", "firmware_proto")
 FOUNDATION = {"controller", "controller.errors", "controller.config", "controller.axis_config",
               "controller.camera_config", "controller.link_config", "controller.lamp_config",
               "controller.config_rules", "controller.heliostat_config", "controller.field_file",
-              "controller.alarm_config"}
+              "controller.alarm_config", "controller.search_config"}
 
 LAYERS: dict[str, set[str]] = {
     "wire": {"firmware_proto"},

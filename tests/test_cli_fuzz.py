@@ -185,6 +185,8 @@ TABLE: dict[str, list[Entry]] = {
     "report campaign": [Entry("report campaign --db {db} --out {out}/r", {"db": Slot("--db", DB, "db")},
                               {"--out": OUTPUTS, "--campaign": "a campaign name",
                                "--night": "a night index or name"})],
+    "report first-light": [Entry("report first-light --db {db} --out {out}/r", {"db": Slot("--db", DB, "db")},
+                                 {"--out": OUTPUTS, "--campaign": "a campaign name"})],
     "report confusion": [
         Entry("report confusion --library {lib} --test {test} --out {out}/r",
               {"lib": Slot("--library", YAML, "lib"), "test": Slot("--test", CSV, "manifest")},

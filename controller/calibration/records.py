@@ -79,6 +79,25 @@ class ModelRecord:
 
 
 @dataclass
+class SearchRecord:
+    """A heliostat's beam search (``calibration.search``, docs/commissioning.md): ``looks`` taken
+    after the first found no spot in view, ``skipped`` pattern points refused by beam safety or
+    out of reach, ``seconds`` of plant time from the first look without a spot until the spot was
+    in view (or the search gave up), ``found``, ``offsets_m`` the pattern offsets (u, v; m in
+    the target plane from the aim point) looked at in order, the first look's (0, 0) included;
+    ``miss_m`` (u, v) where the beam of the starting pose (the nominal model's, or the fitted one's)
+    landed relative to the aim point: the first centroid in view less the offset it was seen at
+    (None when never seen)."""
+
+    looks: int = 0
+    skipped: int = 0
+    seconds: float = 0.0
+    found: bool = False
+    offsets_m: list[tuple[float, float]] = field(default_factory=list)
+    miss_m: tuple[float, float] | None = None
+
+
+@dataclass
 class RunRecord:
     """Outcome of one heliostat's calibration cycle, written atomically with its children.
 
@@ -109,6 +128,7 @@ class RunRecord:
     id: int | None = None
     finished_utc: str | None = None
     frames: list[ImageRecord] = field(default_factory=list)  # the look that gave no measurement
+    search: SearchRecord | None = None  # the beam search, when the configuration enables one
 
     @property
     def target_occupancy_s(self) -> float | None:

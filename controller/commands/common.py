@@ -207,14 +207,15 @@ def serve_until(stop: threading.Event) -> None:
         pass
 
 
-HIDDEN_ERRORS = ("assumed", "paint-field")  # simplant.truth.HIDDEN_ERRORS, named without importing it
+HIDDEN_ERRORS = ("assumed", "paint-field", "first-light")  # simplant.truth.HIDDEN_ERRORS, not imported
 
 
 def add_hidden_errors_option(parser: argparse.ArgumentParser) -> None:
     """``--hidden-errors``: how the simulated field is built (simplant's SimulationSettings)."""
     parser.add_argument("--hidden-errors", choices=HIDDEN_ERRORS, default="assumed",
-                        help="the simulated field's hidden errors: the simulator's assumptions (default) or "
-                             "what 16 real Jülich heliostats show (docs/tracking-model.md)")
+                        help="the simulated field's hidden errors: the simulator's assumptions (default), "
+                             "what 16 real Jülich heliostats show (docs/tracking-model.md) or a new field as "
+                             "they were before their first calibration (docs/commissioning.md)")
 
 
 def campaign_heliostats(args, cfg) -> list[str]:

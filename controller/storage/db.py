@@ -55,6 +55,7 @@ from controller.storage.images import insert_images
 from controller.storage.lock import CampaignLock
 from controller.storage.rows import campaign_from_row, measurement_from_row, model_from_row, run_from_row
 from controller.storage.schema import MIGRATIONS, SCHEMA_VERSION
+from controller.storage.searches import insert_search
 
 
 class CampaignStore:
@@ -300,6 +301,7 @@ class CampaignStore:
                      campaign_id))
                 insert_images(db, self.path, "images", "measurement_id", mcur.lastrowid, m.images)
             insert_images(db, self.path, "run_frames", "run_id", run_id, run.frames)  # gave no measurement
+            insert_search(db, run_id, run.search)
             for k in run.corrections:
                 db.execute("INSERT INTO corrections (run_id, iteration, kind, daz_deg, del_deg, daz_steps, "
                            "del_steps) VALUES (?,?,?,?,?,?,?)",

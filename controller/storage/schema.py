@@ -305,6 +305,21 @@ MIGRATIONS: tuple[str, ...] = (
     );
     CREATE INDEX audit_time ON audit(time_utc);
     """,
+    # v12: a heliostat's beam search (issue 46, calibration.search; storage/searches.py): looks
+    # taken, points skipped, plant seconds, found or not, where the starting pose's beam landed
+    # (u, v m from the aim point) and the offsets looked at (JSON [[u, v], ...]).
+    """
+    CREATE TABLE beam_searches (
+        run_id INTEGER PRIMARY KEY REFERENCES heliostat_runs(id),
+        looks INTEGER NOT NULL,
+        skipped INTEGER NOT NULL,
+        seconds REAL NOT NULL,
+        found INTEGER NOT NULL,
+        miss_u_m REAL,
+        miss_v_m REAL,
+        offsets_json TEXT NOT NULL
+    );
+    """,
 )
 
 SCHEMA_VERSION = len(MIGRATIONS)

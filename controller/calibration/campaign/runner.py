@@ -52,6 +52,7 @@ from controller.calibration.cycle.gate import TargetGate
 from controller.calibration.cycle.machine import STATES, CalibrationCycle
 from controller.calibration.cycle.pointing import GeometryPointing
 from controller.calibration.cycle.registration_step import register_chain
+from controller.calibration.cycle.search import FieldMisses
 from controller.calibration.records import (
     CampaignRecord,
     ImageRecord,
@@ -195,6 +196,7 @@ class Campaign:
                 pass
         # Several beams per target only under a lamp at night (InputError naming the key otherwise).
         beams = beams_allowed(self.cfg, source.id, self.time.utc())
+        misses = FieldMisses()  # what the field already knows: the misses of those found (beam search)
         with self.time.computing():
             models = self.field.models(self.ids)
 
@@ -202,7 +204,7 @@ class Campaign:
                 return GeometryPointing(self.cfg.heliostat(hid), target, source, self.chain.frame,
                                         cal.standby_offset_m, current.get(hid), cal.model, aim,
                                         others=self.cfg.targets, zones=self.cfg.person_zones,
-                                        model=models[hid])
+                                        model=models[hid], search=cal.search, field_misses=misses)
 
             self._pointing_at = pointing_at
             pointing = {hid: pointing_at(hid, aims.get(hid)) for hid in self.ids}

@@ -1,34 +1,28 @@
 """The calibration state machine of one heliostat (one calibration cycle).
 
 The whole behaviour is the two tables :data:`STATES` (name, timeout, what happens there) and
-:data:`TRANSITIONS` (trigger, sources, destination), read by a ``transitions`` ``LockedMachine``
-shared by every cycle (:mod:`controller.calibration.cycle.shared_machine`).
-``docs/state-machine.md`` holds the mermaid diagram generated from them
-(``python -m controller.calibration.cycle.diagram``; tested current).
+:data:`TRANSITIONS` (trigger, sources, destination), read by a ``LockedMachine`` shared by every cycle
+(:mod:`controller.calibration.cycle.shared_machine`); docs/state-machine.md draws them (tested current).
 
-How it runs (``transitions`` pitfalls in docs/architecture.md): the work of a state is a short ``do_<state>``
-method that returns the name of the next trigger. :meth:`CalibrationCycle.run` calls it *outside*
-the machine's lock, then fires the trigger. A state's timeout fires ``timeout`` from its own
-thread, which moves the machine to *fault*; it cannot interrupt a blocking call, so every wait
-in a ``do_`` method polls :meth:`_check_current` and gives up once the machine left that state.
-An exception in a ``do_`` method fires ``fail``.
+How it runs (``transitions`` pitfalls in docs/architecture.md): a state's work is a short ``do_<state>``
+method returning the next trigger, which :meth:`CalibrationCycle.run` calls *outside* the machine's
+lock, then fires. A state's timeout fires ``timeout`` from its own thread (to *fault*); it cannot
+interrupt a blocking call, so every wait in a ``do_`` method polls :meth:`_check_current` and gives up
+once the machine left that state. An exception in a ``do_`` method fires ``fail``.
 
 Beam safety:
-* a heliostat approaches the target only from its standby point (``preparing`` parks it
-  there first, ``slewing`` starts from ``standby``);
+* a heliostat approaches the target only from standby (``preparing`` parks it there first);
 * :class:`TargetGate` hands the target out in queue order, one beam at a time, back once the beam
   is parked off it (K beams under lamps, each slot once its beam is off: calibration.group);
-* after its measurement (or a fault) the beam is always moved back to standby before the
-  cycle ends; if that fails the heliostat is stowed, and if even that fails the cycle ends
-  *aborted* with ``beam_maybe_on_target`` set, so the campaign stops using the target.
+* after its measurement (or a fault) the beam is always moved back to standby before the cycle
+  ends; failing that the heliostat is stowed, failing that too the cycle ends *aborted*
+  (``beam_maybe_on_target``: the campaign stops using the target).
 
-Correction (docs/campaigns.md): a library entry's stored correction on the first measurement,
-or a clipped spot's estimated centre when confident (``calibration.coarse_correction``), gives
-the *coarse* correction (:mod:`controller.calibration.cycle.coarse`); the centroid offset gives the
-*fine* one (``Pointing.fine_correction``), until the error is within ``tolerance_mrad``
-or ``max_iterations`` measurements were taken (one on a planned night's observation); then
-``Pointing.fit`` refits the heliostat's model. Measuring moves end moving up on both axes
-(:mod:`controller.calibration.cycle.approach`, backlash).
+Correction (docs/campaigns.md): coarse (:mod:`controller.calibration.cycle.coarse`) or fine (the
+centroid, ``Pointing.fine_correction``) until within ``tolerance_mrad`` or ``max_iterations``
+measurements (one on a planned observation); then ``Pointing.fit`` refits the model. Measuring
+moves end moving up on both axes (:mod:`controller.calibration.cycle.approach`, backlash). A look without
+a spot in view goes on to a beam search's next look (:mod:`controller.calibration.cycle.search`).
 
 Units: motor steps (int), degrees at this edge, mrad (reflected beam), ENU m, plant-clock s.
 """
@@ -38,7 +32,6 @@ from __future__ import annotations
 import functools
 import sys
 
-import numpy as np
 from transitions import MachineError
 
 from controller.calibration.cycle.approach import approach_path
@@ -46,6 +39,7 @@ from controller.calibration.cycle.coarse import correction_step
 from controller.calibration.cycle.context import CycleContext, CycleObserver
 from controller.calibration.cycle.observations import BeamNotFound, NoBeam, Observation
 from controller.calibration.cycle.park import park
+from controller.calibration.cycle.search import cycle_search
 from controller.calibration.cycle.shared_machine import shared_machine
 from controller.calibration.records import CorrectionRecord, RunRecord, measurement_record
 from controller.devices.drive import DriveError, LinkError, MoveCancelled
@@ -64,6 +58,7 @@ STATES: tuple[tuple[str, float, str], ...] = (
     ("merging", 10.0, "merge the pair into one HDR image"),
     ("analysing", 10.0, "beam centroid, Hu moments, pointing error"),
     ("matching", 10.0, "nearest error case in the library (Hu moments)"),
+    ("searching", 30.0, "no spot in view: the next beam-safe look of the search pattern"),
     ("verifying", 60.0, "within tolerance or out of iterations? fit the tracking-error model"),
     ("correcting", 10.0, "coarse (library) or fine (centroid Jacobian) correction"),
     ("fault", 180.0, "record the cause, clear faults, park at standby or stow"),
@@ -74,7 +69,7 @@ STATES: tuple[tuple[str, float, str], ...] = (
 FINAL_STATES = ("done", "stowed", "aborted")
 FAULT_ATTEMPTS = 3  # tries to park a faulted heliostat when the link is down
 CLIPPED_LOOKS = 2  # corrections towards a spot clipped by the view's edge before giving up
-_COMPUTE_STATES = ("merging", "analysing", "matching", "verifying", "correcting")  # no device I/O
+_COMPUTE_STATES = ("merging", "analysing", "matching", "searching", "verifying", "correcting")  # no device
 ACTIVE_STATES = tuple(s for s, _, _ in STATES if s not in FINAL_STATES + ("fault",))
 
 TRANSITIONS: tuple[tuple[str, str | tuple[str, ...], str], ...] = (
@@ -87,6 +82,8 @@ TRANSITIONS: tuple[tuple[str, str | tuple[str, ...], str], ...] = (
     ("captured",    "capturing",                  "merging"),
     ("merged",      "merging",                    "analysing"),
     ("analysed",    "analysing",                  "matching"),
+    ("search",      "analysing",                  "searching"),
+    ("searched",    "searching",                  "slewing"),
     ("matched",     "matching",                   "verifying"),
     ("correct",     "verifying",                  "correcting"),
     ("corrected",   "correcting",                 "slewing"),
@@ -117,22 +114,20 @@ class CalibrationCycle:
         self.az = self.el = 0
         self.at: tuple[int, int] | None = None  # where the last move ended (None: not known)
         self.aim = self.standby = (0, 0)
-        self.beam_on_target = False
-        self.holds_target = False
-        self.measured = False
+        self.beam_on_target = self.holds_target = self.measured = False
         self.status = "running"
-        self.cause: str | None = None
-        self.fault_state: str | None = None
-        self.frame = None
-        self.hdr: np.ndarray | None = None
+        self.cause = self.fault_state = None  # str | None
+        self.frame = self.hdr = None  # the frame pair, its HDR image
         self.isolate = None  # HDR -> the HDR with only this heliostat's spot (several beams)
         self.obs: Observation | None = None
         self.match: Match | None = None
         self.coarse_done = False
         self.clipped_looks, self.no_beam = 0, False  # no_beam: a frame held none (status "no_beam")
+        self.search, self.missed = cycle_search(ctx), None  # the beam search (None: none), last miss
         self.observer = ctx.observer or CycleObserver()
-        self.run_rec = RunRecord(ctx.heliostat_id, ctx.queue_index, "running", "idle", 0,
-                                 start_s=ctx.time.now(), end_s=ctx.time.now())
+        now = ctx.time.now()
+        self.run_rec = RunRecord(ctx.heliostat_id, ctx.queue_index, "running", "idle", 0, now, now,
+                                 search=self.search and self.search.record)
 
     state: str  # set by transitions
 
@@ -255,7 +250,7 @@ class CalibrationCycle:
             self._check_current("standby")
             raise RuntimeError("target blocked: another heliostat's beam may still be on it")
         self.holds_target = True
-        self.az, self.el = self.aim
+        self.az, self.el = self.search.first_pose(self.aim) if self.search else self.aim
         return "approach"
 
     def do_slewing(self) -> str:
@@ -284,8 +279,18 @@ class CalibrationCycle:
 
     def do_analysing(self) -> str:
         hdr = self.hdr if self.isolate is None else self.isolate(self.hdr)  # its own spot only
-        self.obs = self.ctx.analyze(hdr)  # raises BeamNotFound with the reason
-        return "analysed"
+        try:
+            self.obs = self.ctx.analyze(hdr)  # raises BeamNotFound with the reason
+        except BeamNotFound as exc:
+            if self.search is None or self.search.record.found:
+                raise
+            self.missed = exc
+            return "search"
+        return self.search.seen(self.obs.centroid_enu, self.ctx.time.now()) if self.search else "analysed"
+
+    def do_searching(self) -> str:
+        self.az, self.el = self.search.next_look(self.at, self.ctx.time.now(), self.missed)  # NoBeam: spent
+        return "searched"
 
     def do_matching(self) -> str:
         self.match = self.ctx.match(self.obs)
@@ -324,8 +329,9 @@ class CalibrationCycle:
         return "correct"
 
     def do_correcting(self) -> str:
-        kind, step = correction_step(self.ctx.pointing, self.az, self.el, self.obs, self.match,
-                                     first=not self.coarse_done, min_confidence=self.ctx.coarse_confidence)
+        c = self.ctx
+        kind, step = correction_step(c.pointing, self.az, self.el, self.obs, self.match, run=self.run_rec,
+                                     first=not self.coarse_done, min_confidence=c.coarse_confidence)
         self.coarse_done = True
         self.run_rec.corrections.append(CorrectionRecord(self.iteration, kind, step.daz_deg, step.del_deg,
                                                          step.daz_steps, step.del_steps))

@@ -17,12 +17,21 @@ from controller.calibration.cycle.beam_safety import BeamSafety, UnsafePath
 from controller.calibration.cycle.model_update import fit_measurements, model_prior
 from controller.calibration.cycle.observations import Step
 from controller.calibration.records import MeasurementRecord, ModelRecord
-from controller.config import Heliostat, LampSource, ModelSettings, PersonZone, PlantConfig, Target
+from controller.config import (
+    BeamSearch,
+    Heliostat,
+    LampSource,
+    ModelSettings,
+    PersonZone,
+    PlantConfig,
+    Target,
+)
 from controller.errors import InputError, LimitError
 from controller.geometry.aiming import aim_normal, source_direction
 from controller.geometry.correction import correction_from_offset
 from controller.geometry.kinematics import HeliostatKinematics
 from controller.geometry.model.tracking import TERMS, TrackingModel, model_aim
+from controller.geometry.search_pattern import search_steps, spiral_offsets
 from controller.geometry.spot import MirrorOptics, predict_spots, standby_clearance_m
 from controller.geometry.target_frame import TargetFrame
 from controller.geometry.vectors import vector_to_azel
@@ -47,14 +56,23 @@ class GeometryPointing(BeamSafety):
     ``others``: the plant's other targets, which slews must never cross either (their beams
     belong to other pipelines that run at the same time). ``zones``: the plant's person zones
     (config ``person_zones``), which the beam must never enter — at standby, on a slew, on the
-    approach or at the aim point.
+    approach or at the aim point. ``search``: the beam search (``calibration.search``): with looks
+    to take, a heliostat without a model is as uncertain as its ``normal_sigma_mrad`` says (it
+    parks farther, :meth:`park_clearance_m`, and its search covers that, :meth:`search_pattern`)
+    until ``field_misses`` (:class:`controller.calibration.cycle.search.FieldMisses`, shared by a
+    campaign's heliostats) knows better.
     """
 
     def __init__(self, heliostat: Heliostat, target: Target, source, frame: TargetFrame,
                  standby_offset_m: float, current_steps: tuple[int, int] | None = None,
                  model_settings: ModelSettings | None = None, aim_point=None,
                  others: tuple[Target, ...] = (), zones: tuple[PersonZone, ...] = (),
-                 model: ModelRecord | None = None) -> None:
+                 model: ModelRecord | None = None, search: BeamSearch | None = None,
+                 field_misses=None) -> None:
+        self.search = search if search is not None and search.max_looks > 0 else None
+        self.field_misses = field_misses
+        self.search_step_m = (frame.width_m, frame.height_m)  # the pattern's steps (search_pattern)
+        self.source = source
         self.model_settings = model_settings or ModelSettings()
         model_prior(self.model_settings)  # an unknown term is refused before anything moves
         self.model = model  # the model the standby and the beam-safety checks were computed with
@@ -126,14 +144,23 @@ class GeometryPointing(BeamSafety):
     def park_clearance_m(self, source, model: ModelRecord | None) -> float:
         """The least distance (m) from the target centre, along the view's width, at which the
         spot of this heliostat stays :data:`PARK_MARGIN_M` outside the camera's view at 3σ: the
-        view's half-width plus 3σ of the spot's size and of its position (the model's covariance,
-        the prior without a model; at least the measured normal's noise doubled, spot Eq. 3), as
-        the spot at the aim point predicts them (:func:`controller.geometry.spot.standby_clearance_m`)."""
+        view's half-width plus 3σ of the spot's size and of its position (:meth:`spot_sigmas_m`),
+        as the spot at the aim point predicts them (:func:`controller.geometry.spot.standby_clearance_m`)."""
+        sigmas = self.spot_sigmas_m(source, model)
+        if sigmas is None:
+            return 0.0  # the aim point is out of reach: the cycle fails it before it parks
+        return standby_clearance_m(self.frame.width_m / 2.0, *sigmas, PARK_MARGIN_M)
+
+    def spot_sigmas_m(self, source, model: ModelRecord | None) -> tuple[float, float] | None:
+        """(1-σ size, 1-σ of the position) of the spot at the aim point, m: the position's from
+        the model's covariance (the prior without a model; at least the measured normal's noise
+        doubled, spot Eq. 3) — for a heliostat without a model under a beam search at least its
+        first-light σ (:meth:`first_light_sigma_m`). None when the aim point is out of reach."""
         tm, cov = model_covariance(model, self.model_settings)
         try:
             steps = np.array([self._steps(self.aim_point, model)], float)
         except (LimitError, ValueError):
-            return 0.0  # the aim point is out of reach: the cycle fails it before it parks
+            return None
         optics = MirrorOptics.from_config(self.heliostat.mirror)
         if isinstance(source, LampSource):
             light = {"lamp": np.asarray(source.position_enu_m, float), "lamp_diameter_m": source.diameter_m}
@@ -142,8 +169,59 @@ class GeometryPointing(BeamSafety):
         aim = self.aim_point[None]
         spot = predict_spots(self.kin, optics, tm.values, cov, steps, aim, self.frame,
                              floor_rad=2e-3 * self.model_settings.noise_mrad, **light)
-        return standby_clearance_m(self.frame.width_m / 2.0, float(spot.sigma_m[0, 0]),
-                                   float(spot.position_sigma_m[0, 0]), PARK_MARGIN_M)
+        position = float(spot.position_sigma_m[0, 0])
+        if model is None:
+            position = max(position, self.first_light_sigma_m())
+        return float(spot.sigma_m[0, 0]), position
+
+    def first_light_sigma_m(self) -> float:
+        """1-σ (m, per axis) of where the beam of a heliostat never measured lands: its normal's
+        ``search.normal_sigma_mrad`` doubled by the reflection, at the aim point's distance —
+        once the field's misses know, their σ, at least half of that; 0 without a search."""
+        if self.search is None:
+            return 0.0
+        beam = 2.0 * self.search.normal_sigma_mrad
+        known = self.field_misses.expected() if self.field_misses is not None else None
+        if known is not None:
+            beam = max(known[1], beam / 2.0)
+        return 1e-3 * beam * float(np.linalg.norm(self.aim_point - self.heliostat_pos))
+
+    def search_pattern(self, model: ModelRecord | None) -> np.ndarray:
+        """The beam search's look offsets (N, 2), m (u, v) from the aim point in the target
+        plane, nearest first (:mod:`controller.geometry.search_pattern`): steps of the view less
+        the overlap of ``search.overlap_sigma`` spot σ, out to ``search.extent_sigma`` σ of the
+        spot's position, about the aim point — for a heliostat without a model, once the field's
+        misses know, about where they put its beam (the first point, then). Empty without a search."""
+        if self.search is None:
+            return np.zeros((0, 2))
+        spot, position = self.spot_sigmas_m(self.source, model) or (0.0, self.first_light_sigma_m())
+        step = search_steps((self.frame.width_m, self.frame.height_m), spot, self.search.overlap_sigma)
+        self.search_step_m = step
+        reach = self.search.extent_sigma * position
+        known = self.field_misses.expected() if self.field_misses is not None and model is None else None
+        # The beam lands at (look + miss): to see it, look at −miss.
+        centre = (0.0, 0.0) if known is None else tuple(-1e-3 * m * float(np.linalg.norm(
+            self.aim_point - self.heliostat_pos)) for m in known[0])
+        return spiral_offsets(step, (reach, reach), 100_000) + np.asarray(centre)
+
+    def search_pose(self, offset_m, model: ModelRecord | None, start: tuple[int, int] | None
+                    ) -> tuple[int, int] | None:
+        """Steps that put the beam at ``offset_m`` (u, v, m) from the aim point, or None when they
+        are out of reach or the slew there from ``start`` (or the pose itself) would put the beam
+        on another target or into a person zone (beam safety, as predicted)."""
+        point = self.aim_point + float(offset_m[0]) * self.frame.u + float(offset_m[1]) * self.frame.v
+        try:
+            pose = self._steps(point, model)
+        except (LimitError, ValueError):
+            return None
+        lim = self.heliostat.axes
+        if not (lim.azimuth.soft_limits.min_steps <= pose[0] <= lim.azimuth.soft_limits.max_steps
+                and lim.elevation.soft_limits.min_steps <= pose[1] <= lim.elevation.soft_limits.max_steps):
+            return None
+        sweep = self._sweep(start, pose) if start is not None else np.asarray([pose], float)
+        if self.on_other_target(sweep).any() or self.in_zone(sweep).any():
+            return None
+        return pose
 
     def _steps(self, point: np.ndarray, model: ModelRecord | None) -> tuple[int, int]:
         # The same heliostat, model, source and point come back many times in a night (its lamp
@@ -214,8 +292,13 @@ class GeometryPointing(BeamSafety):
         by identifiability: every term is regularised towards its nominal value with the
         plant's prior σ (``calibration.model``), so the data move only what they observe
         (:func:`controller.geometry.model.fit.fit_model`). ``prior`` (the last model) is kept
-        when there is nothing to fit or the data identify no term."""
-        return fit_measurements(self.kin, measurements, self.model_settings) or prior
+        when there is nothing to fit or the data identify no term. Under a beam search the fitted
+        model is from then on what the beam-safety checks trace the ray with (its park after the
+        run): the nominal kinematics put a new heliostat's beam metres from where it is."""
+        model = fit_measurements(self.kin, measurements, self.model_settings) or prior
+        if self.search is not None and model is not None:
+            self.ray_model = TrackingModel.from_dict(model.params).values
+        return model
 
 
 def steps_to_aim(kin: HeliostatKinematics, model: ModelRecord | None, source_dir: np.ndarray,

@@ -1,4 +1,4 @@
-"""``heliocal report {weighting,confusion,campaign}``: study and campaign reports."""
+"""``heliocal report {weighting,confusion,campaign,first-light}``: study and campaign reports."""
 
 from controller.commands._groups import register_group
 

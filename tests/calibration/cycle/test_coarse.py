@@ -6,12 +6,14 @@ limits as every move."""
 from __future__ import annotations
 
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from controller.calibration.cycle.coarse import clipped_applies, correction_step
-from controller.calibration.cycle.observations import Observation
+from controller.calibration.cycle.observations import Observation, Step
+from controller.calibration.records import CorrectionRecord, MeasurementRecord, RunRecord
 from controller.config import load_config
 from controller.recognition.library import Match
 
@@ -204,10 +206,19 @@ def test_demo_uncalibrated_field_runs_the_same_heliostats_with_and_without_the_c
                   "applied_heliostats": ["H01"] if with_coarse else [],
                   "iterations_mean": 2.5 if with_coarse else 2.75,
                   "corrections_mean": 1.5 if with_coarse else 2.0}
-        return {"coarse_correction": coarse, "calibrated": 3,
-                "error_after_mrad": {"mean": 0.2, "max": 0.4}}, None
+        sim = SimpleNamespace(safety={"samples": 10, "violations": 0, "max_beams_on_target": 1},
+                              result=SimpleNamespace(campaign_id=1),
+                              on_target={"tower-target": [(0.0, 5.0, "H01")],
+                                         "tower-lower": [(1.0, 1.5, "H02")]})
+        return {"coarse_correction": coarse, "calibrated": 3, "heliostats_per_hour": 100.0, "db": str(db),
+                "error_after_mrad": {"mean": 0.2, "max": 0.4}}, sim
 
     monkeypatch.setattr(demo, "simulated_campaign", campaign)
+    import controller.reports.first_light as first_light
+
+    report = {"heliostats": [], "totals": {"search_looks": 7, "search_s": 30.0}}
+    monkeypatch.setattr(first_light, "first_light", lambda db, cid: report)
+    monkeypatch.setattr(first_light, "write_first_light", lambda fl, folder: Path(folder) / "first-light.md")
     ids = ["H01", "H02", "H03"]
     u = demo_coarse.uncalibrated_field(REPO / "configs" / "demo.yaml", tmp_path, ids, 5, 12.0)
     threshold = load_config(REPO / "configs" / "demo.yaml").calibration.coarse_correction
@@ -220,9 +231,13 @@ def test_demo_uncalibrated_field_runs_the_same_heliostats_with_and_without_the_c
     assert (u["tracking_error_mrad"], u["heliostats"], u["clipped_first_looks"]) == (12.0, 3, 4)
     assert {"calibrated", "calibrated_centroid_only", "error_after_mrad", "error_after_centroid_only_mrad",
             "applied_heliostats", "threshold"} <= set(u)
+    # The beam search a commissioning configuration turns on, told the field's σ at scale 12.
+    assert u["search"] == {"max_looks": demo_coarse.SEARCH_LOOKS, "normal_sigma_mrad": 1.4 * 12.0}
+    assert (u["search_steps"], u["search_s"], u["beam_safety"]["violations"]) == (7, 30.0, 0)
+    assert (u["beam_safety"]["other_target_spans"], u["beam_safety"]["other_target_s"]) == (1, 0.5)
 
 
-@pytest.mark.parametrize("value", ["0", "-3", "51", "nan"])
+@pytest.mark.parametrize("value", ["0", "-3", "201", "nan", "realistic"])
 def test_demo_refuses_a_bad_uncalibrated_scale_before_any_work(value, tmp_path, capsys):
     from controller.cli import main
     from tests.calibration.conftest import REPO
@@ -232,3 +247,37 @@ def test_demo_refuses_a_bad_uncalibrated_scale_before_any_work(value, tmp_path, 
     out, err = capsys.readouterr()
     assert out == "" and len(err.strip().splitlines()) == 1 and "--uncalibrated" in err
     assert not (tmp_path / "o").exists()
+
+
+def _measured(iteration: int, centroid) -> MeasurementRecord:
+    return MeasurementRecord(iteration, 0, 0, (0.0, 1.0, 0.0), 0.0, 0.0, (0.0, 0.0, 30.0), 0.0,
+                             centroid_enu=tuple(centroid))
+
+
+class _Planner:
+    """A pointing whose fine step is the offset itself (the move it plans is −offset)."""
+
+    aim_point = np.array([0.0, 0.0, 30.0])
+
+    def fine_correction(self, az, el, offset):
+        return Step(0.0, 0.0, int(round(-1000 * offset[0])), int(round(-1000 * offset[2])))
+
+
+def test_later_fine_steps_are_planned_by_the_first_steps_response():
+    """The first fine step was to move the spot 2 m east and 1 m up and moved it 1.8 m east and
+    1.1 m up (Eq. 1 of coarse.py): the next step, for a spot 0.2 m west of the aim, is planned so
+    that the same response moves it 0.2 m east."""
+    run = RunRecord("H01", 0, "running", "idle", 0, 0.0, 0.0)
+    run.measurements = [_measured(1, (-2.0, 0.0, 29.0)), _measured(2, (-0.2, 0.0, 30.1))]
+    run.corrections = [CorrectionRecord(1, "fine", 0.0, 0.0, 2000, 1000)]
+    obs = Observation((0, 0), (-0.2, 0.0, 30.1), np.zeros(7), 1.0)
+    kind, step = correction_step(_Planner(), 0, 0, obs, None, first=False, min_confidence=None, run=run)
+    w, g = np.array([2.0, 0.0, 1.0]), np.array([1.8, 0.0, 1.1])
+    planned = np.array([step.daz_steps, 0.0, step.del_steps]) / 1000.0  # the move it plans
+    moved = planned + (g - w) * float(w @ planned) / float(w @ w)  # as the first step responded (M)
+    assert kind == "fine" and moved == pytest.approx([0.2, 0.0, -0.1], abs=2e-3)
+    assert (step.daz_steps, step.del_steps) != (200, -100)  # not the plain centroid step
+    plain = correction_step(_Planner(), 0, 0, obs, None, first=False, min_confidence=None)[1]
+    assert (plain.daz_steps, plain.del_steps) == (200, -100)
+    run.corrections.insert(0, CorrectionRecord(1, "coarse", 0.0, 0.0, 1, 1))  # not one fine step: no response
+    assert correction_step(_Planner(), 0, 0, obs, None, first=False, min_confidence=None, run=run)[1] == plain

@@ -36,7 +36,7 @@ def test_diagram_doc_is_current():
 def test_table_is_complete():
     names = [s for s, _, _ in STATES]
     required = {"idle", "preparing", "slewing", "settling", "capturing", "merging", "analysing", "matching",
-                "correcting", "verifying", "done", "standby", "fault", "stowed", "aborted"}
+                "searching", "correcting", "verifying", "done", "standby", "fault", "stowed", "aborted"}
     assert set(names) == required and len(names) == len(required)
     assert all(t > 0 for _, t, _ in STATES), "every state has a timeout"
     for trig, src, dst in TRANSITIONS:
