@@ -79,8 +79,7 @@ class CampaignStore:
         self._lock = threading.RLock()
         self.campaign_lock = CampaignLock(self.path)
         check_regular(self.path, "database")  # a FIFO would block sqlite's first read
-        # A new (or empty) file this open creates: removed again, with SQLite's side files, when
-        # the open is refused, so a refusal leaves nothing behind.
+        # a new (or empty) file this open creates is removed again when the open is refused
         self._existed = self.path.exists()
         self._created = not readonly and (not self._existed or self.path.stat().st_size == 0)
         self._db: sqlite3.Connection | None = None
@@ -161,8 +160,7 @@ class CampaignStore:
             self._db.execute("COMMIT")
 
     def close(self, refused: BaseException | None = None) -> None:
-        """Close; after a refusal (``refused``: an InputError), a database this open created that
-        still records nothing is removed — a refused command leaves no new file."""
+        """Close; after a refusal (an InputError) a database this open created, still empty, goes."""
         with self._lock:
             if self._db is None:  # closed already
                 return
