@@ -83,7 +83,8 @@ def uncalibrated_scale(text: str) -> float | str:
 def uncalibrated_field(config: Path, out: Path, ids: list[str], seed: int, scale_mrad: float | str) -> dict:
     """The heliostats ``ids`` calibrated on a plant with hidden errors of ``scale_mrad``
     (:class:`simplant.settings.SimulationSettings`), with the config's coarse correction and
-    centroid only, into ``OUT/uncalibrated/{coarse,centroid-only}/``; parked beams
+    centroid only, into ``OUT/uncalibrated/SCALE/{coarse,centroid-only}/`` (SCALE: ``real`` or
+    e.g. ``50mrad``); parked beams
     :data:`UNCALIBRATED_STANDBY_OFFSET_M` from the target (or the config's, if farther).
 
     Returns (closed loop; final errors from the plant's truth): ``tracking_error_mrad``,
@@ -105,8 +106,11 @@ def uncalibrated_field(config: Path, out: Path, ids: list[str], seed: int, scale
                 else simulation_settings(seed=seed, tracking_error_mrad=scale_mrad))
     res: dict = {"tracking_error_mrad": scale_mrad, "threshold": base.coarse_correction,
                  "heliostats": len(ids), "search": search}
+    # one folder per scale: another scale in the same OUT is another field, never a resume of
+    # this one (whose configuration, written first, would be overwritten and then refused)
+    field = out / "uncalibrated" / ("real" if real else f"{float(scale_mrad):g}mrad")
     for name, threshold in (("coarse", base.coarse_correction), ("centroid-only", None)):
-        path = config_copy(config, out / "uncalibrated" / name, coarse_correction=threshold,
+        path = config_copy(config, field / name, coarse_correction=threshold,
                            standby_offset_m=standby, search=search)
         s, sim = simulated_campaign(load_config(path), str(path), path.parent, path.parent / "campaign.db",
                                     ids, settings, f"uncalibrated-{name}-seed{seed}", library_dir=out)

@@ -7,6 +7,7 @@ a delay."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -276,7 +277,7 @@ def test_demo_uncalibrated_field_compares_the_coarse_correction_with_centroid_on
     assert (u["tracking_error_mrad"], u["heliostats"]) == (12.0, 4)
 
     def runs(name):
-        with sqlite3.connect(out / "uncalibrated" / name / "campaign.db") as c:
+        with contextlib.closing(sqlite3.connect(out / "uncalibrated" / "12mrad" / name / "campaign.db")) as c:
             rows = c.execute("SELECT id, heliostat_id, iterations FROM heliostat_runs").fetchall()
             coarse = {r for (r,) in c.execute("SELECT run_id FROM corrections WHERE kind = 'coarse'")}
             first = len(c.execute("SELECT DISTINCT run_id FROM corrections WHERE iteration = 0").fetchall())
@@ -290,3 +291,14 @@ def test_demo_uncalibrated_field_compares_the_coarse_correction_with_centroid_on
     assert u["clipped_first_looks"] == clipped >= u["applied"]
     assert u["iterations_mean"] == round(sum(n for *_, n in with_rows) / 4, 3)
     assert u["iterations_centroid_only_mean"] == round(sum(n for *_, n in plain_rows) / 4, 3)
+
+    # another scale in the same folder is another field: run, not refused as a changed
+    # configuration, and the first field's files untouched
+    first = {f: f.read_bytes() for f in (out / "uncalibrated" / "12mrad").rglob("config.yaml")}
+    p = _heliocal("demo", "--config", str(small_config), "--heliostats", "4", "--seed", "1", "--nights", "0",
+                  "--uncalibrated", "real", "--out", str(out), "--json")
+    stdout, stderr = p.communicate(timeout=scaled_s(300))
+    assert p.returncode == 0, stderr
+    assert json.loads(stdout)["coarse_correction_uncalibrated"]["tracking_error_mrad"] == "real"
+    assert (out / "uncalibrated" / "real" / "coarse" / "campaign.db").is_file()
+    assert first and all(f.read_bytes() == b for f, b in first.items())
