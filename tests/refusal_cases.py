@@ -65,13 +65,18 @@ def make_folder(d: Path) -> dict[str, str]:
             c.execute("PRAGMA journal_mode=DELETE")
     base = json.loads(v["rec"].read_text())
     for name, path, value in ABSURD:
-        rec = copy.deepcopy(base)
-        node = rec
-        for k in path[:-1]:
-            node = node[k]
-        node[path[-1]] = value
-        (d / f"absurd-{name}.json").write_text(json.dumps(rec))
+        (d / f"absurd-{name}.json").write_text(json.dumps(replaced(base, path, value)))
     return {k: str(p) for k, p in v.items()}
+
+
+def replaced(record: dict, path: list, value) -> dict:
+    """A copy of ``record`` with the value at ``path`` (keys and indices) replaced by ``value``."""
+    rec = copy.deepcopy(record)
+    node = rec
+    for k in path[:-1]:
+        node = node[k]
+    node[path[-1]] = value
+    return rec
 
 
 # A PAINT record's values out of any physical range (model fit/validate/import refuse them).

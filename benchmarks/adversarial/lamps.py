@@ -36,6 +36,7 @@ REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO))
 
 from adversarial.tally import Tally  # noqa: E402
+from tests.calibration.conftest import small_demo_data  # noqa: E402
 from tests.devices.tcp_peers import KINDS, NotAPanel  # noqa: E402
 
 TIMEOUT_S = 1.0  # the switch program's timeout and the panel's answer timeout in these cases
@@ -181,11 +182,7 @@ def night_lamp_failures(folder: Path) -> dict:
     from controller.errors import HeliocalError
     from controller.storage.nights import NightBook
 
-    data = yaml.safe_load((REPO / "configs" / "demo.yaml").read_text())
-    for cam in [data["camera"]] + [t["camera"] for t in data["targets"] if t.get("camera")]:
-        cam["width_px"], cam["height_px"] = 256, 192
-        if cam.get("registration"):
-            cam["registration"]["focal_px"] *= 256 / 1024
+    data = small_demo_data()
     config = folder / "night.yaml"
     config.write_text(yaml.safe_dump(data))
     (folder / "night-programs").mkdir()

@@ -18,7 +18,6 @@
 from __future__ import annotations
 
 import contextlib
-import copy
 import io
 import itertools
 import json
@@ -38,6 +37,7 @@ from tests.refusal_cases import (  # noqa: E402
     cases,
     make_folder,
     refused_cleanly,
+    replaced,
     run,
     snapshot,
 )
@@ -148,13 +148,8 @@ def absurd_records(folder: Path) -> dict:
                      ("spot-2", ["focal_spot", "UTIS"], [50.9, 6.38]),
                      ("spot-1km", ["focal_spot", "UTIS", 0], 50.9224)]
     for name, path, value in more:
-        rec = copy.deepcopy(base)
-        node = rec
-        for k in path[:-1]:
-            node = node[k]
-        node[path[-1]] = value
         f = d / f"more-{name}.json"
-        f.write_text(json.dumps(rec))
+        f.write_text(json.dumps(replaced(base, path, value)))
         t.case(name, lambda p=f: read_paint_set([str(p), v["rec"]], v["props"], v["towers"]),
                lambda r, p=f: _input_error(r) and str(p) in str(r))
     for col, value in (("az_steps", 10**12), ("el_steps", -5), ("centroid_n", 1e7), ("source_u", 3.0),

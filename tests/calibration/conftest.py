@@ -258,17 +258,22 @@ class _Axes:
 REPO = Path(__file__).resolve().parents[2]
 
 
-@pytest.fixture
-def small_config(tmp_path) -> Path:
-    """The demo plant with 256×192 cameras, to keep tests quick (run it with :data:`FAST`)."""
+def small_demo_data() -> dict:
+    """The demo plant's configuration document with 256×192 cameras, to keep tests quick."""
     data = yaml.safe_load((REPO / "configs" / "demo.yaml").read_text())
     for cam in [data["camera"]] + [t["camera"] for t in data["targets"] if t.get("camera")]:
         cam["width_px"], cam["height_px"] = 256, 192
         reg = cam.get("registration")
         if reg:  # the same lens on a 4x binned sensor: a quarter of the focal length in pixels
             reg["focal_px"] = reg["focal_px"] * 256 / 1024
+    return data
+
+
+@pytest.fixture
+def small_config(tmp_path) -> Path:
+    """The demo plant with 256×192 cameras (:func:`small_demo_data`; run it with :data:`FAST`)."""
     p = tmp_path / "small.yaml"
-    p.write_text(yaml.safe_dump(data))
+    p.write_text(yaml.safe_dump(small_demo_data()))
     return p
 
 

@@ -20,7 +20,7 @@ from controller.commands.field import open_store
 from controller.commands.simulated import simulated_field
 from controller.config import load_config
 from simplant.settings import SimulationSettings
-from tests.calibration.conftest import FAST, REPO
+from tests.calibration.conftest import FAST, small_demo_data
 from tests.conftest import run_cli
 
 HID = "H02"
@@ -31,11 +31,7 @@ SUN = ["--sun-az", "180", "--sun-el", "45", "--json"]
 def fitted(tmp_path_factory):
     """A database whose H02 has a model fitted on the small demo plant, and that plant's file."""
     tmp = tmp_path_factory.mktemp("field-change")
-    data = yaml.safe_load((REPO / "configs" / "demo.yaml").read_text())
-    for cam in [data["camera"]] + [t["camera"] for t in data["targets"] if t.get("camera")]:
-        cam["width_px"], cam["height_px"] = 256, 192
-        if cam.get("registration"):
-            cam["registration"]["focal_px"] *= 256 / 1024
+    data = small_demo_data()
     path = tmp / "plant.yaml"
     path.write_text(yaml.safe_dump(data))
     store = open_store(tmp / "c.db")

@@ -29,7 +29,7 @@ from controller.errors import HeliocalError
 from controller.storage.lamp_states import lamp_states
 from controller.storage.nights import NightBook
 from simplant.settings import SimulationSettings
-from tests.calibration.conftest import FAST, REPO
+from tests.calibration.conftest import FAST, small_demo_data
 from tests.conftest import run_cli, scaled_s
 from tests.devices.tcp_peers import NotAPanel
 
@@ -40,11 +40,7 @@ IDS = ["H02"]
 def field(tmp_path_factory):
     """The demo plant with small cameras (as ``small_config``), once for the module."""
     tmp = tmp_path_factory.mktemp("night-fails")
-    data = yaml.safe_load((REPO / "configs" / "demo.yaml").read_text())
-    for cam in [data["camera"]] + [t["camera"] for t in data["targets"] if t.get("camera")]:
-        cam["width_px"], cam["height_px"] = 256, 192
-        if cam.get("registration"):
-            cam["registration"]["focal_px"] *= 256 / 1024
+    data = small_demo_data()
     config = tmp / "small.yaml"
     config.write_text(yaml.safe_dump(data))
     store = open_store(tmp / "c.db")
