@@ -10,7 +10,10 @@ each lands where the other's was when they first met (a frozen offset, so each s
 moves with its own heliostat's steps) — what two heliostats pointing far off, each onto the
 other's slot, would look like. Its truth follows the light: the spot made by a is recorded
 as a's, where it lands. The fault :meth:`SpotTruth.stray` moves only one of the two, where the
-other's was when they first met: a heliostat pointing far off, towards another's slot.
+other's was when they first met: a heliostat pointing far off, towards another's slot. The
+fault :meth:`SpotTruth.freeze` keeps one spot where it was first drawn, whatever its heliostat
+does: a mirror that does not follow its drive (a slipping coupling), whose spot never moves
+with its identity step.
 """
 
 from __future__ import annotations
@@ -27,6 +30,8 @@ class SpotTruth:
         self.pair: tuple[str, str] | None = None
         self._offsets: dict[str, np.ndarray] | None = None
         self._both = True  # swap: both spots move; stray: only the first
+        self.frozen: str | None = None
+        self._first: np.ndarray | None = None  # where the frozen spot was first drawn (relative)
         self._lock = threading.Lock()
         self.misassigned_count = 0
         self.checked = 0
@@ -43,19 +48,29 @@ class SpotTruth:
         with self._lock:
             self.pair, self._offsets, self._both = (a, onto), None, False
 
-    def shifts(self, rels: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-        """Offsets (m ENU) of the swapped spots for this render (empty when the fault is off or
-        only one of the two beams is in view)."""
+    def freeze(self, a: str) -> None:
+        """Keep ``a``'s spot where it is next drawn, whatever ``a`` does (module docstring)."""
         with self._lock:
+            self.frozen, self._first = a, None
+
+    def shifts(self, rels: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """Offsets (m ENU) of the swapped (or frozen) spots for this render (empty when the
+        faults are off or only one of the two beams is in view)."""
+        with self._lock:
+            out = {}
+            if self.frozen in rels:
+                if self._first is None:
+                    self._first = np.asarray(rels[self.frozen], float)
+                out[self.frozen] = self._first - rels[self.frozen]
             if self.pair is None or not all(h in rels for h in self.pair):
                 self._offsets = None
-                return {}
+                return out
             if self._offsets is None:
                 a, b = self.pair
                 self._offsets = {a: rels[b] - rels[a]}
                 if self._both:
                     self._offsets[b] = rels[a] - rels[b]
-            return dict(self._offsets)
+            return {**out, **self._offsets}
 
     @staticmethod
     def place(image: np.ndarray, grid, at_enu, shift) -> np.ndarray:

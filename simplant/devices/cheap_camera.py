@@ -187,6 +187,14 @@ class CheapCamera(PlantClockCamera):
         rows, cols = g.shape
         near = ((-SPOT_EXTENT_SIGMA * sx < xs + 0.5) & (xs + 0.5 < cols + SPOT_EXTENT_SIGMA * sx)
                 & (-SPOT_EXTENT_SIGMA * sy < ys + 0.5) & (ys + 0.5 < rows + SPOT_EXTENT_SIGMA * sy))
+        # The plant's identity faults (SpotTruth.swap / stray): a spot drawn where another's was.
+        shifts = self.plant.spot_truth.shifts({self.field.ids[ok[k]]: hit[k] - g.center
+                                               for k in np.flatnonzero(near)})
+        for k in np.flatnonzero(near):
+            shift = shifts.get(self.field.ids[ok[k]])
+            if shift is not None:
+                hit[k] = hit[k] + shift
+                xs[k], ys[k] = g.enu_to_pixel(hit[k])
         seen, hits = [], {}
         for k in np.flatnonzero(near):
             i = ok[k]
@@ -205,6 +213,7 @@ class CheapCamera(PlantClockCamera):
             hits[hid] = tuple(float(v) for v in hit[k])
         self.beams_in_view.append(tuple(seen))
         self.hits.append(hits)
+        self.plant.spot_truth.record(hits)
         if self.expected is not None:
             meant = self.expected()
             self.strays.append(tuple(h for h in seen if h not in meant))

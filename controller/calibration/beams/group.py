@@ -20,7 +20,10 @@ meet at a *round* (:meth:`SharedCapture.capture`, called by each one's cycle in 
    window's centroid moves more than ``SPILL_M`` without its border band there, ``spills``), is
    **measured again alone** (:meth:`TargetGate.acquire_alone`, no newcomer admitted meanwhile):
    the first stays while the others park, any further one parks and comes back. A
-   measurement is never taken from a spot whose identity was not confirmed.
+   measurement is never taken from a spot whose identity was not confirmed;
+5. a heliostat that comes back for another look (a correction, a clipped spot) while another
+   waits to be measured alone parks and is measured alone after it: the one waiting cannot
+   take the target while this beam is on it, nor a round form while that one is not at it.
 
 Corrections (a calibration campaign) repeat this per measurement with the other beams in place.
 """
@@ -220,7 +223,10 @@ class SharedCapture:
             try:
                 while True:
                     rnd = self._round
-                    if rnd is not None and ticket in rnd.members:
+                    if rnd is not None and ticket in rnd.members and ticket not in rnd.left:
+                        break  # a round it left (a correction's next look) is not joined again
+                    if g.others_alone(ticket):  # it waits for this beam to leave: go, be measured alone
+                        rnd = None
                         break
                     if self._fires():  # every beam on the target waits here: one capture for all
                         rnd = self._round = _Round(dict.fromkeys(g.holders))
@@ -230,7 +236,10 @@ class SharedCapture:
                     g.cv.wait(0.02)
             finally:
                 self._ready.discard(ticket)
-            rnd.members[ticket] = (slot_uv, disp)
+            if rnd is not None:
+                rnd.members[ticket] = (slot_uv, disp)
+        if rnd is None:
+            return self._alone(cyc, pose), None
         if leader and len(rnd.members) == 1:  # its beam alone on the target: measured as with K = 1
             try:
                 frame1 = self._capture()

@@ -18,7 +18,8 @@ class TargetGate:
     still slewing to standby holds up its own slot, not the others. ``acquire_alone(ticket)``: for a heliostat
     measured again alone (its spot could not be told from the others): waits until no other
     beam holds the target and keeps every other ticket off it until released; it goes before
-    tickets not yet admitted.
+    tickets not yet admitted, and the tickets to be measured alone go in the order they asked
+    (:meth:`reserve_alone` first: its beam already waits on the target).
     A ticket in ``solo`` (its slot None: no slot's pose suits its heliostat) is admitted only
     onto an empty target and keeps every other ticket off it while it holds it.
     ``together``: the first round's tickets (the first at each slot) are admitted only once
@@ -43,7 +44,7 @@ class TargetGate:
         self._done: set[int] = set()
         self.holders: set[int] = set()
         self.alone: int | None = None  # the ticket measured alone now
-        self._alone_waiting: set[int] = set()
+        self._alone_waiting: list[int] = []  # in the order they asked (reserve_alone, acquire_alone)
         self.waiting: set[int] = set()  # tickets blocked in acquire
         self.solo = {t for t, s in enumerate(slots) if s is None}  # no slot fits them: the target alone
         self._slots = list(slots)
@@ -111,24 +112,38 @@ class TargetGate:
         """Take the target with no other beam on it (module docstring); the ticket must have
         given its slot back first (:meth:`give_back`)."""
         with self.cv:
-            self._alone_waiting.add(ticket)
+            self._ask_alone(ticket)
             try:
                 while (self.holders - {ticket} or self.leaving or self.alone is not None
-                       or min(self._alone_waiting) != ticket):
+                       or self._alone_waiting[0] != ticket):
                     if cancelled() or self.blocked:
                         return False
                     self.cv.wait(poll_s)
                 self.alone = ticket
                 return True
             finally:
-                self._alone_waiting.discard(ticket)
+                self._forget_alone(ticket)
                 self.cv.notify_all()
+
+    def others_alone(self, ticket: int) -> bool:
+        """Is another ticket measured alone now, or waiting to be? (the caller holds ``cv``) A
+        holder must then leave the target before its next capture: a round cannot form while
+        that one waits, nor the one waiting take the target while this one's beam is on it."""
+        return self.alone not in (None, ticket) or any(t != ticket for t in self._alone_waiting)
+
+    def _ask_alone(self, ticket: int) -> None:
+        if ticket not in self._alone_waiting:
+            self._alone_waiting.append(ticket)
+
+    def _forget_alone(self, ticket: int) -> None:
+        if ticket in self._alone_waiting:
+            self._alone_waiting.remove(ticket)
 
     def reserve_alone(self, ticket: int) -> None:
         """``ticket`` is to be measured alone where it stands (it holds its slot): nobody is
         admitted from now on until it has been (:meth:`acquire_alone`)."""
         with self.cv:
-            self._alone_waiting.add(ticket)
+            self._ask_alone(ticket)
 
     def vacate(self, ticket: int) -> None:
         """``ticket``'s beam has left the target while it parks (class docstring): its slot is free."""
@@ -154,7 +169,7 @@ class TargetGate:
             self.give_back(ticket, beam_off_target)
             if self.alone == ticket:
                 self.alone = None
-            self._alone_waiting.discard(ticket)  # reserved, then stopped before its turn
+            self._forget_alone(ticket)  # reserved, then stopped before its turn
             self._done.add(ticket)
             if self._next == ticket:  # skipped before its turn came
                 while self._next in self._done:

@@ -140,6 +140,28 @@ def test_measured_alone_waits_for_every_other_beam_and_keeps_newcomers_off():
     assert gate.acquire(2, never) and gate.alone is None
 
 
+def test_those_measured_alone_go_in_the_order_they_asked_the_one_left_at_its_slot_first():
+    gate = TargetGate(beams=3)
+    never, at_once = (lambda: False), (lambda: True)  # noqa: E731
+    for t in range(3):
+        gate.acquire(t, never)
+    gate.reserve_alone(2)  # stays at its slot, its beam on the target
+    assert gate.others_alone(0) and not gate.others_alone(2)
+    gate.give_back(1)
+    order = []
+    th = threading.Thread(target=lambda: order.append((1, gate.acquire_alone(1, never))))
+    th.start()
+    th.join(0.2)
+    gate.give_back(0)  # back for a correction: parked, asks after ticket 1
+    assert not gate.acquire_alone(0, at_once)  # ticket 2 goes first, then ticket 1
+    assert gate.acquire_alone(2, never) and gate.alone == 2 and not order
+    gate.release(2)
+    th.join(2.0)
+    assert order == [(1, True)] and gate.alone == 1
+    gate.release(1)
+    assert gate.acquire_alone(0, never) and gate.alone == 0
+
+
 def test_slots_keep_predicted_spots_apart_and_inside_the_view(small_config, tmp_path):
     near = load_config(small_config)  # a lamp 50-60 m from the mirrors: spots nearly mirror-wide
     models = {h.id: calibrated_record(near, h.id) for h in near.heliostats}

@@ -10,13 +10,17 @@ import numpy as np
 import pytest
 import yaml
 
-from controller.commands.cheap_night import run_cheap_night
+from controller.calibration.campaign.observers import CampaignObserver
+from controller.calibration.campaign.runner import Campaign, CampaignOptions
+from controller.commands.cheap_night import cheap_field, run_cheap_night
+from controller.commands.field import open_store
 from controller.commands.sim.field import OnTarget, run_planned_night, seed_from_truth, strays
 from controller.devices.drive import AxisLimits, DriveLimits
 from controller.errors import LimitError
 from controller.storage.db import CampaignStore
 from simplant.cheap_night import CheapField, field_data
 from simplant.devices.inproc import InProcPool
+from tests.conftest import scaled_s
 
 ROOT = Path(__file__).resolve().parents[3]
 
@@ -100,3 +104,44 @@ def test_several_beams_on_the_cheap_field_and_a_beam_not_the_captures_is_counted
         cam.beams_in_view, cam.strays = [], []
     field.cameras["T1"].capture()  # the beams parked off the target: nothing in view, nothing stray
     assert strays(field, 2, {}) == (0, 1, [])
+
+
+class _FreezeSecond(CampaignObserver):
+    """Freezes the spot of the campaign's second heliostat in the queue (``SpotTruth.freeze``):
+    its spot never moves with its identity step, so it is measured alone, staying at its slot."""
+
+    def __init__(self, field) -> None:
+        self.field, self.queue = field, []
+
+    def campaign_started(self, campaign_id, queue, done) -> None:
+        self.queue = list(queue)
+        self.field.plant.spot_truth.freeze(self.queue[1])
+
+
+def test_a_beam_back_for_a_correction_leaves_the_target_to_one_waiting_to_be_measured_alone(base, tmp_path):
+    """Several beams (K = 4, two slots fit) and a correction after every look: the first round's
+    second spot cannot be told apart (frozen) and waits at its slot to be measured alone, while
+    the first heliostat, measured in the round, comes back for its correction. It must leave the
+    target: the one waiting cannot take it while its beam is on it, and no round forms without
+    the one waiting (the K-slot stall: both waited until the capturing state's timeout)."""
+    data = field_data(base, 16, 1, 1, beams=4)
+    data["calibration"].update(tolerance_mrad=0.01, max_iterations=2)  # every look is corrected once
+    field = CheapField(data, tmp_path, speedup=1000.0)
+    seed_from_truth(field, "n0")
+    ids = [h.id for h in field.cfg.heliostats]
+    frozen, watch = _FreezeSecond(field), OnTarget(field, None)
+    store = open_store(field.db_path)
+    try:
+        c = Campaign(cheap_field(field, store), CampaignOptions(
+            name="c1", timeouts={"capturing": scaled_s(20.0), "standby": scaled_s(30.0)}),
+            heliostat_ids=ids, observers=[frozen, watch])
+        r = c.run()
+    finally:
+        store.close()
+    assert c.slots is not None and c.slots.k == 2 and c.group.gate.slot(1) == 1
+    assert {run.status for run in r.runs} == {"not_converged"}, [run.fault_cause for run in r.runs]
+    assert all(run.iterations == 2 for run in r.runs)
+    # The frozen one measured alone where it stood, then the first one's correction alone.
+    assert c.group.alone == frozen.queue[1::-1]
+    assert strays(field, 2, {})[0] == 0  # never a beam in view that was not the capture's
+    assert strays(field, 2, {})[0] == 0
