@@ -76,6 +76,14 @@ class MirrorOptics:
         """From a :class:`controller.config.Mirror` (slope error in mrad)."""
         return cls(mirror.width_m, mirror.height_m, mirror.focal_length_m, 1e-3 * mirror.slope_error_mrad)
 
+    @classmethod
+    def stack(cls, mirrors) -> MirrorOptics:
+        """H mirrors' optics as (H, 1) arrays, for a stack of heliostats' spots (one pose each
+        or broadcast over K)."""
+        each = [cls.from_config(m) for m in mirrors]
+        return cls(*(np.array([getattr(o, f) for o in each])[:, None]
+                     for f in ("width_m", "height_m", "focal_m", "slope_error_rad")))
+
 
 def spot_covariance(distance_m, lamp_angle_rad, slope_error_rad, mirror_w_m, mirror_h_m, focal_m,
                     beam, normal, u_axis, v_axis, source_distance_m=np.inf) -> np.ndarray:

@@ -179,6 +179,11 @@ class LinearPointing:
     def path_to(self, start, end):
         return [end]
 
+    def beam_on_target(self, az, el, margin_m: float = 2.0) -> bool:
+        """The true beam within 3 m (plus the margin) of the aim point."""
+        out = np.array((az, el), float) + self.p.hidden_steps - np.array(self.p.ideal)
+        return bool(np.all(np.abs(A @ out) <= 3.0 + margin_m))
+
     def fine_correction(self, az, el, offset_enu):
         d = np.linalg.solve(A, -np.array([offset_enu[0], offset_enu[2]]))
         return Step(float(d[0]) * 1e-3, float(d[1]) * 1e-3, int(round(d[0])), int(round(d[1])))

@@ -38,7 +38,7 @@ from typing import Any, Protocol
 from controller.alarms.watch import FieldWatch
 from controller.calibration.beams.group import SharedCapture, slot_parks
 from controller.calibration.beams.policy import beams_allowed
-from controller.calibration.beams.slots import assign_slots, slot_layout, spot_reach_m
+from controller.calibration.beams.slots import assign_slots, pass_layout, spot_reaches_m
 from controller.calibration.campaign.field import Field, LampLit
 from controller.calibration.campaign.lamp_change import clear_targets
 from controller.calibration.campaign.no_beam import NoBeamWatch, RefusalObserver
@@ -151,6 +151,7 @@ class Campaign:
         self._go.set()
         self._cycles: dict[str, CalibrationCycle] = {}
         self.slots = None  # controller.calibration.beams.slots.SlotLayout with several beams per target
+        self._alone: set[str] = set()  # heliostats whose spot is too large for the slots: the target alone
         self.group: SharedCapture | None = None
         self._current: dict[str, tuple[int, int]] = {}
 
@@ -208,15 +209,18 @@ class Campaign:
 
             self._pointing_at = pointing_at
             pointing = {hid: pointing_at(hid, aims.get(hid)) for hid in self.ids}
-            self.slots = None
+            self.slots, self._alone = None, set()
             if beams > 1:
-                reach = spot_reach_m(self.cfg, target.id, source.id, models, target.center_enu_m)
-                layout = slot_layout(self.chain.frame, beams, reach, cal.planner.view_margin_m)
-                self.slots = layout if layout.k > 1 else None
+                # The slots are spaced for most of the pass's spots; the largest take the target
+                # alone, queued last (slots.pass_layout).
+                reach = spot_reaches_m(self.cfg, target.id, source.id, models, target.center_enu_m)
+                layout, fit = pass_layout(self.chain.frame, beams, reach, cal.planner.view_margin_m)
+                if layout.k > 1:
+                    self.slots, self._alone = layout, {h for h, f in zip(models, fit, strict=True) if not f}
             existing = self.store.campaign_by_name(self.opt.name)
             k = 1 if self.slots is None else self.slots.k
-            queue = existing.queue if existing is not None else order_queue(self.cfg, self.ids, current,
-                                                                            pointing, k, self.opt.queue_last)
+            queue = existing.queue if existing is not None else order_queue(
+                self.cfg, self.ids, current, pointing, k, (*self.opt.queue_last, *sorted(self._alone)))
         site = self.cfg.site
         self.meta.setdefault("site", [site.latitude_deg, site.longitude_deg, site.elevation_m])
         self.meta.setdefault("target_normal", list(target.normal))
@@ -246,7 +250,8 @@ class Campaign:
     def _finish(self, cid: int, status: str, cause: str | None) -> None:
         if self.group is not None:  # several beams: how the captures went (docs/campaigns.md)
             self.store.update_meta(cid, {"beams": {"slots": self.slots.k, "rounds": self.group.rounds,
-                                                   "measured_alone": self.group.alone}})
+                                                   "measured_alone": self.group.alone,
+                                                   "alone_by_spot_size": len(self._alone)}})
         self.store.finish_campaign(cid, status, cause)
         self.observer.campaign_finished(cid, status)
 
@@ -262,6 +267,8 @@ class Campaign:
 
             def fits(ticket: int, slot: int) -> bool:
                 hid = todo[ticket][1]
+                if hid in self._alone:
+                    return False
                 at_slot[ticket, slot] = self._pointing_at(hid, self.slots.aim(slot))
                 return slot_parks(at_slot[ticket, slot], slot, self.slots.k, self.chain.frame,
                                   self._current.get(hid))

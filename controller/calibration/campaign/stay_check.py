@@ -96,10 +96,8 @@ def _stay_margin(cfg: PlantConfig, ids: list[str], hs: list, kin: KinStack,
     covs = np.array([cov for _, cov in pairs])
     aim = np.broadcast_to(np.asarray(cfg.target().center_enu_m, float), (len(ids), 1, 3))
     steps, ok = aim_steps(kin.shaped(2), values[:, None, :], aim, lamp=lamp_pos)
-    optics = MirrorOptics(*(np.array([getattr(MirrorOptics.from_config(h.mirror), f) for h in hs])[:, None]
-                            for f in ("width_m", "height_m", "focal_m", "slope_error_rad")))
-    spot = predict_spots(kin, optics, values, covs, steps, aim, frame, lamp=lamp_pos,
-                         lamp_diameter_m=lamp_diameter_m, floor_rad=2e-3 * settings.noise_mrad)
+    spot = predict_spots(kin, MirrorOptics.stack([h.mirror for h in hs]), values, covs, steps, aim, frame,
+                         lamp=lamp_pos, lamp_diameter_m=lamp_diameter_m, floor_rad=2e-3 * settings.noise_mrad)
     # spot.standby_clearance_m for each heliostat: H + k (σ_spot + σ_pos) + margin
     clearance = (frame.width_m / 2.0 + SIGMAS * (spot.sigma_m[:, 0, 0] + spot.position_sigma_m[:, 0, 0])
                  + PARK_MARGIN_M)

@@ -366,7 +366,10 @@ class CalibrationCycle:
                 break
         try:
             d.stow()
-            self.beam_on_target = False
+            # The stow is the firmware's own move, not a beam-safe path: the target is handed on
+            # only once the drive has arrived and the beam is seen off it; else nobody gets it.
+            st = d.wait_in_position(self.ctx.move_timeout_s, time=self.ctx.time)
+            self.beam_on_target = self.ctx.pointing.beam_on_target(st.az_steps, st.el_steps)
             self.cause = f"{self.cause}; standby failed ({first}), stowed"
             self._release_target()
             return "stow"

@@ -107,13 +107,18 @@ def night_zero(cheap, ids: list[str], name: str, budget_s: float, observers=()) 
 
 class OnTarget(CampaignObserver):
     """Which heliostats the controller means to have on each target now: those whose cycle is
-    between its approach and its park (the states from *slewing* to *correcting*), on the
+    between its approach and its park (the states from *slewing* to *correcting*, and *fault*
+    until parked), on the
     target the plan gives them under the lit lamp (night 0: the calibration target). Each
     cheap camera asks it at every capture (``CheapCamera.expected``); a beam in view that is
     not meant to be there is a stray."""
 
-    STATES = frozenset(("slewing", "settling", "capturing", "merging", "analysing", "matching", "verifying",
-                        "correcting"))
+    STATES = frozenset(("slewing", "settling", "capturing", "merging", "analysing", "matching", "searching",
+                        "verifying", "correcting"))
+    # Parked (or never out): its beam is off the targets. A cycle that faults on a target keeps
+    # its beam there until its fault path has parked it (a frame pair being taken then is still
+    # the capture's).
+    OFF = frozenset(("idle", "preparing", "standby", "done", "stowed", "aborted"))
 
     def __init__(self, cheap, plan) -> None:
         self.plant, self.default = cheap.plant, cheap.cfg.calibration.target
@@ -130,7 +135,10 @@ class OnTarget(CampaignObserver):
         return {h for h in list(self.on) if target in self.where.get((h, lamp), {self.default})}
 
     def state_changed(self, heliostat_id: str, state: str) -> None:
-        (self.on.add if state in self.STATES else self.on.discard)(heliostat_id)
+        if state in self.STATES:
+            self.on.add(heliostat_id)
+        elif state in self.OFF:
+            self.on.discard(heliostat_id)
 
 
 def strays(cheap, k: int, since: dict[str, int]) -> tuple[int, int, list]:

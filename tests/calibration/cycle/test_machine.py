@@ -6,8 +6,10 @@ import threading
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from controller.calibration.campaign.runner import INTERRUPTED
+from controller.calibration.cycle.beam_safety import UnsafePath
 from controller.calibration.cycle.diagram import state_machine_markdown
 from controller.calibration.cycle.gate import TargetGate
 from controller.calibration.cycle.machine import FINAL_STATES, STATES, TRANSITIONS
@@ -297,3 +299,30 @@ def test_a_spot_that_stays_clipped_faults(make_cycle):
     assert rec.status == "failed" and rec.iterations == 0
     assert f"after {CLIPPED_LOOKS} corrections" in rec.fault_cause
     assert len(rec.corrections) == CLIPPED_LOOKS and rec.final_state == "done"
+
+
+@pytest.mark.parametrize("beam_left", [True, False])
+def test_a_stowed_heliostat_hands_the_target_on_only_once_its_beam_is_off_it(make_cycle, beam_left):
+    """No safe path to standby: the firmware's stow is not a beam-safe path, so the target is
+    handed on only once the drive has arrived and the beam is off it; a stow that leaves the
+    beam on the target keeps everyone off it."""
+    gate = TargetGate()
+    cyc, plant, drive = make_cycle(gate=gate)
+    plant.camera_fail = 10  # a fault with the beam on the target
+
+    def no_safe_path(start, end):
+        raise UnsafePath("no slew to standby keeps the beam off the targets")
+
+    pointing = cyc.ctx.pointing
+    plant.on_state.append(lambda state: state == "fault" and setattr(pointing, "path_to", no_safe_path))
+    if not beam_left:
+        pointing.beam_on_target = lambda az, el, margin_m=2.0: True
+    released = []
+    release = gate.release
+    gate.release = lambda ticket, beam_off_target=True: (released.append(drive.status()),
+                                                          release(ticket, beam_off_target))
+    rec = cyc.run()
+    assert rec.final_state == "stowed" and "stowed" in rec.fault_cause and released
+    st = released[0]
+    assert st.in_position and not st.moving and (st.az_steps, st.el_steps) == (500, 500)
+    assert gate.blocked is not beam_left

@@ -119,7 +119,7 @@ class _FreezeSecond(CampaignObserver):
 
 
 def test_a_beam_back_for_a_correction_leaves_the_target_to_one_waiting_to_be_measured_alone(base, tmp_path):
-    """Several beams (K = 4, two slots fit) and a correction after every look: the first round's
+    """Several beams (K = 4, at least two slots) and a correction after every look: the first round's
     second spot cannot be told apart (frozen) and waits at its slot to be measured alone, while
     the first heliostat, measured in the round, comes back for its correction. It must leave the
     target: the one waiting cannot take it while its beam is on it, and no round forms without
@@ -138,10 +138,9 @@ def test_a_beam_back_for_a_correction_leaves_the_target_to_one_waiting_to_be_mea
         r = c.run()
     finally:
         store.close()
-    assert c.slots is not None and c.slots.k == 2 and c.group.gate.slot(1) == 1
+    assert c.slots is not None and c.slots.k >= 2 and c.group.gate.slot(1) == 1
     assert {run.status for run in r.runs} == {"not_converged"}, [run.fault_cause for run in r.runs]
     assert all(run.iterations == 2 for run in r.runs)
-    # The frozen one measured alone where it stood, then the first one's correction alone.
-    assert c.group.alone == frozen.queue[1::-1]
-    assert strays(field, 2, {})[0] == 0  # never a beam in view that was not the capture's
-    assert strays(field, 2, {})[0] == 0
+    # The frozen one measured alone where it stood first, the first one's correction alone after it.
+    assert c.group.alone[0] == frozen.queue[1] and frozen.queue[0] in c.group.alone[1:]
+    assert strays(field, 4, {})[0] == 0  # never a beam in view that was not the capture's
