@@ -53,10 +53,10 @@ from controller.imaging import spots
 # better daytime error (docs/campaigns.md).
 SPILL_M = 0.1
 # The energy a cell's measurement weighs must move with its heliostat's step: a spot cut by its
-# cell moves less than the step, not across it (≤ 0.04 m on the simulated plant's nights); energy
-# moving with another step — another heliostat's spot on this one — pulls it across (0.155 m,
-# tests/calibration/beams/test_beams_sim.py).
-ACROSS_M = IDENTITY_STEP_M / 4
+# cell moves less than the step, not across it (≤ 0.04 m of a 0.3 m step on the simulated plant's
+# nights); energy moving with another step — another heliostat's spot on this one — pulls it
+# across (0.155 m, tests/calibration/beams/test_beams_sim.py). A fraction of the layout's step.
+ACROSS = 0.25
 
 
 @dataclass
@@ -75,7 +75,8 @@ class _Round:
     cells: list[tuple[int, int, int, int]] | None = None  # where each is measured (slots.py, Eq. 2)
 
 
-def slot_parks(pointing, slot: int, k: int, frame, current: tuple[int, int] | None) -> bool:
+def slot_parks(pointing, slot: int, k: int, frame, current: tuple[int, int] | None,
+               step_m: float = IDENTITY_STEP_M) -> bool:
     """Can a heliostat aimed at its slot by ``pointing`` take it and be parked safely: its aim
     and its identity-stepped pose inside the soft limits, and a safe slew to its standby pose
     (:meth:`BeamSafety.path_to`) from where it stands now (``current``), from its aim and from
@@ -84,7 +85,7 @@ def slot_parks(pointing, slot: int, k: int, frame, current: tuple[int, int] | No
     try:
         aim = pointing.aim_steps(pointing.model)
         standby = pointing.standby_steps(pointing.model)
-        step, _ = identity_step(pointing, aim, slot, k, frame)
+        step, _ = identity_step(pointing, aim, slot, k, frame, step_m)
         stepped = (aim[0] + step[0], aim[1] + step[1])
         pointing.kin.azimuth.check(stepped[0], "the identity step")
         pointing.kin.elevation.check(stepped[1], "the identity step")
@@ -166,12 +167,12 @@ class SharedCapture:
 
     def _max_shift_px(self) -> int:
         """The largest shift searched between a round's captures: twice the identity step."""
-        return math.ceil(2.0 * IDENTITY_STEP_M / self._pixel_m())
+        return math.ceil(2.0 * self.layout.step_m / self._pixel_m())
 
     def identity_step(self, cyc) -> tuple[tuple[int, int], np.ndarray]:
         """:func:`identity_step` of ``cyc``'s heliostat at its present pose and slot."""
         return identity_step(cyc.ctx.pointing, (cyc.az, cyc.el), self.gate.slot(cyc._ticket), self.gate.beams,
-                             self.frame)
+                             self.frame, self.layout.step_m)
 
     def leave_pose(self, cyc) -> tuple[int, int]:
         """Where ``cyc``'s heliostat parks after its measurement: the standby point on its slot's
@@ -193,9 +194,14 @@ class SharedCapture:
     def hand_over(self, cyc):
         """A drive watch for ``cyc``'s park after its measurement: its slot goes to the next
         heliostat (:meth:`TargetGate.vacate`) once its beam is off the target, margin included
-        (``BeamSafety.beam_on_target``); the park path never brings it back (``BeamSafety.path_to``)."""
+        (``BeamSafety.beam_on_target``); the park path never brings it back (``BeamSafety.path_to``),
+        so once it is off, the rest of the park's status polls trace no ray."""
+        left = False
+
         def watch(st) -> None:
-            if not cyc.ctx.pointing.beam_on_target(st.az_steps, st.el_steps):
+            nonlocal left
+            if not left and not cyc.ctx.pointing.beam_on_target(st.az_steps, st.el_steps):
+                left = True
                 self.gate.vacate(cyc._ticket)
         return watch
 
@@ -316,7 +322,7 @@ class SharedCapture:
         with self._lock:
             if rnd.assigned is None:
                 tickets = sorted(t for t, v in rnd.members.items() if v is not None)
-                r = np.asarray(self.layout.reach_m, float) + IDENTITY_STEP_M
+                r = np.asarray(self.layout.reach_m, float) + self.layout.step_m
                 reach = np.array([-r[0], r[0], -r[1], r[1]])
                 rnd.windows = win = [self.window(np.repeat(rnd.members[t][0], 2) + reach) for t in tickets]
                 rnd.cells = [self.window(self.layout.cells_m[self.gate.slot(t)]) for t in tickets]
@@ -335,7 +341,7 @@ class SharedCapture:
                 # A spot missing from its window in frame 1 is elsewhere, maybe in another's cell.
                 whole = bool(np.isfinite(here).all())
                 confirmed = spots.confirm_by_step(self._uvs(here), self._uvs(moved), steps)
-                ok = [whole and a and bool(b <= SPILL_M) and bool(c <= ACROSS_M)
+                ok = [whole and a and bool(b <= SPILL_M) and bool(c <= ACROSS * self.layout.step_m)
                       for a, b, c in zip(confirmed, spill, across, strict=True)]
                 rnd.assigned = {t: (k if ok[k] else None) for k, t in enumerate(tickets)}
                 with self.gate.cv:  # the first to be measured alone stays; no newcomer before it

@@ -4,7 +4,7 @@ With ``calibration.beams_per_target`` K > 1 (lamps at night, :mod:`controller.ca
 each heliostat of a capture is aimed at its own *slot*: K points on a grid centred on the
 target, far enough apart that the predicted spots (:mod:`controller.geometry.spot`: the spot's
 3σ extent plus 3σ of its position from the model's covariance) never overlap, even while each
-is stepped by :data:`IDENTITY_STEP_M` to confirm whose spot is whose, and close enough that
+is stepped by :func:`identity_step_m` to confirm whose spot is whose, and close enough that
 every one stays inside the camera's view, ``planner.view_margin_m`` from its edge. Along each
 axis, with r the largest reach of a spot (k (σ_spot + σ_pos), k = 3, Eq. 4 of spot.py) plus
 the step:
@@ -45,7 +45,10 @@ from controller.geometry.pose_batch import KinStack, aim_steps
 from controller.geometry.spot import SIGMAS, MirrorOptics, predict_spots
 from controller.geometry.target_frame import TargetFrame
 
-IDENTITY_STEP_M = 0.3  # how far a heliostat's known step moves its spot on the target, m
+IDENTITY_STEP_M = 0.3  # how far a heliostat's known step moves its spot on the target, at least, m
+# ... and at least this many of the view's pixels: a step under a pixel of a coarse camera (a
+# 48 m view on 128 pixels: 0.375 m each) was not told from the others' in a third of the spots.
+STEP_PX = 3.0
 GAP_M = 0.2  # clear space between two slots' 3σ footprints, m
 # A round of K beams against one beam alone, in target time (Eq. 3): the identity step, its
 # settling and the second frame on top of the approach, capture and departure.
@@ -57,12 +60,14 @@ REACH_QUANTILES = (1.0, 0.99, 0.97, 0.95, 0.9, 0.8, 0.7)
 class SlotLayout:
     """K slot aim points: offsets (K, 2) m from the target centre along the view's (u, v), the
     aim points (K, 3) m ENU, the spot reach (2,) m they were spaced for (Eq. 1, without the
-    step) and each slot's cell (K, 4) m, (u0, u1, v0, v1) from the target centre (Eq. 2)."""
+    step), each slot's cell (K, 4) m, (u0, u1, v0, v1) from the target centre (Eq. 2), and the
+    identity step they were spaced for, m (:func:`identity_step_m`)."""
 
     offsets_m: np.ndarray
     aims_enu: np.ndarray
     reach_m: np.ndarray
     cells_m: np.ndarray
+    step_m: float = IDENTITY_STEP_M
 
     @property
     def k(self) -> int:
@@ -133,15 +138,24 @@ def pass_layout(frame: TargetFrame, k: int, reaches: np.ndarray, margin_m: float
     return best[1], best[2]
 
 
+def identity_step_m(frame: TargetFrame) -> float:
+    """How far the identity step moves a spot on ``frame``'s target, m: :data:`IDENTITY_STEP_M`,
+    or :data:`STEP_PX` of the view's pixels (the smaller side's) when that is more."""
+    rows, cols = frame.shape
+    return max(IDENTITY_STEP_M, STEP_PX * min(frame.width_m / cols, frame.height_m / rows))
+
+
 def target_frame(cfg: PlantConfig, target_id: str) -> TargetFrame:
     cam = cfg.camera_of(target_id)
     return TargetFrame.from_config(cfg.target(target_id), (cam.height_px, cam.width_px))
 
 
-def slot_layout(frame: TargetFrame, k: int, reach_m, margin_m: float, step_m: float = IDENTITY_STEP_M
+def slot_layout(frame: TargetFrame, k: int, reach_m, margin_m: float, step_m: float | None = None
                 ) -> SlotLayout:
     """The largest layout of at most ``k`` slots satisfying Eq. (1) in ``frame``'s view for spots
-    of reach ``reach_m`` (2,) m, each stepped by up to ``step_m``; a grid of ⌈√K⌉ columns."""
+    of reach ``reach_m`` (2,) m, each stepped by up to ``step_m`` (default
+    :func:`identity_step_m`); a grid of ⌈√K⌉ columns."""
+    step_m = identity_step_m(frame) if step_m is None else step_m
     r = np.asarray(reach_m, float) + step_m
     half = np.array([frame.width_m, frame.height_m]) / 2.0
     spacing = 2.0 * r + GAP_M
@@ -156,7 +170,7 @@ def slot_layout(frame: TargetFrame, k: int, reach_m, margin_m: float, step_m: fl
             hi = np.where(offsets >= offsets.max(axis=0), half, offsets + spacing / 2 - GAP_M / 2)
             cells = np.stack([lo[:, 0], hi[:, 0], lo[:, 1], hi[:, 1]], axis=1)
             aims = frame.center + offsets[:, :1] * frame.u + offsets[:, 1:] * frame.v
-            return SlotLayout(offsets, aims, np.asarray(reach_m, float), cells)
+            return SlotLayout(offsets, aims, np.asarray(reach_m, float), cells, step_m)
     raise AssertionError("unreachable: one slot always fits")
 
 

@@ -271,7 +271,7 @@ class Campaign:
                     return False
                 at_slot[ticket, slot] = self._pointing_at(hid, self.slots.aim(slot))
                 return slot_parks(at_slot[ticket, slot], slot, self.slots.k, self.chain.frame,
-                                  self._current.get(hid))
+                                  self._current.get(hid), self.slots.step_m)
 
             with self.time.computing():
                 slots = assign_slots(len(todo), self.slots.k, fits)

@@ -68,7 +68,9 @@ class BeamSafety:
 
     def on_other_target(self, poses, margin_m: float = 2.0) -> np.ndarray:
         """:meth:`beam_on_other_target` at each of ``poses`` (N, 2): (N,) bool."""
-        c, b = self.rays(poses)
+        return self._on_others(*self.rays(poses), margin_m)
+
+    def _on_others(self, c: np.ndarray, b: np.ndarray, margin_m: float) -> np.ndarray:
         out = np.zeros(len(c), bool)
         for centre, f, t in self.others:
             out |= self._lands_on(c, b, centre, f, t, margin_m)
@@ -99,7 +101,11 @@ class BeamSafety:
         """Whether the ray enters a person zone at each of ``poses`` (N, 2): (N,) bool."""
         if not self.zone_ids:
             return np.zeros(len(np.asarray(poses).reshape(-1, 2)), bool)
-        c, b = self.rays(poses)
+        return self._in_zone(*self.rays(poses))
+
+    def _in_zone(self, c: np.ndarray, b: np.ndarray) -> np.ndarray:
+        if not self.zone_ids:
+            return np.zeros(len(c), bool)
         return rays_enter_any(c, b, self.zones, self._stop(c, b))
 
     def _stop(self, c: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -148,9 +154,9 @@ class BeamSafety:
 
         def clear(plan: list[tuple[int, int]]) -> bool:
             poses = np.vstack([self._sweep(a, b) for a, b in zip([start] + plan[:-1], plan, strict=True)])
-            poses = np.vstack([np.asarray(start, float)[None], poses])
-            return (never_back(self.on_target(poses)) and never_back(self.on_other_target(poses))
-                    and never_back(self.in_zone(poses)))
+            c, b = self.rays(np.vstack([np.asarray(start, float)[None], poses]))  # traced once for all three
+            return (never_back(self._lands_on(c, b, self.frame.center, self.frame, self.target, 2.0))
+                    and never_back(self._on_others(c, b, 2.0)) and never_back(self._in_zone(c, b)))
 
         plans = ([end], [(start[0], end[1]), end], [(end[0], start[1]), end])
         for plan in plans:

@@ -182,7 +182,8 @@ def test_slots_keep_predicted_spots_apart_and_inside_the_view(small_config, tmp_
     lay = slot_layout(frame, 4, reach, margin)
     assert 1 < lay.k <= 4
     half = np.array([frame.width_m, frame.height_m]) / 2
-    r = reach + IDENTITY_STEP_M
+    r = reach + lay.step_m
+    assert lay.step_m >= IDENTITY_STEP_M
     assert np.all(np.abs(lay.offsets_m) + r + margin <= half + 1e-9)  # inside the view at 3σ
     for i in range(lay.k):
         for j in range(i + 1, lay.k):  # footprints (stepped too) apart on at least one axis

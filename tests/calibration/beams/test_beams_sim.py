@@ -125,7 +125,7 @@ def test_two_beams_share_captures_and_a_swapped_identity_is_measured_alone(small
 
         # One beam far off, its spot on the other's: its own cell holds only a tail that does not
         # move as one (a registration correlated < MIN_MATCH); the other's cell holds both spots,
-        # and the energy its measurement would weigh moves across its own step (ACROSS_M).
+        # and the energy its measurement would weigh moves across its own step (ACROSS).
         # Both are measured again alone; nothing is recorded wrongly.
         plant.spot_truth.stray(IDS[0], onto=IDS[1])
         stray, runs = look("stray")
