@@ -18,11 +18,10 @@ Beam safety:
   ends; failing that the heliostat is stowed, failing that too the cycle ends *aborted*
   (``beam_maybe_on_target``: the campaign stops using the target).
 
-Correction (docs/campaigns.md): coarse (:mod:`controller.calibration.cycle.coarse`) or fine (the
-centroid, ``Pointing.fine_correction``) until within ``tolerance_mrad`` or ``max_iterations``
-measurements (one on a planned observation); then ``Pointing.fit`` refits the model. Measuring
-moves end moving up on both axes (:mod:`controller.calibration.cycle.approach`, backlash). A look without
-a spot in view goes on to a beam search's next look (:mod:`controller.calibration.cycle.search`).
+Correction (docs/campaigns.md): coarse (:mod:`controller.calibration.cycle.coarse`) or fine (the centroid,
+``Pointing.fine_correction``) until within ``tolerance_mrad`` or ``max_iterations`` measurements (one on a
+planned observation); then ``Pointing.fit`` refits the model. Measuring moves end moving up on both axes
+(``approach``, backlash); a look without a spot goes on to a beam search's next look (``search``).
 
 Units: motor steps (int), degrees at this edge, mrad (reflected beam), ENU m, plant-clock s.
 """
@@ -365,9 +364,7 @@ class CalibrationCycle:
                 first = exc
                 break
         try:
-            d.stow()
-            # The stow is the firmware's own move, not a beam-safe path: the target is handed on
-            # only once the drive has arrived and the beam is seen off it; else nobody gets it.
+            d.stow()  # the firmware's move, not a beam-safe path: hand on the target once it is off
             st = d.wait_in_position(self.ctx.move_timeout_s, time=self.ctx.time)
             self.beam_on_target = self.ctx.pointing.beam_on_target(st.az_steps, st.el_steps)
             self.cause = f"{self.cause}; standby failed ({first}), stowed"
