@@ -129,6 +129,8 @@ def pass_layout(frame: TargetFrame, k: int, reaches: np.ndarray, margin_m: float
             break
         cap = np.quantile(reaches[finite], q, axis=0)
         fit = finite & np.all(reaches <= cap, axis=1)
+        if not fit.any():  # the caps of two axes (each a quantile) may leave nobody
+            continue
         layout = slot_layout(frame, k, np.max(reaches[fit], axis=0), margin_m)
         cost = fit.sum() * (1.0 if layout.k == 1 else ROUND_COST / layout.k) + (~fit).sum()
         if best is None or cost < best[0] - 1e-9:

@@ -15,10 +15,18 @@ import yaml
 from controller.calibration.beams import slots
 from controller.calibration.beams.identity import identity_step
 from controller.calibration.beams.policy import beams_allowed
-from controller.calibration.beams.slots import GAP_M, IDENTITY_STEP_M, slot_layout, spot_reach_m, target_frame
+from controller.calibration.beams.slots import (
+    GAP_M,
+    IDENTITY_STEP_M,
+    pass_layout,
+    slot_layout,
+    spot_reach_m,
+    target_frame,
+)
 from controller.calibration.cycle.gate import TargetGate
 from controller.config import load_config
 from controller.errors import ConfigError, InputError
+from controller.geometry.target_frame import TargetFrame
 from controller.imaging.spots import confirm_by_step, isolate, spills, window_shifts, window_spots
 from simplant.far_lamps import far_lamp_config
 from tests.calibration.conftest import calibrated_record
@@ -342,3 +350,20 @@ def test_slots_are_dealt_in_turn_and_a_heliostat_one_slot_does_not_suit_takes_th
     assert gate.acquire(5, at_once)  # the one after ticket 0 at its slot
     gate.release(1)
     assert gate.acquire(4, at_once) and gate.holders == {2, 3, 4, 5}
+
+
+def test_a_pass_is_spaced_for_most_of_its_spots_and_the_largest_take_the_target_alone():
+    frame = TargetFrame.from_config(SimpleNamespace(normal=(0.0, 1.0, 0.0), center_enu_m=(0.0, 0.0, 60.0),
+                                                    width_m=48.0, height_m=36.0), (96, 128))
+    small = np.full((97, 2), 6.0)
+    # one badly known model among them: spaced for it, the pass would have one slot
+    one = pass_layout(frame, 4, np.vstack([small, [[15.0, 11.0]], [[np.inf, np.inf]]]), 0.2)
+    layout, fit = one
+    assert layout.k == 4 and fit[:97].all() and not fit[97:].any()
+    assert slot_layout(frame, 4, [15.0, 11.0], 0.2).k == 1
+    # two spots, each the larger on one axis: no quantile cap leaves nobody; both fit one layout
+    layout, fit = pass_layout(frame, 4, np.array([[9.0, 2.0], [2.0, 8.0]]), 0.2)
+    assert fit.all() and layout.k >= 1
+    # nothing in reach: one slot, everybody alone
+    layout, fit = pass_layout(frame, 4, np.full((3, 2), np.inf), 0.2)
+    assert layout.k == 1 and not fit.any()
