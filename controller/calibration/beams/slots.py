@@ -123,10 +123,10 @@ def pass_layout(frame: TargetFrame, k: int, reaches: np.ndarray, margin_m: float
     beam's (the identity step, its settling and the second frame); ties go to fewer alone."""
     reaches = np.asarray(reaches, float)
     finite = np.all(np.isfinite(reaches), axis=1)
-    best = None
+    if not finite.any():  # nobody in reach: one slot, everybody alone
+        return slot_layout(frame, 1, np.zeros(2), margin_m), finite
+    best = None  # the whole pass (q = 1) always fits a layout: never None after the loop
     for q in REACH_QUANTILES:
-        if not finite.any():
-            break
         cap = np.quantile(reaches[finite], q, axis=0)
         fit = finite & np.all(reaches <= cap, axis=1)
         if not fit.any():  # the caps of two axes (each a quantile) may leave nobody
@@ -135,8 +135,6 @@ def pass_layout(frame: TargetFrame, k: int, reaches: np.ndarray, margin_m: float
         cost = fit.sum() * (1.0 if layout.k == 1 else ROUND_COST / layout.k) + (~fit).sum()
         if best is None or cost < best[0] - 1e-9:
             best = (cost, layout, fit)
-    if best is None:
-        return slot_layout(frame, 1, np.zeros(2), margin_m), finite
     return best[1], best[2]
 
 
