@@ -35,7 +35,9 @@ its centre's k-σ uncertainty stays a margin m inside:
 
 (3σ of a Gaussian spot holds 98.9 % of its power; the sum of the two σ is the conservative
 bound of the footprint's edge). Parked beams are the converse: a standby spot must end at
-least that far *outside* every view (:func:`standby_clearance_m`).
+least that far *outside* every view (:func:`standby_clearance_m`) — sized where it is parked,
+not at the aim point: beside a wide view the parked beam is longer and meets the plane more
+obliquely, so its spot and its position's uncertainty are larger (:func:`park_clearance_m`).
 
 Units: metres, radians; arrays broadcast over leading axes.
 
@@ -50,6 +52,7 @@ References
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -59,6 +62,8 @@ from controller.geometry.pose_batch import KinStack, forward_jacobian, normal_an
 from controller.geometry.target_frame import TargetFrame
 
 SIGMAS = 3.0  # k of Eq. (4)
+# park_clearance_m: the iteration converges while each step is at most this fraction of the last
+CONTRACTION = 0.8
 
 
 @dataclass(frozen=True)
@@ -171,6 +176,36 @@ def standby_clearance_m(half_view_m: float, spot_sigma_m: float, position_sigma_
     parked spot's k-σ footprint, displaced by k σ of its centre, stays a margin outside a view
     of half-size ``half_view_m``: H + k (σ_spot + σ_pos) + m (the converse of Eq. 4)."""
     return float(half_view_m + k * (spot_sigma_m + position_sigma_m) + margin_m)
+
+
+def park_clearance_m(size_at: Callable[[np.ndarray], np.ndarray], half_view_m: float, margin_m: float,
+                     start_m, k: float = SIGMAS, rounds: int = 6, tol_m: float = 0.05) -> np.ndarray:
+    """The standby clearance (m, (...,)) of spots sized where they are parked: the fixed point
+    of c = H + k s(c) + m (Eq. 4's converse), iterated from ``start_m`` (the clearance of the
+    spot sized at the aim point, :func:`standby_clearance_m`). ``size_at(c)`` gives
+    s = σ_spot + σ_pos along the view's width (m, (...,); NaN where neither side is in reach)
+    of the spot parked c from the target centre, the larger of the two sides.
+
+    s grows with c (the parked beam is longer and more oblique), so the iteration climbs; while
+    its steps shrink by a factor r < :data:`CONTRACTION` it converges, and what is left after
+    ``rounds`` is the geometric tail, step · r / (1 − r), added. Where the steps do not shrink
+    so (a spot whose position is uncertain by metres, as with the prior alone, grows faster
+    aside than the offset), no clearance along the width holds at k σ: it keeps ``start_m``.
+    The clearance never falls below ``start_m``."""
+    first = np.asarray(start_m, float)
+    c, last, step = first.copy(), np.full(first.shape, np.inf), np.full(first.shape, np.inf)
+    live = np.ones(first.shape, bool)
+    for _ in range(rounds):
+        s = size_at(c)
+        grown = np.where(live & np.isfinite(s), half_view_m + k * s + margin_m, c)
+        last, step = step, np.maximum(grown - c, 0.0)
+        diverging = live & (step > tol_m) & (step > CONTRACTION * last)
+        c = np.where(diverging, first, c + step)
+        live &= (step > tol_m) & ~diverging
+        if not live.any():
+            return c
+    r = np.where(live, step / np.where(live, last, 1.0), 0.0)
+    return c + step * r / (1.0 - r)
 
 
 def predict_spots(kin: HeliostatKinematics | KinStack, optics: MirrorOptics, values: np.ndarray,

@@ -24,6 +24,7 @@ from controller.geometry.model.tracking import (
 from controller.geometry.spot import (
     MirrorOptics,
     PredictedSpot,
+    park_clearance_m,
     predict_spots,
     spot_covariance,
     standby_clearance_m,
@@ -90,6 +91,25 @@ def test_in_view_is_eq_4_on_both_axes():
     assert spots.in_view([3.3, 3.5], 0.2).tolist() == [True, True, False]
     assert spots.in_view([3.29, 3.5], 0.2).tolist() == [False, False, False]
     assert standby_clearance_m(4.0, 0.5, 0.2, 0.5) == pytest.approx(4.0 + 2.1 + 0.5)
+
+
+def test_park_clearance_is_the_fixed_point_of_the_spot_sized_where_it_parks():
+    """c = H + 3 s(c) + m: a spot that grows aside (s = a + b c, 3b < 0.8) converges to
+    (H + 3a + m) / (1 − 3b), the geometric tail included; one that grows too fast (3b ≥ 0.8:
+    hardly or no clearance holds at 3σ) keeps its start, as does one out of reach aside (NaN);
+    the start is the least."""
+    a = np.array([0.5, 0.5, 0.5, 0.1])
+    b = np.array([0.05, 0.2, 0.3, 0.0])
+
+    def size_at(c):
+        return np.where(np.arange(4) == 3, np.nan, a + b * c)
+
+    start = 4.0 + 3 * a + 0.5
+    c = park_clearance_m(size_at, 4.0, 0.5, start)
+    assert c[0] == pytest.approx((4.0 + 1.5 + 0.5) / (1 - 0.15), abs=0.02)
+    assert c[1] == pytest.approx((4.0 + 1.5 + 0.5) / (1 - 0.6), abs=0.05)
+    assert c[2] == start[2] and c[3] == start[3]
+    assert np.all(c >= start)
 
 
 def test_position_uncertainty_follows_the_covariance_and_distance(cfg):

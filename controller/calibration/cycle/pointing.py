@@ -7,8 +7,6 @@ corrections it moves by. The beam-safety geometry it checks every pose and slew 
 from __future__ import annotations
 
 import math
-import threading
-from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
@@ -16,6 +14,7 @@ import numpy as np
 from controller.calibration.cycle.beam_safety import BeamSafety, UnsafePath
 from controller.calibration.cycle.model_update import fit_measurements, model_prior
 from controller.calibration.cycle.observations import Step
+from controller.calibration.cycle.solved import Solved
 from controller.calibration.records import MeasurementRecord, ModelRecord
 from controller.config import (
     BeamSearch,
@@ -31,18 +30,26 @@ from controller.geometry.aiming import aim_normal, source_direction
 from controller.geometry.correction import correction_from_offset
 from controller.geometry.kinematics import HeliostatKinematics
 from controller.geometry.model.tracking import TERMS, TrackingModel, model_aim
+from controller.geometry.pose_batch import aim_steps
 from controller.geometry.search_pattern import search_steps, spiral_offsets
-from controller.geometry.spot import MirrorOptics, predict_spots, standby_clearance_m
+from controller.geometry.spot import (
+    MirrorOptics,
+    PredictedSpot,
+    park_clearance_m,
+    predict_spots,
+    standby_clearance_m,
+)
 from controller.geometry.target_frame import TargetFrame
 from controller.geometry.vectors import vector_to_azel
 
 PARK_MARGIN_M = 0.5  # a parked spot's 3σ footprint ends at least this far outside the camera's view
-# Steps solved by GeometryPointing._steps, least recently used dropped first: (heliostat config
-# object, model terms, point, source) -> (the heliostat object, steps). A 10,000-heliostat
-# night asks for a few per heliostat and lamp.
+# Steps solved by GeometryPointing._steps: (heliostat config object, model terms, point, source)
+# -> steps. A 10,000-heliostat night asks for a few per heliostat and lamp.
 AIMS_KEPT = 200_000
-_AIMS: OrderedDict[tuple, tuple[Heliostat, tuple[int, int]]] = OrderedDict()
-_AIMS_LOCK = threading.Lock()
+_AIMS = Solved(AIMS_KEPT)
+# GeometryPointing.park_clearance_m: (heliostat, settings, model terms, source, view, aim) -> m.
+_CLEARANCES = Solved(AIMS_KEPT)
+DEFAULT_SETTINGS = ModelSettings()  # one object: the clearances' key names the settings by id
 
 
 # -- geometry of one heliostat ------------------------------------------------------------------
@@ -73,7 +80,7 @@ class GeometryPointing(BeamSafety):
         self.field_misses = field_misses
         self.search_step_m = (frame.width_m, frame.height_m)  # the pattern's steps (search_pattern)
         self.source = source
-        self.model_settings = model_settings or ModelSettings()
+        self.model_settings = model_settings or DEFAULT_SETTINGS
         model_prior(self.model_settings)  # an unknown term is refused before anything moves
         self.model = model  # the model the standby and the beam-safety checks were computed with
         pos = np.asarray(heliostat.position_enu_m, float)
@@ -144,35 +151,69 @@ class GeometryPointing(BeamSafety):
     def park_clearance_m(self, source, model: ModelRecord | None) -> float:
         """The least distance (m) from the target centre, along the view's width, at which the
         spot of this heliostat stays :data:`PARK_MARGIN_M` outside the camera's view at 3σ: the
-        view's half-width plus 3σ of the spot's size and of its position (:meth:`spot_sigmas_m`),
-        as the spot at the aim point predicts them (:func:`controller.geometry.spot.standby_clearance_m`)."""
+        view's half-width plus 3σ of the spot's size and of its position (:meth:`spot_sigmas_m`)
+        where it is parked, beside the view on either side (the parked beam is longer and more
+        oblique than the aimed one: :func:`controller.geometry.spot.park_clearance_m`)."""
+        f, terms = self.frame, None if model is None else tuple(model.params.items())
+        key = (id(self.heliostat), id(self.model_settings), terms, repr(source), f.center.tobytes(),
+               f.u.tobytes(), f.width_m, self.aim_point.tobytes(),
+               self.first_light_sigma_m() if model is None else 0.0)
+        return _CLEARANCES.get(key, (self.heliostat, self.model_settings),
+                               lambda: self._clearance(source, model))
+
+    def _clearance(self, source, model: ModelRecord | None) -> float:
         sigmas = self.spot_sigmas_m(source, model)
         if sigmas is None:
             return 0.0  # the aim point is out of reach: the cycle fails it before it parks
-        return standby_clearance_m(self.frame.width_m / 2.0, *sigmas, PARK_MARGIN_M)
+        half = self.frame.width_m / 2.0
+        return float(park_clearance_m(lambda c: self._parked_sigmas_m(source, model, float(c)), half,
+                                      PARK_MARGIN_M, standby_clearance_m(half, *sigmas, PARK_MARGIN_M)))
+
+    def _parked_sigmas_m(self, source, model: ModelRecord | None, clearance_m: float) -> float:
+        """σ_spot + σ_pos along the view's width (m) of the spot parked ``clearance_m`` from the
+        target centre at the aim point's height, the larger of the two sides; NaN when neither
+        is in reach. The steps there are the batched aim solve's (a step from the scalar one's)."""
+        u = self.frame.u
+        across = float((self.aim_point - self.frame.center) @ u)
+        points = np.array([self.aim_point + (side * clearance_m - across) * u for side in (1.0, -1.0)])
+        tm, _ = model_covariance(model, self.model_settings)
+        light = self._light(source)
+        dirs = None if "lamp" in light else np.broadcast_to(self.source_dir, points.shape)
+        steps, ok = aim_steps(self.kin, tm.values, points, lamp=light.get("lamp"), source_dirs=dirs)
+        if not ok.any():
+            return math.nan
+        spot = self._spot(source, model, steps[ok].astype(float), points[ok])
+        return float(np.max(spot.sigma_m[:, 0] + spot.position_sigma_m[:, 0]))
 
     def spot_sigmas_m(self, source, model: ModelRecord | None) -> tuple[float, float] | None:
         """(1-σ size, 1-σ of the position) of the spot at the aim point, m: the position's from
         the model's covariance (the prior without a model; at least the measured normal's noise
         doubled, spot Eq. 3) — for a heliostat without a model under a beam search at least its
         first-light σ (:meth:`first_light_sigma_m`). None when the aim point is out of reach."""
-        tm, cov = model_covariance(model, self.model_settings)
         try:
             steps = np.array([self._steps(self.aim_point, model)], float)
         except (LimitError, ValueError):
             return None
+        spot = self._spot(source, model, steps, self.aim_point[None])
+        return float(spot.sigma_m[0, 0]), float(spot.position_sigma_m[0, 0])
+
+    def _spot(self, source, model: ModelRecord | None, steps: np.ndarray, points: np.ndarray):
+        """The predicted spots (:func:`controller.geometry.spot.predict_spots`) at ``points``
+        (K, 3) m ENU with ``steps`` (K, 2); without a model under a beam search, the position's
+        σ at least the first-light σ (:meth:`first_light_sigma_m`)."""
+        tm, cov = model_covariance(model, self.model_settings)
         optics = MirrorOptics.from_config(self.heliostat.mirror)
-        if isinstance(source, LampSource):
-            light = {"lamp": np.asarray(source.position_enu_m, float), "lamp_diameter_m": source.diameter_m}
-        else:
-            light = {"sun_dir": self.source_dir, "sun_angle_rad": 1e-3 * source.angular_diameter_mrad}
-        aim = self.aim_point[None]
-        spot = predict_spots(self.kin, optics, tm.values, cov, steps, aim, self.frame,
-                             floor_rad=2e-3 * self.model_settings.noise_mrad, **light)
-        position = float(spot.position_sigma_m[0, 0])
+        spot = predict_spots(self.kin, optics, tm.values, cov, steps, points, self.frame,
+                             floor_rad=2e-3 * self.model_settings.noise_mrad, **self._light(source))
         if model is None:
-            position = max(position, self.first_light_sigma_m())
-        return float(spot.sigma_m[0, 0]), position
+            return PredictedSpot(spot.offset_m, spot.sigma_m,
+                                 np.maximum(spot.position_sigma_m, self.first_light_sigma_m()))
+        return spot
+
+    def _light(self, source) -> dict:
+        if isinstance(source, LampSource):
+            return {"lamp": np.asarray(source.position_enu_m, float), "lamp_diameter_m": source.diameter_m}
+        return {"sun_dir": self.source_dir, "sun_angle_rad": 1e-3 * source.angular_diameter_mrad}
 
     def first_light_sigma_m(self) -> float:
         """1-σ (m, per axis) of where the beam of a heliostat never measured lands: its normal's
@@ -224,21 +265,10 @@ class GeometryPointing(BeamSafety):
         return pose
 
     def _steps(self, point: np.ndarray, model: ModelRecord | None) -> tuple[int, int]:
-        # The same heliostat, model, source and point come back many times in a night (its lamp
-        # change, its pass's queue, slot and cycle): each is solved once (_AIMS).
         key = (id(self.heliostat), None if model is None else tuple(model.params.items()),
                np.asarray(point, float).tobytes(), self.source_dir.tobytes(), self.source_pos)
-        with _AIMS_LOCK:
-            hit = _AIMS.get(key)
-            if hit is not None and hit[0] is self.heliostat:  # the very object: its id is not reused
-                _AIMS.move_to_end(key)
-                return hit[1]
-        steps = steps_to_aim(self.kin, model, self.source_dir, point, self.source_pos)
-        with _AIMS_LOCK:
-            _AIMS[key] = (self.heliostat, steps)
-            if len(_AIMS) > AIMS_KEPT:
-                _AIMS.popitem(last=False)
-        return steps
+        return _AIMS.get(key, (self.heliostat,),
+                         lambda: steps_to_aim(self.kin, model, self.source_dir, point, self.source_pos))
 
     def aim_steps(self, model: ModelRecord | None) -> tuple[int, int]:
         """Steps onto the aim point; UnsafePath when the beam there, or on the approach from

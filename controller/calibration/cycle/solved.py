@@ -1,0 +1,36 @@
+"""Results a night solves again and again, kept once: a heliostat's steps onto a point, its
+standby clearance. The same heliostat, model, source and point come back many times in a
+night (its lamp change, its pass's queue, slot and cycle)."""
+
+from __future__ import annotations
+
+import threading
+from collections import OrderedDict
+from collections.abc import Callable
+from typing import Any
+
+
+class Solved:
+    """A thread-safe store of at most ``kept`` results, least recently used dropped first.
+    A key may name objects by ``id()``; each result is kept with those objects (``owners``) and
+    found only for the very same ones, since an id is reused once its object is gone."""
+
+    def __init__(self, kept: int) -> None:
+        self.kept = kept
+        self._items: OrderedDict[tuple, tuple[tuple, Any]] = OrderedDict()
+        self._lock = threading.Lock()
+
+    def get(self, key: tuple, owners: tuple, solve: Callable[[], Any]) -> Any:
+        """The result kept for ``key`` and ``owners``, else ``solve()``'s, kept (an exception
+        is raised and nothing kept)."""
+        with self._lock:
+            hit = self._items.get(key)
+            if hit is not None and all(a is b for a, b in zip(hit[0], owners, strict=True)):
+                self._items.move_to_end(key)
+                return hit[1]
+        value = solve()
+        with self._lock:
+            self._items[key] = (owners, value)
+            if len(self._items) > self.kept:
+                self._items.popitem(last=False)
+        return value
