@@ -58,7 +58,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from controller.geometry.kinematics import HeliostatKinematics
-from controller.geometry.pose_batch import KinStack, forward_jacobian, normal_and_center, perturbed
+from controller.geometry.pose_batch import KinStack, aim_steps, forward_jacobian, normal_and_center, perturbed
 from controller.geometry.target_frame import TargetFrame
 
 SIGMAS = 3.0  # k of Eq. (4)
@@ -179,33 +179,66 @@ def standby_clearance_m(half_view_m: float, spot_sigma_m: float, position_sigma_
 
 
 def park_clearance_m(size_at: Callable[[np.ndarray], np.ndarray], half_view_m: float, margin_m: float,
-                     start_m, k: float = SIGMAS, rounds: int = 6, tol_m: float = 0.05) -> np.ndarray:
-    """The standby clearance (m, (...,)) of spots sized where they are parked: the fixed point
-    of c = H + k s(c) + m (Eq. 4's converse), iterated from ``start_m`` (the clearance of the
-    spot sized at the aim point, :func:`standby_clearance_m`). ``size_at(c)`` gives
-    s = σ_spot + σ_pos along the view's width (m, (...,); NaN where neither side is in reach)
-    of the spot parked c from the target centre, the larger of the two sides.
+                     shape: tuple[int, ...] = (), k: float = SIGMAS, rounds: int = 6,
+                     tol_m: float = 0.05) -> np.ndarray:
+    """The standby clearance (m, ``shape``) of spots sized where they are parked: the fixed
+    point of c = H + k s(c) + m (Eq. 4's converse). ``size_at(c)`` gives s = σ_spot + σ_pos
+    along the view's width (m, ``shape``; NaN where neither side is in reach) of the spot
+    parked c from the target centre, the larger of the two sides.
 
-    s grows with c (the parked beam is longer and more oblique), so the iteration climbs; while
-    its steps shrink by a factor r < :data:`CONTRACTION` it converges, and what is left after
-    ``rounds`` is the geometric tail, step · r / (1 − r), added. Where the steps do not shrink
-    so (a spot whose position is uncertain by metres, as with the prior alone, grows faster
-    aside than the offset), no clearance along the width holds at k σ: it keeps ``start_m``.
-    The clearance never falls below ``start_m``."""
-    first = np.asarray(start_m, float)
-    c, last, step = first.copy(), np.full(first.shape, np.inf), np.full(first.shape, np.inf)
-    live = np.ones(first.shape, bool)
-    for _ in range(rounds):
+    The iteration starts at the view's edge, c₀ = H + m, and climbs, s growing with c (the
+    parked beam is longer and more oblique). While its steps shrink by a factor
+    r < :data:`CONTRACTION` it converges, and what is left after ``rounds`` is the geometric
+    tail, step · r / (1 − r), added. Where they do not (a spot whose position is uncertain by
+    metres, as with the prior alone, grows faster aside than the offset), no clearance along the
+    width holds at k σ: such a spot keeps c₁ = H + k s(c₀) + m, its size beside the view's edge."""
+    c = np.full(shape, half_view_m + margin_m)
+    first = last = step = np.full(shape, np.inf)
+    live = np.ones(shape, bool)
+    for n in range(rounds):
         s = size_at(c)
         grown = np.where(live & np.isfinite(s), half_view_m + k * s + margin_m, c)
         last, step = step, np.maximum(grown - c, 0.0)
         diverging = live & (step > tol_m) & (step > CONTRACTION * last)
         c = np.where(diverging, first, c + step)
+        if n == 0:
+            first = c.copy()
         live &= (step > tol_m) & ~diverging
         if not live.any():
             return c
     r = np.where(live, step / np.where(live, last, 1.0), 0.0)
     return c + step * r / (1.0 - r)
+
+
+def park_clearances_m(kin: KinStack, optics: MirrorOptics, values: np.ndarray, covariance: np.ndarray,
+                      frame: TargetFrame, margin_m: float, *, lamp=None, lamp_diameter_m: float = 0.0,
+                      sun_dir=None, sun_angle_rad: float = 0.0, floor_rad: float = 0.0,
+                      position_floor_m=0.0) -> np.ndarray:
+    """The standby clearance (m, (H,)) of H heliostats beside ``frame``'s view
+    (:func:`park_clearance_m`), each spot sized where it is parked on either side of the target
+    centre (:func:`predict_spots` at the aim solve's steps there,
+    :func:`controller.geometry.pose_batch.aim_steps`): ``kin`` their stack, ``values`` (H, p)
+    and ``covariance`` (H, p, p) their models, ``optics`` fields (H, 1), the source and
+    ``floor_rad`` as :func:`predict_spots` takes them; ``position_floor_m`` (H,) or scalar, the
+    least σ of a spot's position (a heliostat's first-light σ)."""
+    values = np.asarray(values, float)
+    n = len(values)
+    floor = np.broadcast_to(np.asarray(position_floor_m, float), (n,))[:, None]
+    light = ({"lamp": lamp, "lamp_diameter_m": lamp_diameter_m} if lamp is not None
+             else {"sun_dir": sun_dir, "sun_angle_rad": sun_angle_rad})
+
+    def size_at(c: np.ndarray) -> np.ndarray:
+        points = np.asarray(frame.center, float) + np.array([1.0, -1.0])[None, :, None] * c[:, None, None] \
+            * np.asarray(frame.u, float)  # (H, 2, 3): both sides
+        dirs = None if lamp is not None else np.broadcast_to(np.asarray(sun_dir, float), points.shape)
+        steps, reach = aim_steps(kin.shaped(2), values[:, None, :], points, lamp=lamp, source_dirs=dirs)
+        spot = predict_spots(kin, optics, values, covariance, steps, points, frame, floor_rad=floor_rad,
+                             **light)
+        s = spot.sigma_m[..., 0] + np.maximum(spot.position_sigma_m[..., 0], floor)
+        s = np.where(reach, s, -np.inf).max(axis=1)
+        return np.where(np.isfinite(s), s, np.nan)
+
+    return park_clearance_m(size_at, frame.width_m / 2.0, margin_m, (n,))
 
 
 def predict_spots(kin: HeliostatKinematics | KinStack, optics: MirrorOptics, values: np.ndarray,

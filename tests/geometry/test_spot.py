@@ -94,22 +94,21 @@ def test_in_view_is_eq_4_on_both_axes():
 
 
 def test_park_clearance_is_the_fixed_point_of_the_spot_sized_where_it_parks():
-    """c = H + 3 s(c) + m: a spot that grows aside (s = a + b c, 3b < 0.8) converges to
-    (H + 3a + m) / (1 − 3b), the geometric tail included; one that grows too fast (3b ≥ 0.8:
-    hardly or no clearance holds at 3σ) keeps its start, as does one out of reach aside (NaN);
-    the start is the least."""
+    """c = H + 3 s(c) + m from the view's edge: a spot that grows aside (s = a + b c,
+    3b < 0.8) converges to (H + 3a + m) / (1 − 3b), the geometric tail included; one that grows
+    too fast (3b ≥ 0.8: hardly or no clearance holds at 3σ) keeps its size beside the view's
+    edge, H + 3 s(H + m) + m; one out of reach aside (NaN) the view's edge."""
     a = np.array([0.5, 0.5, 0.5, 0.1])
     b = np.array([0.05, 0.2, 0.3, 0.0])
 
     def size_at(c):
         return np.where(np.arange(4) == 3, np.nan, a + b * c)
 
-    start = 4.0 + 3 * a + 0.5
-    c = park_clearance_m(size_at, 4.0, 0.5, start)
+    c = park_clearance_m(size_at, 4.0, 0.5, (4,))
     assert c[0] == pytest.approx((4.0 + 1.5 + 0.5) / (1 - 0.15), abs=0.02)
     assert c[1] == pytest.approx((4.0 + 1.5 + 0.5) / (1 - 0.6), abs=0.05)
-    assert c[2] == start[2] and c[3] == start[3]
-    assert np.all(c >= start)
+    assert c[2] == pytest.approx(4.0 + 3 * (0.5 + 0.3 * 4.5) + 0.5)
+    assert c[3] == 4.5
 
 
 def test_position_uncertainty_follows_the_covariance_and_distance(cfg):

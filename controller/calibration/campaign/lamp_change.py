@@ -28,7 +28,7 @@ from controller.calibration.campaign.field import Field
 from controller.calibration.campaign.stay_check import certainly_safe
 from controller.calibration.cycle.beam_safety import UnsafePath
 from controller.calibration.cycle.park import park
-from controller.calibration.cycle.pointing import GeometryPointing
+from controller.calibration.cycle.pointing import GeometryPointing, warm_clearances
 from controller.calibration.records import ModelRecord
 from controller.config import PlantConfig
 from controller.devices.drive import Drive, DriveError
@@ -122,11 +122,11 @@ class LampChanger:
             # not certainly clear are checked one by one below, exactly as their cycle would.
             clear = certainly_safe(self.cfg, lamp, {h: poses[h] for h, w in standby.items() if _default(w)},
                                    models, self._frame(self.cfg))
-            for hid, where in standby.items():
-                if hid in clear:
-                    continue
-                drive, model = drives[hid], models[hid]
-                p = self.pointing(hid, lamp, where, poses[hid], model)
+            check = {hid: self.pointing(hid, lamp, where, poses[hid], models[hid])
+                     for hid, where in standby.items() if hid not in clear}
+            warm_clearances(check.values())  # their standby offsets, in batches
+            for hid, p in check.items():
+                where, drive, model = standby[hid], drives[hid], models[hid]
                 stay_margin = max(2.0, p.standby_offset_m - half)
                 if not where.required and _safe(p, *poses[hid], stay_margin):
                     continue

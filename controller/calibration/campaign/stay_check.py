@@ -34,7 +34,7 @@ from controller.geometry.aiming import source_direction
 from controller.geometry.kinematics import HeliostatKinematics
 from controller.geometry.model.tracking import TrackingModel
 from controller.geometry.pose_batch import KinStack, aim_steps, normal_and_center
-from controller.geometry.spot import SIGMAS, MirrorOptics, park_clearance_m, predict_spots
+from controller.geometry.spot import MirrorOptics, park_clearances_m
 from controller.geometry.target_frame import TargetFrame
 from controller.geometry.zones import rays_enter_any, zone_boxes
 
@@ -95,25 +95,11 @@ def _stay_margin(cfg: PlantConfig, ids: list[str], hs: list, kin: KinStack,
     values = np.array([tm.values for tm, _ in pairs])
     covs = np.array([cov for _, cov in pairs])
     aim = np.broadcast_to(np.asarray(cfg.target().center_enu_m, float), (len(ids), 1, 3))
-    steps, ok = aim_steps(kin.shaped(2), values[:, None, :], aim, lamp=lamp_pos)
-    optics = MirrorOptics.stack([h.mirror for h in hs])
-
-    def spots(steps: np.ndarray, aims: np.ndarray) -> np.ndarray:  # σ_spot + σ_pos along u, (H, K)
-        spot = predict_spots(kin, optics, values, covs, steps, aims, frame, lamp=lamp_pos,
-                             lamp_diameter_m=lamp_diameter_m, floor_rad=2e-3 * settings.noise_mrad)
-        return spot.sigma_m[..., 0] + spot.position_sigma_m[..., 0]
-
-    def parked(c: np.ndarray) -> np.ndarray:  # the larger side's, where the spot is parked
-        sides = np.array([1.0, -1.0])[None, :, None] * c[:, None, None] * frame.u
-        points = np.asarray(frame.center, float) + sides  # (H, 2, 3)
-        at, reach = aim_steps(kin.shaped(2), values[:, None, :], points, lamp=lamp_pos)
-        s = np.where(reach, spots(at, points), -np.inf).max(axis=1)
-        return np.where(np.isfinite(s), s, np.nan)
-
-    half_view = frame.width_m / 2.0
-    # spot.park_clearance_m for each heliostat, as GeometryPointing.park_clearance_m computes it
-    clearance = park_clearance_m(parked, half_view, PARK_MARGIN_M,
-                                 half_view + SIGMAS * spots(steps, aim)[:, 0] + PARK_MARGIN_M)
+    _, ok = aim_steps(kin.shaped(2), values[:, None, :], aim, lamp=lamp_pos)
+    # GeometryPointing.park_clearance_m for each heliostat
+    clearance = park_clearances_m(kin, MirrorOptics.stack([h.mirror for h in hs]), values, covs, frame,
+                                  PARK_MARGIN_M, lamp=lamp_pos, lamp_diameter_m=lamp_diameter_m,
+                                  floor_rad=2e-3 * settings.noise_mrad)
     offset = np.maximum(cfg.calibration.standby_offset_m, clearance)
     half = max(max(t.width_m, t.height_m) for t in cfg.targets) / 2
     return np.where(ok[:, 0], np.maximum(2.0, offset - half), np.nan)

@@ -30,14 +30,12 @@ from controller.geometry.aiming import aim_normal, source_direction
 from controller.geometry.correction import correction_from_offset
 from controller.geometry.kinematics import HeliostatKinematics
 from controller.geometry.model.tracking import TERMS, TrackingModel, model_aim
-from controller.geometry.pose_batch import aim_steps
+from controller.geometry.pose_batch import KinStack
 from controller.geometry.search_pattern import search_steps, spiral_offsets
 from controller.geometry.spot import (
     MirrorOptics,
-    PredictedSpot,
-    park_clearance_m,
+    park_clearances_m,
     predict_spots,
-    standby_clearance_m,
 )
 from controller.geometry.target_frame import TargetFrame
 from controller.geometry.vectors import vector_to_azel
@@ -91,12 +89,17 @@ class GeometryPointing(BeamSafety):
         self.aim_point = np.asarray(target.center_enu_m if aim_point is None else aim_point, float)
         self.source_pos = (tuple(float(v) for v in source.position_enu_m) if isinstance(source, LampSource)
                            else None)
-        # Parked beside the aim point, the spot must stay out of the camera's view: at least the
-        # configured offset, more for a large or uncertain spot (:meth:`park_clearance_m`).
-        standby_offset_m = max(standby_offset_m, self.park_clearance_m(source, model)
-                               + abs(float((self.aim_point - frame.center) @ frame.u)))
-        self.standby_offset_m = standby_offset_m
+        self._least_offset_m = standby_offset_m
         self._current, self._standby_point = current_steps, None
+
+    @property
+    def standby_offset_m(self) -> float:
+        """How far beside the aim point (m) the standby point lies: parked there, the spot must
+        stay out of the camera's view — at least the configured offset, more for a large or
+        uncertain spot (:meth:`park_clearance_m`, computed when first asked for; many heliostats
+        at once: :func:`warm_clearances`)."""
+        across = abs(float((self.aim_point - self.frame.center) @ self.frame.u))
+        return max(self._least_offset_m, self.park_clearance_m(self.source, self.model) + across)
 
     @property
     def standby_point(self) -> np.ndarray:
@@ -153,37 +156,16 @@ class GeometryPointing(BeamSafety):
         spot of this heliostat stays :data:`PARK_MARGIN_M` outside the camera's view at 3σ: the
         view's half-width plus 3σ of the spot's size and of its position (:meth:`spot_sigmas_m`)
         where it is parked, beside the view on either side (the parked beam is longer and more
-        oblique than the aimed one: :func:`controller.geometry.spot.park_clearance_m`)."""
-        f, terms = self.frame, None if model is None else tuple(model.params.items())
-        key = (id(self.heliostat), id(self.model_settings), terms, repr(source), f.center.tobytes(),
-               f.u.tobytes(), f.width_m, self.aim_point.tobytes(),
-               self.first_light_sigma_m() if model is None else 0.0)
+        oblique than the aimed one: :func:`controller.geometry.spot.park_clearance_m`). It does
+        not depend on the aim point: one per heliostat, model, source and view."""
+        key = self._clearance_key(source, model)
         return _CLEARANCES.get(key, (self.heliostat, self.model_settings),
-                               lambda: self._clearance(source, model))
+                               lambda: float(_clearances([(self, source, model)])[0]))
 
-    def _clearance(self, source, model: ModelRecord | None) -> float:
-        sigmas = self.spot_sigmas_m(source, model)
-        if sigmas is None:
-            return 0.0  # the aim point is out of reach: the cycle fails it before it parks
-        half = self.frame.width_m / 2.0
-        return float(park_clearance_m(lambda c: self._parked_sigmas_m(source, model, float(c)), half,
-                                      PARK_MARGIN_M, standby_clearance_m(half, *sigmas, PARK_MARGIN_M)))
-
-    def _parked_sigmas_m(self, source, model: ModelRecord | None, clearance_m: float) -> float:
-        """σ_spot + σ_pos along the view's width (m) of the spot parked ``clearance_m`` from the
-        target centre at the aim point's height, the larger of the two sides; NaN when neither
-        is in reach. The steps there are the batched aim solve's (a step from the scalar one's)."""
-        u = self.frame.u
-        across = float((self.aim_point - self.frame.center) @ u)
-        points = np.array([self.aim_point + (side * clearance_m - across) * u for side in (1.0, -1.0)])
-        tm, _ = model_covariance(model, self.model_settings)
-        light = self._light(source)
-        dirs = None if "lamp" in light else np.broadcast_to(self.source_dir, points.shape)
-        steps, ok = aim_steps(self.kin, tm.values, points, lamp=light.get("lamp"), source_dirs=dirs)
-        if not ok.any():
-            return math.nan
-        spot = self._spot(source, model, steps[ok].astype(float), points[ok])
-        return float(np.max(spot.sigma_m[:, 0] + spot.position_sigma_m[:, 0]))
+    def _clearance_key(self, source, model: ModelRecord | None) -> tuple:
+        f, terms = self.frame, None if model is None else tuple(model.params.items())
+        return (id(self.heliostat), id(self.model_settings), terms, repr(source), f.center.tobytes(),
+                f.u.tobytes(), f.width_m, self.first_light_sigma_m() if model is None else 0.0)
 
     def spot_sigmas_m(self, source, model: ModelRecord | None) -> tuple[float, float] | None:
         """(1-σ size, 1-σ of the position) of the spot at the aim point, m: the position's from
@@ -194,21 +176,14 @@ class GeometryPointing(BeamSafety):
             steps = np.array([self._steps(self.aim_point, model)], float)
         except (LimitError, ValueError):
             return None
-        spot = self._spot(source, model, steps, self.aim_point[None])
-        return float(spot.sigma_m[0, 0]), float(spot.position_sigma_m[0, 0])
-
-    def _spot(self, source, model: ModelRecord | None, steps: np.ndarray, points: np.ndarray):
-        """The predicted spots (:func:`controller.geometry.spot.predict_spots`) at ``points``
-        (K, 3) m ENU with ``steps`` (K, 2); without a model under a beam search, the position's
-        σ at least the first-light σ (:meth:`first_light_sigma_m`)."""
         tm, cov = model_covariance(model, self.model_settings)
-        optics = MirrorOptics.from_config(self.heliostat.mirror)
-        spot = predict_spots(self.kin, optics, tm.values, cov, steps, points, self.frame,
+        spot = predict_spots(self.kin, MirrorOptics.from_config(self.heliostat.mirror), tm.values, cov,
+                             steps, self.aim_point[None], self.frame,
                              floor_rad=2e-3 * self.model_settings.noise_mrad, **self._light(source))
+        position = float(spot.position_sigma_m[0, 0])
         if model is None:
-            return PredictedSpot(spot.offset_m, spot.sigma_m,
-                                 np.maximum(spot.position_sigma_m, self.first_light_sigma_m()))
-        return spot
+            position = max(position, self.first_light_sigma_m())
+        return float(spot.sigma_m[0, 0]), position
 
     def _light(self, source) -> dict:
         if isinstance(source, LampSource):
@@ -388,3 +363,34 @@ def model_covariance(model: ModelRecord | None, settings: ModelSettings) -> tupl
         base = TrackingModel(prior.mean) if model is None else TrackingModel.from_dict(model.params)
         return base, np.diag(prior.sigma**2)
     return TrackingModel.from_dict(model.params), np.asarray(cov, float)
+
+
+def warm_clearances(pointings) -> None:
+    """Compute the park clearances (:meth:`GeometryPointing.park_clearance_m`) of many
+    ``pointings`` at once, for their own source and model, batched per source, view and model
+    settings (:func:`controller.geometry.spot.park_clearances_m`): a lamp change or a pass asks
+    for thousands, one at a time a few milliseconds each."""
+    todo: dict[tuple, list] = {}
+    for p in pointings:
+        key = p._clearance_key(p.source, p.model)
+        if _CLEARANCES.peek(key, (p.heliostat, p.model_settings)) is None:
+            f = p.frame
+            group = (repr(p.source), f.center.tobytes(), f.u.tobytes(), f.width_m, id(p.model_settings))
+            todo.setdefault(group, []).append((key, p))
+    for items in todo.values():
+        for (key, p), c in zip(items, _clearances([(p, p.source, p.model) for _, p in items]), strict=True):
+            _CLEARANCES.put(key, (p.heliostat, p.model_settings), float(c))
+
+
+def _clearances(items: list[tuple[GeometryPointing, object, ModelRecord | None]]) -> np.ndarray:
+    """The park clearances (m) of ``items`` (pointing, source, model), which share a source,
+    a view and model settings: one batch."""
+    p0, source = items[0][0], items[0][1]
+    pairs = [model_covariance(m, p.model_settings) for p, _, m in items]
+    values = np.array([tm.values for tm, _ in pairs])
+    covs = np.array([cov for _, cov in pairs])
+    first = np.array([p.first_light_sigma_m() if m is None else 0.0 for p, _, m in items])
+    kin = KinStack.of([p.kin for p, _, _ in items])
+    optics = MirrorOptics.stack([p.heliostat.mirror for p, _, _ in items])
+    return park_clearances_m(kin, optics, values, covs, p0.frame, PARK_MARGIN_M, position_floor_m=first,
+                             floor_rad=2e-3 * p0.model_settings.noise_mrad, **p0._light(source))

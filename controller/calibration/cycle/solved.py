@@ -21,16 +21,26 @@ class Solved:
         self._lock = threading.Lock()
 
     def get(self, key: tuple, owners: tuple, solve: Callable[[], Any]) -> Any:
-        """The result kept for ``key`` and ``owners``, else ``solve()``'s, kept (an exception
-        is raised and nothing kept)."""
+        """The result kept for ``key`` and ``owners``, else ``solve()``'s (never None), kept (an
+        exception is raised and nothing kept)."""
+        value = self.peek(key, owners)
+        if value is None:
+            value = solve()
+            self.put(key, owners, value)
+        return value
+
+    def peek(self, key: tuple, owners: tuple) -> Any:
+        """The result kept for ``key`` and ``owners``, else None."""
         with self._lock:
             hit = self._items.get(key)
-            if hit is not None and all(a is b for a, b in zip(hit[0], owners, strict=True)):
-                self._items.move_to_end(key)
-                return hit[1]
-        value = solve()
+            if hit is None or not all(a is b for a, b in zip(hit[0], owners, strict=True)):
+                return None
+            self._items.move_to_end(key)
+            return hit[1]
+
+    def put(self, key: tuple, owners: tuple, value: Any) -> None:
+        """Keep ``value`` for ``key`` and ``owners``."""
         with self._lock:
             self._items[key] = (owners, value)
             if len(self._items) > self.kept:
                 self._items.popitem(last=False)
-        return value
