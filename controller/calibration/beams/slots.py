@@ -132,10 +132,35 @@ def pass_layout(frame: TargetFrame, k: int, reaches: np.ndarray, margin_m: float
         if not fit.any():  # the caps of two axes (each a quantile) may leave nobody
             continue
         layout = slot_layout(frame, k, np.max(reaches[fit], axis=0), margin_m)
-        cost = fit.sum() * (1.0 if layout.k == 1 else ROUND_COST / layout.k) + (~fit).sum()
+        cost = layout_cost(layout, fit)
         if best is None or cost < best[0] - 1e-9:
             best = (cost, layout, fit)
     return best[1], best[2]
+
+
+def layout_cost(layout: SlotLayout, fit: np.ndarray) -> float:
+    """T of :func:`pass_layout`'s Eq. (3): the target time of a pass laid out so, in units of
+    one measurement alone."""
+    return float(fit.sum() * (1.0 if layout.k == 1 else ROUND_COST / layout.k) + (~fit).sum())
+
+
+def lamp_rate(cfg: PlantConfig, lamp_id: str, passes: list[tuple[str, list[str]]],
+              models: dict[str, ModelRecord | None], k: int) -> float:
+    """Measurements per single-beam measurement time that a lamp's ``passes`` ((target id,
+    heliostat ids), the targets in parallel) would make with ``models`` now at K = ``k``: their
+    heliostats over the busiest target's time, each pass laid out by :func:`pass_layout`
+    (Eq. 3). A lamp whose spots are known well enough for full rounds rates K / ROUND_COST; one
+    measured a beam at a time, 1 per target."""
+    busy: dict[str, float] = {}
+    n = 0
+    for target_id, ids in passes:
+        reach = spot_reaches_m(cfg, target_id, lamp_id, {h: models.get(h) for h in ids},
+                               cfg.target(target_id).center_enu_m)
+        layout, fit = pass_layout(target_frame(cfg, target_id), k, reach,
+                                  cfg.calibration.planner.view_margin_m)
+        busy[target_id] = busy.get(target_id, 0.0) + layout_cost(layout, fit)
+        n += len(ids)
+    return n / max(busy.values()) if busy and max(busy.values()) > 0 else 0.0
 
 
 def identity_step_m(frame: TargetFrame) -> float:

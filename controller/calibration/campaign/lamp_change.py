@@ -28,7 +28,8 @@ from controller.calibration.campaign.field import Field
 from controller.calibration.campaign.stay_check import certainly_safe
 from controller.calibration.cycle.beam_safety import UnsafePath
 from controller.calibration.cycle.park import park
-from controller.calibration.cycle.pointing import GeometryPointing, warm_clearances
+from controller.calibration.cycle.pointing import GeometryPointing
+from controller.calibration.cycle.warm import warm_aims
 from controller.calibration.records import ModelRecord
 from controller.config import PlantConfig
 from controller.devices.drive import Drive, DriveError
@@ -124,7 +125,7 @@ class LampChanger:
                                    models, self._frame(self.cfg))
             check = {hid: self.pointing(hid, lamp, where, poses[hid], models[hid])
                      for hid, where in standby.items() if hid not in clear}
-            warm_clearances(check.values())  # their standby offsets, in batches
+            warm_aims(check.values())  # their standby offsets and steps, in batches
             for hid, p in check.items():
                 where, drive, model = standby[hid], drives[hid], models[hid]
                 stay_margin = max(2.0, p.standby_offset_m - half)

@@ -50,9 +50,10 @@ from controller.calibration.cycle.context import CycleContext, CycleObserver
 from controller.calibration.cycle.exposure import capture_unsaturated
 from controller.calibration.cycle.gate import TargetGate
 from controller.calibration.cycle.machine import STATES, CalibrationCycle
-from controller.calibration.cycle.pointing import GeometryPointing, warm_clearances
+from controller.calibration.cycle.pointing import GeometryPointing
 from controller.calibration.cycle.registration_step import register_chain
 from controller.calibration.cycle.search import FieldMisses
+from controller.calibration.cycle.warm import warm_aims
 from controller.calibration.records import (
     CampaignRecord,
     ImageRecord,
@@ -209,7 +210,7 @@ class Campaign:
 
             self._pointing_at = pointing_at
             pointing = {hid: pointing_at(hid, aims.get(hid)) for hid in self.ids}
-            warm_clearances(pointing.values())  # their standby offsets, in batches
+            warm_aims(pointing.values())  # their standby offsets and steps, in batches
             self.slots, self._alone = None, set()
             if beams > 1:
                 # The slots are spaced for most of the pass's spots; the largest take the target

@@ -160,7 +160,7 @@ class GeometryPointing(BeamSafety):
         not depend on the aim point: one per heliostat, model, source and view."""
         key = self._clearance_key(source, model)
         return _CLEARANCES.get(key, (self.heliostat, self.model_settings),
-                               lambda: float(_clearances([(self, source, model)])[0]))
+                               lambda: float(clearances([(self, source, model)])[0]))
 
     def _clearance_key(self, source, model: ModelRecord | None) -> tuple:
         f, terms = self.frame, None if model is None else tuple(model.params.items())
@@ -240,10 +240,12 @@ class GeometryPointing(BeamSafety):
         return pose
 
     def _steps(self, point: np.ndarray, model: ModelRecord | None) -> tuple[int, int]:
-        key = (id(self.heliostat), None if model is None else tuple(model.params.items()),
-               np.asarray(point, float).tobytes(), self.source_dir.tobytes(), self.source_pos)
-        return _AIMS.get(key, (self.heliostat,),
+        return _AIMS.get(self._aim_key(point, model), (self.heliostat,),
                          lambda: steps_to_aim(self.kin, model, self.source_dir, point, self.source_pos))
+
+    def _aim_key(self, point, model: ModelRecord | None) -> tuple:
+        return (id(self.heliostat), None if model is None else tuple(model.params.items()),
+                np.asarray(point, float).tobytes(), self.source_dir.tobytes(), self.source_pos)
 
     def aim_steps(self, model: ModelRecord | None) -> tuple[int, int]:
         """Steps onto the aim point; UnsafePath when the beam there, or on the approach from
@@ -365,24 +367,7 @@ def model_covariance(model: ModelRecord | None, settings: ModelSettings) -> tupl
     return TrackingModel.from_dict(model.params), np.asarray(cov, float)
 
 
-def warm_clearances(pointings) -> None:
-    """Compute the park clearances (:meth:`GeometryPointing.park_clearance_m`) of many
-    ``pointings`` at once, for their own source and model, batched per source, view and model
-    settings (:func:`controller.geometry.spot.park_clearances_m`): a lamp change or a pass asks
-    for thousands, one at a time a few milliseconds each."""
-    todo: dict[tuple, list] = {}
-    for p in pointings:
-        key = p._clearance_key(p.source, p.model)
-        if _CLEARANCES.peek(key, (p.heliostat, p.model_settings)) is None:
-            f = p.frame
-            group = (repr(p.source), f.center.tobytes(), f.u.tobytes(), f.width_m, id(p.model_settings))
-            todo.setdefault(group, []).append((key, p))
-    for items in todo.values():
-        for (key, p), c in zip(items, _clearances([(p, p.source, p.model) for _, p in items]), strict=True):
-            _CLEARANCES.put(key, (p.heliostat, p.model_settings), float(c))
-
-
-def _clearances(items: list[tuple[GeometryPointing, object, ModelRecord | None]]) -> np.ndarray:
+def clearances(items: list[tuple[GeometryPointing, object, ModelRecord | None]]) -> np.ndarray:
     """The park clearances (m) of ``items`` (pointing, source, model), which share a source,
     a view and model settings: one batch."""
     p0, source = items[0][0], items[0][1]

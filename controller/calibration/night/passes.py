@@ -20,13 +20,17 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Callable
+from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass
 
+from controller.calibration.beams.slots import lamp_rate
 from controller.calibration.campaign.lamp_change import LampChange, Standby
 from controller.calibration.campaign.outcome import looked_and_failed
 from controller.calibration.campaign.parallel import run_per_target
 from controller.calibration.campaign.runner import CampaignResult
 from controller.calibration.night.planner import PlanItem, geometry_key
+from controller.calibration.records import ModelRecord
+from controller.config import PlantConfig
 
 
 @dataclass(frozen=True)
@@ -73,10 +77,34 @@ def lamp_standbys(plan: list[PlanItem], passes: list[Pass], lamp: str) -> dict[s
     return out
 
 
+def lamps_by_rate(cfg: PlantConfig, models_of: Callable[[list[str]], dict[str, ModelRecord | None]],
+                  computing: Callable[[], AbstractContextManager] = nullcontext
+                  ) -> Callable[[list[str], list[Pass]], str] | None:
+    """``run_night``'s ``next_lamp`` for several beams per target (None for one): the lamp whose
+    passes the latest models (``models_of(ids)``) lay out best now
+    (:func:`controller.calibration.beams.slots.lamp_rate`). A lamp whose spots are still
+    uncertain (fewer slots, more heliostats alone) waits while the other lamps' measurements
+    refine its heliostats' models (docs/campaigns.md, "Lamp order"); ties keep the plan's order.
+    Evaluated inside ``computing()`` (the plant's clock runs on meanwhile)."""
+    k = cfg.calibration.beams_per_target
+    if k < 2:
+        return None
+
+    def choose(lamps: list[str], passes: list[Pass]) -> str:
+        with computing():
+            models = models_of(sorted({h for p in passes if p.lamp in lamps for h in p.aims}))
+            rate = {lamp: lamp_rate(cfg, lamp, [(p.target or cfg.calibration.target, list(p.aims))
+                                                for p in passes if p.lamp == lamp], models, k)
+                    for lamp in lamps}
+        return max(lamps, key=rate.__getitem__)
+
+    return choose
+
+
 def run_night(plan: list[PlanItem], night: str, run_pass: Callable[[Pass], CampaignResult],
               stop_all: Callable[[], None] | None = None,
               change_lamp: Callable[[str, dict[str, Standby]], LampChange] | None = None,
-              ) -> list[CampaignResult]:
+              next_lamp: Callable[[list[str], list[Pass]], str] | None = None) -> list[CampaignResult]:
     """Run every pass of the night with ``run_pass`` (which builds and runs one observing
     campaign: ``CampaignOptions(name=p.name, light_source=p.lamp, aims=p.aims, observe=True,
     target=p.target)``), the targets of a lamp in parallel. A target stops at its first pass
@@ -86,11 +114,15 @@ def run_night(plan: list[PlanItem], night: str, run_pass: Callable[[Pass], Campa
     lamp's passes, switches every lamp off and makes the night's heliostats safe for ``lamp``
     (a :class:`controller.calibration.campaign.lamp_change.LampChanger`); its LampChangeError ends the
     night with the lamp dark. Without it the caller guarantees that no heliostat of the night
-    can reflect the next lamp onto a target (a single-lamp night)."""
+    can reflect the next lamp onto a target (a single-lamp night). ``next_lamp(lamps, passes)``:
+    which of the lamps not yet lit comes next (default: in order of first appearance)."""
     results: list[CampaignResult] = []
     halted = threading.Event()
     passes = night_passes(plan, night)
-    for lamp in dict.fromkeys(p.lamp for p in passes):
+    lamps = list(dict.fromkeys(p.lamp for p in passes))
+    while lamps:
+        lamp = next_lamp(lamps, passes) if next_lamp is not None and len(lamps) > 1 else lamps[0]
+        lamps.remove(lamp)
         if change_lamp is not None:
             change_lamp(lamp, lamp_standbys(plan, passes, lamp))
         per_target: dict[str | None, list[Pass]] = {}

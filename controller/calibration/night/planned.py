@@ -33,7 +33,13 @@ from controller.calibration.campaign.lights_out import lights_out_at_end, not_da
 from controller.calibration.campaign.observers import Observers
 from controller.calibration.campaign.runner import Campaign, CampaignObserver, CampaignOptions, CampaignResult
 from controller.calibration.night.daytime import DaytimeTally, predicted_daytime, sun_path
-from controller.calibration.night.passes import Pass, failed_geometries, flagged_keys, run_night
+from controller.calibration.night.passes import (
+    Pass,
+    failed_geometries,
+    flagged_keys,
+    lamps_by_rate,
+    run_night,
+)
 from controller.calibration.night.planner import PlanItem, check_plan, plan_field
 from controller.calibration.night.summary import NightSummary
 from controller.calibration.records import NightRecord
@@ -212,7 +218,7 @@ class PlannedNight:
                 self.progress(f"{self.name}: {len(self.plan)} geometries planned for "
                               f"{len({i.heliostat_id for i in self.plan})} heliostats")
                 results += run_night(self.plan, self.name, self._run_pass, self.request_stop,
-                                     self._change_lamp)
+                                     self._change_lamp, lamps_by_rate(f.cfg, f.models, f.time.computing))
         except LampChangeError as exc:
             return self._end(rec, results, first, "aborted", str(exc))
         except BaseException as exc:  # Ctrl-C, or whatever else stopped it: recorded, lights out

@@ -18,12 +18,14 @@ from controller.calibration.beams.policy import beams_allowed
 from controller.calibration.beams.slots import (
     GAP_M,
     IDENTITY_STEP_M,
+    lamp_rate,
     pass_layout,
     slot_layout,
     spot_reach_m,
     target_frame,
 )
 from controller.calibration.cycle.gate import TargetGate
+from controller.calibration.night.passes import Pass, lamps_by_rate
 from controller.config import load_config
 from controller.errors import ConfigError, InputError
 from controller.geometry.target_frame import TargetFrame
@@ -367,3 +369,29 @@ def test_a_pass_is_spaced_for_most_of_its_spots_and_the_largest_take_the_target_
     # nothing in reach: one slot, everybody alone
     layout, fit = pass_layout(frame, 4, np.full((3, 2), np.inf), 0.2)
     assert layout.k == 1 and not fit.any()
+
+
+def test_the_next_lamp_is_the_one_whose_passes_the_models_lay_out_best(small_config, tmp_path):
+    """A lamp whose spots are uncertain or mirror-wide (one slot: rate 1) waits for one whose
+    spots fit several slots (rate K' / ROUND_COST, Eq. 3); a tie keeps the plan's order; one
+    beam per target keeps the plan's order without asking."""
+    cfg = load_config(far_lamp_config(small_config, tmp_path, 4))
+    near = next(s.id for s in cfg.light_sources if s.kind == "lamp" and s.id not in cfg.calibration.lamps)
+    far = cfg.calibration.light_source
+    ids = [h.id for h in cfg.heliostats]
+    calibrated = {h: calibrated_record(cfg, h) for h in ids}
+    passes = [Pass("n/near", near, {h: cfg.target().center_enu_m for h in ids}),
+              Pass("n/far", far, {h: cfg.target().center_enu_m for h in ids})]
+    tid = cfg.calibration.target
+    assert lamp_rate(cfg, near, [(tid, ids)], calibrated, 4) == pytest.approx(1.0)
+    layout, fit = pass_layout(target_frame(cfg, tid), 4, slots.spot_reaches_m(cfg, tid, far, calibrated,
+                                                                              cfg.target().center_enu_m),
+                              cfg.calibration.planner.view_margin_m)
+    rate = lamp_rate(cfg, far, [(tid, ids)], calibrated, 4)
+    assert layout.k > 1 and rate > 1.0 and rate == pytest.approx(len(ids) / slots.layout_cost(layout, fit))
+    choose = lamps_by_rate(cfg, lambda hids: {h: calibrated[h] for h in hids})
+    assert choose([near, far], passes) == far
+    unknown = lamps_by_rate(cfg, lambda hids: dict.fromkeys(hids))  # no model: one slot everywhere
+    assert unknown([near, far], passes) == near
+    one = load_config(_config(small_config, tmp_path, beams_per_target=1)[0])
+    assert lamps_by_rate(one, lambda hids: dict.fromkeys(hids)) is None

@@ -1,0 +1,66 @@
+"""What a lamp change or a pass asks of thousands of heliostats' pointings, solved in batches
+before they ask one at a time: their park clearances and the steps onto their aim and
+standby points (:class:`controller.calibration.cycle.pointing.GeometryPointing`, which keeps
+both, :mod:`controller.calibration.cycle.solved`). One at a time each costs about half a
+millisecond (an aim solve) to a few (a clearance); a batch over a
+:class:`controller.geometry.pose_batch.KinStack` a few microseconds a heliostat.
+
+The batched aim solve (:func:`controller.geometry.pose_batch.aim_steps`) is the scalar one
+(:func:`controller.geometry.model.tracking.model_aim`) over a stack: the same bisector from
+the model's mirror centre, the lamp's direction taken from it, the same three passes — the
+same steps (checked in tests/calibration/cycle/test_warm.py). Heliostats without a model aim
+by the nominal kinematics, which take the lamp's direction from the pivot: they are left to
+the scalar solve."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+import numpy as np
+
+from controller.calibration.cycle.pointing import _AIMS, _CLEARANCES, GeometryPointing, clearances
+from controller.geometry.model.tracking import TrackingModel
+from controller.geometry.pose_batch import KinStack, aim_steps
+
+
+def warm_clearances(pointings: Iterable[GeometryPointing]) -> None:
+    """The park clearances (:meth:`GeometryPointing.park_clearance_m`) of ``pointings`` not yet
+    kept, for their own source and model, batched per source, view and model settings."""
+    todo: dict[tuple, list] = {}
+    for p in pointings:
+        key = p._clearance_key(p.source, p.model)
+        if _CLEARANCES.peek(key, (p.heliostat, p.model_settings)) is None:
+            f = p.frame
+            group = (repr(p.source), f.center.tobytes(), f.u.tobytes(), f.width_m, id(p.model_settings))
+            todo.setdefault(group, []).append((key, p))
+    for items in todo.values():
+        for (key, p), c in zip(items, clearances([(p, p.source, p.model) for _, p in items]), strict=True):
+            _CLEARANCES.put(key, (p.heliostat, p.model_settings), float(c))
+
+
+def warm_aims(pointings: Iterable[GeometryPointing]) -> None:
+    """The steps onto the aim point and the standby points on both sides of ``pointings``
+    with a model (for their own source and model), batched per source; their clearances first
+    (:func:`warm_clearances`: the standby points depend on them)."""
+    pointings = [p for p in pointings if p.model is not None]
+    warm_clearances(pointings)
+    todo: dict[tuple, list] = {}
+    for p in pointings:
+        side = p.frame.side(p.heliostat_pos)
+        offset = p.standby_offset_m
+        points = [p.aim_point, p.aim_point + offset * side, p.aim_point + offset * -side]
+        keys = [p._aim_key(x, p.model) for x in points]
+        if any(_AIMS.peek(k, (p.heliostat,)) is None for k in keys):
+            todo.setdefault((p.source_dir.tobytes(), p.source_pos), []).append((p, np.array(points), keys))
+    for items in todo.values():
+        p0 = items[0][0]
+        kin = KinStack.of([p.kin for p, _, _ in items])
+        values = np.array([TrackingModel.from_dict(p.model.params).values for p, _, _ in items])
+        points = np.array([x for _, x, _ in items])  # (H, 3, 3)
+        lamp = None if p0.source_pos is None else np.asarray(p0.source_pos, float)
+        dirs = None if lamp is not None else np.broadcast_to(p0.source_dir, points.shape)
+        steps, ok = aim_steps(kin.shaped(2), values[:, None, :], points, lamp=lamp, source_dirs=dirs)
+        for (p, _, keys), st, fine in zip(items, steps, ok, strict=True):
+            for key, s, f in zip(keys, st, fine, strict=True):
+                if f:  # out of reach: the scalar solve says so, naming the axis
+                    _AIMS.put(key, (p.heliostat,), (int(s[0]), int(s[1])))
