@@ -45,7 +45,7 @@ PARK_MARGIN_M = 0.5  # a parked spot's 3σ footprint ends at least this far outs
 # -> steps. A 10,000-heliostat night asks for a few per heliostat and lamp.
 AIMS_KEPT = 200_000
 _AIMS = Solved(AIMS_KEPT)
-# GeometryPointing.park_clearance_m: (heliostat, settings, model terms, source, view, aim) -> m.
+# GeometryPointing.park_clearance_m: (heliostat, settings, model terms, source, view) -> m.
 _CLEARANCES = Solved(AIMS_KEPT)
 DEFAULT_SETTINGS = ModelSettings()  # one object: the clearances' key names the settings by id
 
@@ -89,7 +89,7 @@ class GeometryPointing(BeamSafety):
         self.aim_point = np.asarray(target.center_enu_m if aim_point is None else aim_point, float)
         self.source_pos = (tuple(float(v) for v in source.position_enu_m) if isinstance(source, LampSource)
                            else None)
-        self._least_offset_m = standby_offset_m
+        self._least_offset_m, self._offset_m = standby_offset_m, None
         self._current, self._standby_point = current_steps, None
 
     @property
@@ -97,9 +97,12 @@ class GeometryPointing(BeamSafety):
         """How far beside the aim point (m) the standby point lies: parked there, the spot must
         stay out of the camera's view — at least the configured offset, more for a large or
         uncertain spot (:meth:`park_clearance_m`, computed when first asked for; many heliostats
-        at once: :func:`warm_clearances`)."""
-        across = abs(float((self.aim_point - self.frame.center) @ self.frame.u))
-        return max(self._least_offset_m, self.park_clearance_m(self.source, self.model) + across)
+        at once: :mod:`controller.calibration.cycle.warm`)."""
+        if self._offset_m is None:
+            across = abs(float((self.aim_point - self.frame.center) @ self.frame.u))
+            clearance = self.park_clearance_m(self.source, self.model)
+            self._offset_m = max(self._least_offset_m, clearance + across)
+        return self._offset_m
 
     @property
     def standby_point(self) -> np.ndarray:
