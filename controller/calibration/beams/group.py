@@ -171,8 +171,8 @@ class SharedCapture:
 
     def identity_step(self, cyc) -> tuple[tuple[int, int], np.ndarray]:
         """:func:`identity_step` of ``cyc``'s heliostat at its present pose and slot."""
-        return identity_step(cyc.ctx.pointing, (cyc.az, cyc.el), self.gate.slot(cyc._ticket), self.gate.beams,
-                             self.frame, self.layout.step_m)
+        rank = self.layout.rank(self.gate.slot(cyc._ticket))  # its place in its tier
+        return identity_step(cyc.ctx.pointing, (cyc.az, cyc.el), *rank, self.frame, self.layout.step_m)
 
     def leave_pose(self, cyc) -> tuple[int, int]:
         """Where ``cyc``'s heliostat parks after its measurement: the standby point on its slot's
@@ -322,9 +322,9 @@ class SharedCapture:
         with self._lock:
             if rnd.assigned is None:
                 tickets = sorted(t for t, v in rnd.members.items() if v is not None)
-                r = np.asarray(self.layout.reach_m, float) + self.layout.step_m
-                reach = np.array([-r[0], r[0], -r[1], r[1]])
-                rnd.windows = win = [self.window(np.repeat(rnd.members[t][0], 2) + reach) for t in tickets]
+                r = self.layout.reach_m[[self.gate.slot(t) for t in tickets]] + self.layout.step_m
+                rnd.windows = win = [self.window(np.repeat(rnd.members[t][0], 2) + [-ru, ru, -rv, rv])
+                                     for t, (ru, rv) in zip(tickets, r, strict=True)]
                 rnd.cells = [self.window(self.layout.cells_m[self.gate.slot(t)]) for t in tickets]
                 # Each capture merged, smoothed and levelled once for the four uses below (frame
                 # 1's HDR image kept for the members' own analysis, merge).

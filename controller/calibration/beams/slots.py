@@ -12,7 +12,9 @@ the step:
     spacing ≥ 2 r + GAP_M,     |o_slot| + r + margin ≤ H                           (1)
 
 When K slots do not fit the view, fewer do: the layout is the largest K' ≤ K that satisfies
-(1), down to one slot at the target's centre. The slots keep the closest spacing
+(1), down to one slot at the target's centre. A pass's heliostats take slots in tiers, each
+spaced for its own spots (:func:`pass_layout`); slots of two tiers whose cells overlap never
+hold beams at once (:meth:`SlotLayout.conflicts`). The slots keep the closest spacing
 s = 2 r + GAP_M: spread farther apart, the slots on one side of the target left no slew to
 their standby point that keeps the beam off the targets, and their heliostats had to take the
 target alone.
@@ -32,7 +34,7 @@ view's edge.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -53,28 +55,73 @@ GAP_M = 0.2  # clear space between two slots' 3σ footprints, m
 # A round of K beams against one beam alone, in target time (Eq. 3): the identity step, its
 # settling and the second frame on top of the approach, capture and departure.
 ROUND_COST = 1.5
-REACH_QUANTILES = (1.0, 0.99, 0.97, 0.95, 0.9, 0.8, 0.7)
 
 
 @dataclass(frozen=True, eq=False)  # numpy fields
 class SlotLayout:
-    """K slot aim points: offsets (K, 2) m from the target centre along the view's (u, v), the
-    aim points (K, 3) m ENU, the spot reach (2,) m they were spaced for (Eq. 1, without the
-    step), each slot's cell (K, 4) m, (u0, u1, v0, v1) from the target centre (Eq. 2), and the
-    identity step they were spaced for, m (:func:`identity_step_m`)."""
+    """S slot aim points: offsets (S, 2) m from the target centre along the view's (u, v), the
+    aim points (S, 3) m ENU, the spot reach (S, 2) m each was spaced for (Eq. 1, without the
+    step), each slot's cell (S, 4) m, (u0, u1, v0, v1) from the target centre (Eq. 2), and the
+    identity step they were spaced for, m (:func:`identity_step_m`). ``tiers`` (S,): the tier
+    of each slot (:func:`pass_layout`: a tier's slots are one grid, spaced for its spots; one
+    tier by default); slots of different tiers whose cells overlap never hold beams at once
+    (:meth:`conflicts`)."""
 
     offsets_m: np.ndarray
     aims_enu: np.ndarray
     reach_m: np.ndarray
     cells_m: np.ndarray
     step_m: float = IDENTITY_STEP_M
+    tiers: np.ndarray | None = None
+
+    @property
+    def slots(self) -> int:
+        return len(self.offsets_m)
 
     @property
     def k(self) -> int:
-        return len(self.offsets_m)
+        """The most beams on the target at once: the largest tier's slots."""
+        return max(self.tier_sizes)
+
+    @property
+    def tier_sizes(self) -> list[int]:
+        """The slots of each tier."""
+        return [int(n) for n in np.bincount(self.tier_of)]
+
+    @property
+    def tier_of(self) -> np.ndarray:
+        return np.zeros(self.slots, int) if self.tiers is None else np.asarray(self.tiers, int)
+
+    def tier_slots(self, tier: int) -> tuple[int, ...]:
+        """The slots of ``tier`` (none for −1: the target alone)."""
+        return tuple(int(s) for s in np.flatnonzero(self.tier_of == tier))
+
+    def rank(self, slot: int) -> tuple[int, int]:
+        """(i, n): ``slot`` is the i-th of its tier's n slots (the identity step's direction,
+        :func:`controller.calibration.beams.identity.identity_step`)."""
+        same = self.tier_slots(int(self.tier_of[slot]))
+        return same.index(slot), len(same)
+
+    def conflicts(self) -> dict[int, frozenset[int]]:
+        """Each slot → the slots (itself included) whose cells overlap its own: never two beams
+        at once (:class:`controller.calibration.cycle.gate.TargetGate`). Within a tier the cells
+        only touch (Eq. 2), so only slots of other tiers conflict."""
+        c = np.asarray(self.cells_m, float)
+        over = ((np.minimum(c[:, None, 1], c[None, :, 1]) > np.maximum(c[:, None, 0], c[None, :, 0]))
+                & (np.minimum(c[:, None, 3], c[None, :, 3]) > np.maximum(c[:, None, 2], c[None, :, 2])))
+        return {s: frozenset(int(t) for t in np.flatnonzero(over[s])) for s in range(self.slots)}
 
     def aim(self, slot: int) -> tuple[float, float, float]:
-        return tuple(float(x) for x in self.aims_enu[slot % self.k])
+        return tuple(float(x) for x in self.aims_enu[slot])
+
+    @staticmethod
+    def joined(layouts: list[SlotLayout]) -> SlotLayout:
+        """One layout of the tiers ``layouts`` (each one tier, in this order)."""
+        return SlotLayout(np.concatenate([x.offsets_m for x in layouts]),
+                          np.concatenate([x.aims_enu for x in layouts]),
+                          np.concatenate([x.reach_m for x in layouts]),
+                          np.concatenate([x.cells_m for x in layouts]), layouts[0].step_m,
+                          np.concatenate([np.full(x.slots, i) for i, x in enumerate(layouts)]))
 
 
 def spot_reaches_m(cfg: PlantConfig, target_id: str, lamp_id: str, heliostats: dict[str, ModelRecord | None],
@@ -111,37 +158,41 @@ def spot_reach_m(cfg: PlantConfig, target_id: str, lamp_id: str, heliostats: dic
 def pass_layout(frame: TargetFrame, k: int, reaches: np.ndarray, margin_m: float
                 ) -> tuple[SlotLayout, np.ndarray]:
     """The slots of a pass whose heliostats' spots reach ``reaches`` (H, 2) m
-    (:func:`spot_reaches_m`), and which of them (H,) bool fit those slots; the others take the
-    target alone. The largest spot need not set every round's spacing: a pass of 1,600
-    heliostats whose one worst-known model reaches 15 m would otherwise be measured a beam at
-    a time. Of the layouts spaced for the heliostats up to each :data:`REACH_QUANTILES` of the
-    pass's reach (per axis), the one of least estimated target time is taken,
+    (:func:`spot_reaches_m`), in tiers, and each heliostat's tier (H,) int (−1: it takes the
+    target alone). The largest spot need not set every round's spacing: a pass of 3,000
+    heliostats under a far lamp has spots from 9 to 15 m across, and one spacing for all of
+    them measured a third of the pass a beam at a time. For n = K, K − 1, …, 2, the heliostats
+    not yet in a tier whose own reach lets n slots fit the view (Eq. 1, :func:`fits_slots`) form
+    the n-slot tier, spaced for the largest of them on each axis (Eq. 1 holds per axis, so it
+    holds for that too); those that fit no two slots take the target alone. Each tier costs
 
-        T(q) = n_fit · c(K') + n_alone,    c(1) = 1,   c(K') = ROUND_COST / K'              (3)
+        T = Σ_tiers n_t · c(K_t) + n_alone,    c(1) = 1,   c(K') = ROUND_COST / K'         (3)
 
-    in units of one measurement alone: a round of K' beams costs :data:`ROUND_COST` times one
-    beam's (the identity step, its settling and the second frame); ties go to fewer alone."""
+    in units of one measurement alone (:func:`layout_cost`): a round of K' beams costs
+    :data:`ROUND_COST` times one beam's (the identity step, its settling and the second frame).
+    Taking every heliostat into the largest tier it fits is least by Eq. (3), c falling with K'.
+    Nobody in reach of two slots: one slot, everybody alone."""
     reaches = np.asarray(reaches, float)
-    finite = np.all(np.isfinite(reaches), axis=1)
-    if not finite.any():  # nobody in reach: one slot, everybody alone
-        return slot_layout(frame, 1, np.zeros(2), margin_m), finite
-    best = None  # the whole pass (q = 1) always fits a layout: never None after the loop
-    for q in REACH_QUANTILES:
-        cap = np.quantile(reaches[finite], q, axis=0)
-        fit = finite & np.all(reaches <= cap, axis=1)
-        if not fit.any():  # the caps of two axes (each a quantile) may leave nobody
-            continue
-        layout = slot_layout(frame, k, np.max(reaches[fit], axis=0), margin_m)
-        cost = layout_cost(layout, fit)
-        if best is None or cost < best[0] - 1e-9:
-            best = (cost, layout, fit)
-    return best[1], best[2]
+    step = identity_step_m(frame)
+    member = np.full(len(reaches), -1)
+    tiers: list[SlotLayout] = []
+    for n in range(k, 1, -1):
+        new = (member < 0) & fits_slots(frame, n, reaches, margin_m, step)
+        if new.any():
+            member[new] = len(tiers)
+            tiers.append(slot_layout(frame, n, reaches[new].max(axis=0), margin_m, step))
+    if not tiers:
+        return slot_layout(frame, 1, np.zeros(2), margin_m), member
+    return SlotLayout.joined(tiers), member
 
 
-def layout_cost(layout: SlotLayout, fit: np.ndarray) -> float:
-    """T of :func:`pass_layout`'s Eq. (3): the target time of a pass laid out so, in units of
-    one measurement alone."""
-    return float(fit.sum() * (1.0 if layout.k == 1 else ROUND_COST / layout.k) + (~fit).sum())
+def layout_cost(layout: SlotLayout, member: np.ndarray) -> float:
+    """T of :func:`pass_layout`'s Eq. (3): the target time of a pass laid out so (``member``:
+    each heliostat's tier, −1 alone), in units of one measurement alone."""
+    size = np.array(layout.tier_sizes, float)
+    cost = np.where(size == 1, 1.0, ROUND_COST / size)
+    m = np.asarray(member, int)
+    return float(cost[m[m >= 0]].sum() + (m < 0).sum())
 
 
 def lamp_rate(cfg: PlantConfig, lamp_id: str, passes: list[tuple[str, list[str]]],
@@ -156,9 +207,9 @@ def lamp_rate(cfg: PlantConfig, lamp_id: str, passes: list[tuple[str, list[str]]
     for target_id, ids in passes:
         reach = spot_reaches_m(cfg, target_id, lamp_id, {h: models.get(h) for h in ids},
                                cfg.target(target_id).center_enu_m)
-        layout, fit = pass_layout(target_frame(cfg, target_id), k, reach,
-                                  cfg.calibration.planner.view_margin_m)
-        busy[target_id] = busy.get(target_id, 0.0) + layout_cost(layout, fit)
+        layout, member = pass_layout(target_frame(cfg, target_id), k, reach,
+                                     cfg.calibration.planner.view_margin_m)
+        busy[target_id] = busy.get(target_id, 0.0) + layout_cost(layout, member)
         n += len(ids)
     return n / max(busy.values()) if busy and max(busy.values()) > 0 else 0.0
 
@@ -175,6 +226,26 @@ def target_frame(cfg: PlantConfig, target_id: str) -> TargetFrame:
     return TargetFrame.from_config(cfg.target(target_id), (cam.height_px, cam.width_px))
 
 
+def _grid(n: int) -> tuple[int, int]:
+    """(columns, rows) of an n-slot grid: ⌈√n⌉ columns."""
+    cols = math.ceil(math.sqrt(n))
+    return cols, math.ceil(n / cols)
+
+
+def fits_slots(frame: TargetFrame, n: int, reach_m, margin_m: float, step_m: float) -> np.ndarray:
+    """Whether an n-slot grid (Eq. 1) fits ``frame``'s view for spots of reach ``reach_m``
+    (..., 2) m stepped by ``step_m``: along each axis, with c slots along it spaced
+    s = 2 (r + step) + GAP_M about the centre, the outermost's |o| + r + step + margin =
+    c (r + step) + (c − 1) GAP_M / 2 + margin ≤ H. One slot always fits."""
+    r = np.asarray(reach_m, float) + step_m
+    if n == 1:
+        return np.ones(r.shape[:-1], bool)
+    along = np.array(_grid(n), float)
+    half = np.array([frame.width_m, frame.height_m]) / 2.0
+    with np.errstate(invalid="ignore"):  # an infinite reach fits nothing
+        return np.all(along * r + (along - 1.0) * GAP_M / 2.0 + margin_m <= half, axis=-1)
+
+
 def slot_layout(frame: TargetFrame, k: int, reach_m, margin_m: float, step_m: float | None = None
                 ) -> SlotLayout:
     """The largest layout of at most ``k`` slots satisfying Eq. (1) in ``frame``'s view for spots
@@ -185,32 +256,35 @@ def slot_layout(frame: TargetFrame, k: int, reach_m, margin_m: float, step_m: fl
     half = np.array([frame.width_m, frame.height_m]) / 2.0
     spacing = 2.0 * r + GAP_M
     for n in range(k, 0, -1):
-        cols = math.ceil(math.sqrt(n))
-        rows = math.ceil(n / cols)
+        if not fits_slots(frame, n, reach_m, margin_m, step_m):
+            continue
+        cols, rows = _grid(n)
         cu = (np.arange(cols) - (cols - 1) / 2.0) * spacing[0]
         cv = (np.arange(rows) - (rows - 1) / 2.0) * spacing[1]
         offsets = np.array([(u, v) for v in cv for u in cu][:n])
-        if n == 1 or np.all(np.abs(offsets) + r + margin_m <= half):
-            lo = np.where(offsets <= offsets.min(axis=0), -half, offsets - spacing / 2 + GAP_M / 2)  # Eq. (2)
-            hi = np.where(offsets >= offsets.max(axis=0), half, offsets + spacing / 2 - GAP_M / 2)
-            cells = np.stack([lo[:, 0], hi[:, 0], lo[:, 1], hi[:, 1]], axis=1)
-            aims = frame.center + offsets[:, :1] * frame.u + offsets[:, 1:] * frame.v
-            return SlotLayout(offsets, aims, np.asarray(reach_m, float), cells, step_m)
+        lo = np.where(offsets <= offsets.min(axis=0), -half, offsets - spacing / 2 + GAP_M / 2)  # Eq. (2)
+        hi = np.where(offsets >= offsets.max(axis=0), half, offsets + spacing / 2 - GAP_M / 2)
+        cells = np.stack([lo[:, 0], hi[:, 0], lo[:, 1], hi[:, 1]], axis=1)
+        aims = frame.center + offsets[:, :1] * frame.u + offsets[:, 1:] * frame.v
+        return SlotLayout(offsets, aims, np.broadcast_to(np.asarray(reach_m, float), (n, 2)).copy(),
+                          cells, step_m)
     raise AssertionError("unreachable: one slot always fits")
 
 
-def assign_slots(n: int, k: int, fits: Callable[[int, int], bool]) -> list[int | None]:
-    """The slot of each of ``n`` tickets in queue order (None: no slot fits it, it takes the
-    target alone), ``fits(ticket, slot)`` telling whether a slot's pose suits the ticket's
-    heliostat (:func:`controller.calibration.beams.group.slot_parks`). Each ticket takes, of the
-    slots that fit it, the one left longest ago: tickets that every slot fits get 0, 1, …,
-    K − 1, 0, 1, … (ticket t waits for t − K, the rounds stay full), and a heliostat that one
-    slot does not suit takes the next instead of the target to itself, the ticket after it
-    taking the slot it skipped. ``fits`` is asked in that order and no further than needed."""
-    last = dict.fromkeys(range(k), -1)
+def assign_slots(candidates: Sequence[Sequence[int]], fits: Callable[[int, int], bool]) -> list[int | None]:
+    """The slot of each ticket in queue order (None: no slot fits it, it takes the target
+    alone), ``candidates[t]`` the slots open to ticket t (its tier's, :meth:`SlotLayout.tier_slots`;
+    none: it takes the target alone), ``fits(ticket, slot)`` telling whether a slot's pose suits
+    the ticket's heliostat (:func:`controller.calibration.beams.group.slot_parks`). Each ticket
+    takes, of its slots that fit it, the one left longest ago: tickets that every slot of K fits
+    get 0, 1, …, K − 1, 0, 1, … (ticket t waits for t − K, the rounds stay full), and a
+    heliostat that one slot does not suit takes the next instead of the target to itself, the
+    ticket after it taking the slot it skipped. ``fits`` is asked in that order and no further
+    than needed."""
+    last: dict[int, int] = {}
     out: list[int | None] = []
-    for t in range(n):
-        slot = next((s for s in sorted(last, key=lambda s: (last[s], s)) if fits(t, s)), None)
+    for t, open_ in enumerate(candidates):
+        slot = next((s for s in sorted(open_, key=lambda s: (last.get(s, -1), s)) if fits(t, s)), None)
         if slot is not None:
             last[slot] = t
         out.append(slot)

@@ -25,8 +25,8 @@ def _slew_s(cfg: PlantConfig, hid: str, start: tuple[int, int], end: tuple[int, 
 
 
 def order_queue(cfg: PlantConfig, ids: list[str], current: dict[str, tuple[int, int]],
-                pointing: dict[str, GeometryPointing], beams: int = 1, last: tuple[str, ...] = ()
-                ) -> list[str]:
+                pointing: dict[str, GeometryPointing], beams: int = 1, last: tuple[str, ...] = (),
+                tiers: dict[str, int] | None = None) -> list[str]:
     """Heliostats by estimated slew time from ``current`` steps to standby, shortest first
     (ties by id, so the order is reproducible).
 
@@ -36,7 +36,9 @@ def order_queue(cfg: PlantConfig, ids: list[str], current: dict[str, tuple[int, 
     round, and the last round — often one beam, alone on the target — is the quickest. ``last``
     (K > 1): queued last even so, the heliostats whose spot had to be measured again alone
     earlier (a large or split spot): a pass's last round is often one beam, measured alone
-    anyway."""
+    anyway. ``tiers`` (K > 1; id → slot tier, −1 alone,
+    :func:`controller.calibration.beams.slots.pass_layout`): the tiers in turn, in that order
+    within each, the heliostats measured alone after them all."""
     def steps(hid: str, of) -> tuple[int, int] | None:  # None: out of reach, its cycle will report why
         try:
             return of(pointing[hid].model)
@@ -57,4 +59,7 @@ def order_queue(cfg: PlantConfig, ids: list[str], current: dict[str, tuple[int, 
     if beams > 1:
         queue[beams:] = sorted(queue[beams:], key=lambda h: (-approach(h), h))
         queue = [h for h in queue if h not in last] + [h for h in queue if h in last]
+        if tiers:
+            after = max(tiers.values()) + 1
+            queue.sort(key=lambda h: after if tiers.get(h, -1) < 0 else tiers[h])  # stable
     return queue

@@ -152,7 +152,7 @@ class Campaign:
         self._go.set()
         self._cycles: dict[str, CalibrationCycle] = {}
         self.slots = None  # controller.calibration.beams.slots.SlotLayout with several beams per target
-        self._alone: set[str] = set()  # heliostats whose spot is too large for the slots: the target alone
+        self._tier: dict[str, int] = {}  # each one's slot tier (slots.pass_layout; −1: the target alone)
         self.group: SharedCapture | None = None
         self._current: dict[str, tuple[int, int]] = {}
 
@@ -211,18 +211,19 @@ class Campaign:
             self._pointing_at = pointing_at
             pointing = {hid: pointing_at(hid, aims.get(hid)) for hid in self.ids}
             warm_aims(pointing.values())  # their standby offsets and steps, in batches
-            self.slots, self._alone = None, set()
+            self.slots, self._tier = None, {}
             if beams > 1:
-                # The slots are spaced for most of the pass's spots; the largest take the target
-                # alone, queued last (slots.pass_layout).
+                # Slots in tiers, each spaced for its spots; the largest take the target alone
+                # (slots.pass_layout). The tiers go in turn, most beams first, the alone last.
                 reach = spot_reaches_m(self.cfg, target.id, source.id, models, target.center_enu_m)
-                layout, fit = pass_layout(self.chain.frame, beams, reach, cal.planner.view_margin_m)
+                layout, member = pass_layout(self.chain.frame, beams, reach, cal.planner.view_margin_m)
                 if layout.k > 1:
-                    self.slots, self._alone = layout, {h for h, f in zip(models, fit, strict=True) if not f}
+                    self.slots, self._tier = layout, dict(zip(models, (int(m) for m in member), strict=True))
             existing = self.store.campaign_by_name(self.opt.name)
             k = 1 if self.slots is None else self.slots.k
+            alone = sorted(h for h, m in self._tier.items() if m < 0)
             queue = existing.queue if existing is not None else order_queue(
-                self.cfg, self.ids, current, pointing, k, (*self.opt.queue_last, *sorted(self._alone)))
+                self.cfg, self.ids, current, pointing, k, (*self.opt.queue_last, *alone), self._tier)
         site = self.cfg.site
         self.meta.setdefault("site", [site.latitude_deg, site.longitude_deg, site.elevation_m])
         self.meta.setdefault("target_normal", list(target.normal))
@@ -251,9 +252,11 @@ class Campaign:
 
     def _finish(self, cid: int, status: str, cause: str | None) -> None:
         if self.group is not None:  # several beams: how the captures went (docs/campaigns.md)
+            alone = sum(m < 0 for m in self._tier.values())
             self.store.update_meta(cid, {"beams": {"slots": self.slots.k, "rounds": self.group.rounds,
                                                    "measured_alone": self.group.alone,
-                                                   "alone_by_spot_size": len(self._alone)}})
+                                                   "tiers": self.slots.tier_sizes,
+                                                   "alone_by_spot_size": alone}})
         self.store.finish_campaign(cid, status, cause)
         self.observer.campaign_finished(cid, status)
 
@@ -269,18 +272,17 @@ class Campaign:
 
             def fits(ticket: int, slot: int) -> bool:
                 hid = todo[ticket][1]
-                if hid in self._alone:
-                    return False
                 at_slot[ticket, slot] = self._pointing_at(hid, self.slots.aim(slot))
-                return slot_parks(at_slot[ticket, slot], slot, self.slots.k, self.chain.frame,
+                return slot_parks(at_slot[ticket, slot], *self.slots.rank(slot), self.chain.frame,
                                   self._current.get(hid), self.slots.step_m)
 
             with self.time.computing():
-                slots = assign_slots(len(todo), self.slots.k, fits)
+                # Its tier's slots (none: alone, or not in the layout's reckoning: resumed).
+                slots = assign_slots([self.slots.tier_slots(self._tier.get(h, -1)) for _, h in todo], fits)
             for ticket, slot in enumerate(slots):
                 if slot is not None:  # else its planned aim, the target to itself (group.py)
                     pointing[todo[ticket][1]] = at_slot[ticket, slot]
-            gate = TargetGate(self.slots.k, together=True, slots=slots)
+            gate = TargetGate(self.slots.k, together=True, slots=slots, conflicts=self.slots.conflicts())
             cal = self.cfg.calibration
             self.group = SharedCapture(gate, self._capture, self.chain.merge, self.chain.frame, self.slots,
                                        cal.identity_settle_s, cal.centroid_threshold)

@@ -129,15 +129,16 @@ class BeamSafety:
 
     @staticmethod
     def _lands_on(c: np.ndarray, b: np.ndarray, center: np.ndarray, frame: TargetFrame, target: Target,
-                  margin_m: float) -> np.ndarray:
+                  margin_m) -> np.ndarray:
         """Whether the rays from ``c`` along ``b`` (N, 3) land on ``target`` grown by ``margin_m``
-        (a ray pointing away from its plane does not)."""
+        (m; or (u, v) m per axis; a ray pointing away from its plane does not)."""
         with np.errstate(divide="ignore", invalid="ignore"):
             t = ((center - c) @ frame.normal) / (b @ frame.normal)
         hit = c + t[:, None] * b - center
         ok = np.isfinite(t) & (t >= 0.0)
-        return (ok & (np.abs(hit @ frame.u) <= target.width_m / 2 + margin_m)
-                & (np.abs(hit @ frame.v) <= target.height_m / 2 + margin_m))
+        mu, mv = np.broadcast_to(np.asarray(margin_m, float), (2,))
+        return (ok & (np.abs(hit @ frame.u) <= target.width_m / 2 + mu)
+                & (np.abs(hit @ frame.v) <= target.height_m / 2 + mv))
 
     def path_to(self, start: tuple[int, int], end: tuple[int, int]) -> list[tuple[int, int]]:
         """Waypoints from ``start`` to ``end`` (a point off the target) along which the beam

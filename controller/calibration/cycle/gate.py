@@ -4,7 +4,7 @@ with ``calibration.beams_per_target`` K > 1, up to K at once, each at its own sl
 from __future__ import annotations
 
 import threading
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence, Set
 
 
 class TargetGate:
@@ -15,11 +15,15 @@ class TargetGate:
     ticket t uses its slot (:meth:`slot`: ``slots[t]``, by default ``t mod K``), which only one
     beam holds at a time: it waits only for the ticket before it at that slot to release it
     (and for no holder to be at that slot, should that one have been skipped), so a heliostat
-    still slewing to standby holds up its own slot, not the others. ``acquire_alone(ticket)``: for a heliostat
-    measured again alone (its spot could not be told from the others): waits until no other
-    beam holds the target and keeps every other ticket off it until released; it goes before
-    tickets not yet admitted, and the tickets to be measured alone go in the order they asked
-    (:meth:`reserve_alone` first: its beam already waits on the target).
+    still slewing to standby holds up its own slot, not the others. ``conflicts`` (slot → slots,
+    itself included; :meth:`controller.calibration.beams.slots.SlotLayout.conflicts`): slots of
+    different tiers whose cells overlap; a ticket then also waits for the last ticket before it
+    at each of those, and is admitted only while none of them is held.
+    ``acquire_alone(ticket)``: for a heliostat measured again alone (its spot could not be told
+    from the others): waits until no other beam holds the target and keeps every other ticket
+    off it until released; it goes before tickets not yet admitted, and the tickets to be
+    measured alone go in the order they asked (:meth:`reserve_alone` first: its beam already
+    waits on the target).
     A ticket in ``solo`` (its slot None: no slot's pose suits its heliostat) is admitted only
     onto an empty target and keeps every other ticket off it while it holds it.
     ``together``: the first round's tickets (the first at each slot) are admitted only once
@@ -35,7 +39,8 @@ class TargetGate:
     gets the target again.
     """
 
-    def __init__(self, beams: int = 1, together: bool = False, slots: Sequence[int | None] = ()) -> None:
+    def __init__(self, beams: int = 1, together: bool = False, slots: Sequence[int | None] = (),
+                 conflicts: Mapping[int, Set[int]] | None = None) -> None:
         if beams < 1:
             raise ValueError(f"beams per target must be at least 1, got {beams}")
         self.beams = beams
@@ -48,15 +53,18 @@ class TargetGate:
         self.waiting: set[int] = set()  # tickets blocked in acquire
         self.solo = {t for t, s in enumerate(slots) if s is None}  # no slot fits them: the target alone
         self._slots = list(slots)
-        self._before: dict[int, int] = {}  # ticket -> the ticket before it at its slot (−1: none)
+        self._near = {s: frozenset(c) for s, c in (conflicts or {}).items()}
+        # ticket -> the last tickets before it at its slot and at the slots conflicting with it
+        self._before: dict[int, tuple[int, ...]] = {}
         last: dict[int, int] = {}
         for t, s in enumerate(self._slots):
             if s is not None:
-                self._before[t], last[s] = last.get(s, -1), t
+                self._before[t] = tuple(last[c] for c in sorted(self._near.get(s, {s})) if c in last)
+                last[s] = t
         self.held = False
         self.blocked = False
         self._vacated: set[int] = set()
-        first = [t for t, b in self._before.items() if b < 0] if self._slots else range(beams)
+        first = [t for t, b in self._before.items() if not b] if self._slots else range(beams)
         self._together = set(first) if together else set()
 
     @property
@@ -79,11 +87,12 @@ class TargetGate:
             return False
         if ticket in self.solo:  # its capture is taken as it arrives: every other beam parked
             return not self.holders and not self.leaving
-        before = self._before.get(ticket, ticket - self.beams)
+        before = self._before.get(ticket, (ticket - self.beams,) if ticket >= self.beams else ())
+        near = self._near.get(self.slot(ticket), {self.slot(ticket)})
         return ((self.beams > 1 or self._next == ticket) and len(self.holders) < self.beams
-                and (before < 0 or before in self._done or before in self._vacated)
+                and all(b in self._done or b in self._vacated for b in before)
                 # the one before may have been skipped while the one before it still holds the slot
-                and all(self.slot(h) != self.slot(ticket) for h in self.holders))
+                and all(self.slot(h) not in near for h in self.holders))
 
     @property
     def leaving(self) -> set[int]:

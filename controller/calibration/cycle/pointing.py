@@ -226,8 +226,10 @@ class GeometryPointing(BeamSafety):
     def search_pose(self, offset_m, model: ModelRecord | None, start: tuple[int, int] | None
                     ) -> tuple[int, int] | None:
         """Steps that put the beam at ``offset_m`` (u, v, m) from the aim point, or None when they
-        are out of reach or the slew there from ``start`` (or the pose itself) would put the beam
-        on another target or into a person zone (beam safety, as predicted)."""
+        are out of reach, the slew there from ``start`` (or the pose itself) would put the beam
+        on another target or into a person zone (beam safety, as predicted), or the spot there
+        could reach another target's camera view (:meth:`_footprint_m`): a look is a guess at
+        where the beam is, and that target's own captures go on meanwhile."""
         point = self.aim_point + float(offset_m[0]) * self.frame.u + float(offset_m[1]) * self.frame.v
         try:
             pose = self._steps(point, model)
@@ -240,7 +242,21 @@ class GeometryPointing(BeamSafety):
         sweep = self._sweep(start, pose) if start is not None else np.asarray([pose], float)
         if self.on_other_target(sweep).any() or self.in_zone(sweep).any():
             return None
+        if self.others and self._on_others(*self.rays([pose]), self._footprint_m(model))[0]:
+            return None
         return pose
+
+    def _footprint_m(self, model: ModelRecord | None) -> np.ndarray:
+        """How far (u, v, m) beyond another target's edges its camera may see this heliostat's
+        spot: 3σ of the spot's size and, with a model, of its position (:meth:`spot_sigmas_m`),
+        plus :data:`PARK_MARGIN_M` and as much as this view exceeds its target on each axis
+        (other cameras taken to frame theirs alike). Without a model the position is what the
+        search explores (first-light σ of metres would refuse every look near another target)."""
+        sigmas = self.spot_sigmas_m(self.source, model) if model is not None else None
+        spot, position = sigmas or (0.0, 0.0)
+        f, t = self.frame, self.target
+        excess = np.maximum(np.array([f.width_m - t.width_m, f.height_m - t.height_m]) / 2.0, 0.0)
+        return 3.0 * (spot + position) + PARK_MARGIN_M + excess
 
     def _steps(self, point: np.ndarray, model: ModelRecord | None) -> tuple[int, int]:
         return _AIMS.get(self._aim_key(point, model), (self.heliostat,),

@@ -335,8 +335,8 @@ def test_slots_are_dealt_in_turn_and_a_heliostat_one_slot_does_not_suit_takes_th
         asked.append((ticket, slot))
         return not (ticket == 4 and slot == 0) and ticket != 6
 
-    assert slots.assign_slots(4, 4, lambda t, s: True) == [0, 1, 2, 3]
-    got = slots.assign_slots(9, 4, fits)
+    assert slots.assign_slots([range(4)] * 4, lambda t, s: True) == [0, 1, 2, 3]
+    got = slots.assign_slots([range(4)] * 9, fits)
     # ticket 4 skips slot 0 for slot 1; ticket 5 takes slot 0; ticket 6 fits none: the target alone
     assert got == [0, 1, 2, 3, 1, 0, None, 2, 3]
     assert asked.count((4, 0)) == 1 and (4, 2) not in asked  # asked in turn, no further than needed
@@ -354,21 +354,47 @@ def test_slots_are_dealt_in_turn_and_a_heliostat_one_slot_does_not_suit_takes_th
     assert gate.acquire(4, at_once) and gate.holders == {2, 3, 4, 5}
 
 
-def test_a_pass_is_spaced_for_most_of_its_spots_and_the_largest_take_the_target_alone():
+def test_a_pass_is_laid_out_in_tiers_each_spaced_for_its_spots_and_the_largest_take_the_target_alone():
     frame = TargetFrame.from_config(SimpleNamespace(normal=(0.0, 1.0, 0.0), center_enu_m=(0.0, 0.0, 60.0),
                                                     width_m=48.0, height_m=36.0), (96, 128))
     small = np.full((97, 2), 6.0)
-    # one badly known model among them: spaced for it, the pass would have one slot
-    one = pass_layout(frame, 4, np.vstack([small, [[15.0, 11.0]], [[np.inf, np.inf]]]), 0.2)
-    layout, fit = one
-    assert layout.k == 4 and fit[:97].all() and not fit[97:].any()
-    assert slot_layout(frame, 4, [15.0, 11.0], 0.2).k == 1
-    # two spots, each the larger on one axis: no quantile cap leaves nobody; both fit one layout
-    layout, fit = pass_layout(frame, 4, np.array([[9.0, 2.0], [2.0, 8.0]]), 0.2)
-    assert fit.all() and layout.k >= 1
+    # one spot tall (fits two slots side by side, not four), one badly known model, one out of reach
+    reaches = np.vstack([small, [[8.0, 14.0]], [[15.0, 11.0]], [[np.inf, np.inf]]])
+    layout, member = pass_layout(frame, 4, reaches, 0.2)
+    assert layout.k == 4 and layout.tier_sizes == [4, 2] and layout.slots == 6
+    assert (member[:97] == 0).all() and member[97] == 1 and (member[98:] == -1).all()
+    assert slot_layout(frame, 4, [15.0, 11.0], 0.2).k == 1 and slot_layout(frame, 4, [8.0, 14.0], 0.2).k == 2
+    # each tier spaced for its own spots (Eq. 1), its reach kept per slot for its windows
+    assert np.allclose(layout.reach_m[:4], 6.0) and np.allclose(layout.reach_m[4:], [8.0, 14.0])
+    assert np.allclose(layout.offsets_m[:4], slot_layout(frame, 4, [6.0, 6.0], 0.2).offsets_m)
+    assert layout.rank(5) == (1, 2) and layout.tier_slots(1) == (4, 5) and layout.tier_slots(-1) == ()
+    # the left slot of the two overlaps the left column of the four, not the right: never at once
+    near = layout.conflicts()
+    assert near[4] == {0, 2, 4} and near[5] == {1, 3, 5} and near[0] == {0, 4} and near[1] == {1, 5}
+    assert slots.layout_cost(layout, member) == pytest.approx(97 * 1.5 / 4 + 1.5 / 2 + 2)
+    # two spots, each the larger on one axis: each in the largest tier it fits
+    layout, member = pass_layout(frame, 4, np.array([[9.0, 2.0], [2.0, 8.0]]), 0.2)
+    assert member.tolist() == [0, 1] and layout.tier_sizes == [4, 2]
     # nothing in reach: one slot, everybody alone
-    layout, fit = pass_layout(frame, 4, np.full((3, 2), np.inf), 0.2)
-    assert layout.k == 1 and not fit.any()
+    layout, member = pass_layout(frame, 4, np.full((3, 2), np.inf), 0.2)
+    assert layout.k == 1 and (member == -1).all()
+
+
+def test_a_slot_of_another_tier_waits_for_the_slots_its_cell_overlaps_and_shares_the_target_with_the_others():
+    frame = TargetFrame.from_config(SimpleNamespace(normal=(0.0, 1.0, 0.0), center_enu_m=(0.0, 0.0, 60.0),
+                                                    width_m=48.0, height_m=36.0), (96, 128))
+    layout, _ = pass_layout(frame, 4, np.array([[6.0, 6.0], [8.0, 14.0]]), 0.2)
+    gate = TargetGate(beams=layout.k, slots=[0, 1, 2, 3, 4, 5], conflicts=layout.conflicts())
+    at_once = lambda: True  # noqa: E731
+    assert all(gate.acquire(t, at_once) for t in range(4)) and gate.holders == {0, 1, 2, 3}
+    gate.release(0)
+    assert not gate.acquire(4, at_once)  # the left column's slot 2 still holds its beam
+    gate.release(2)
+    assert gate.acquire(4, at_once) and gate.holders == {1, 3, 4}  # beside the right column's beams
+    assert not gate.acquire(5, at_once)
+    gate.release(1)
+    gate.vacate(3)  # its beam off the target, still parking: the slot goes on
+    assert gate.acquire(5, at_once) and gate.holders == {4, 5}
 
 
 def test_the_next_lamp_is_the_one_whose_passes_the_models_lay_out_best(small_config, tmp_path):

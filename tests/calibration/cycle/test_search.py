@@ -14,16 +14,20 @@ import numpy as np
 import pytest
 import yaml
 
+from controller.calibration.beams.slots import target_frame
 from controller.calibration.campaign.observers import CampaignObserver
 from controller.calibration.campaign.runner import Campaign, CampaignOptions
+from controller.calibration.cycle.pointing import GeometryPointing
 from controller.calibration.cycle.search import MIN_FOUND, FieldMisses
 from controller.commands.simulated import plant_field
+from controller.config import load_config
 from controller.devices.factory import LinkPool
 from controller.geometry.search_pattern import search_steps, spiral_offsets
 from controller.storage.db import CampaignStore
 from controller.storage.searches import campaign_searches
 from simplant.plant import SimulatedPlant, load_config_data
 from simplant.settings import SimulationSettings
+from tests.calibration.conftest import calibrated_record
 from tests.conftest import scaled_s
 
 
@@ -124,3 +128,35 @@ def test_a_spent_search_ends_no_beam_with_where_it_searched(small_config, tmp_pa
     with sqlite3.connect(tmp_path / "c.db") as db:
         offsets = json.loads(db.execute("SELECT offsets_json FROM beam_searches").fetchone()[0])
     assert [tuple(o) for o in offsets] == spent.offsets_m
+
+
+def test_a_look_whose_spot_could_reach_another_targets_view_is_refused(small_config):
+    """A heliostat with a model: a look whose central ray lands 2.5 m above the lower target (off
+    it by more than beam safety's 2 m) is refused while 3σ of its spot's size and position reach
+    that far (the lower target's camera captures meanwhile); a look farther up is taken. Without a
+    model the search explores the position itself: only the spot's own extent keeps it off."""
+    cfg = load_config(small_config)
+    cal = cfg.calibration
+    frame = target_frame(cfg, cal.target)
+    model = calibrated_record(cfg, "H02", observations=0)  # the prior's covariance: metres at 100 m
+
+    def pointing(record):
+        return GeometryPointing(cfg.heliostat("H02"), cfg.target(), cfg.light_source(), frame,
+                                cal.standby_offset_m, None, cal.model, others=cfg.targets, model=record)
+
+    p = pointing(model)
+    spot, position = p.spot_sigmas_m(p.source, model)
+    lower = next(t for t in cfg.targets if t.id != cal.target)
+    top = lower.center_enu_m[2] + lower.height_m / 2  # the lower target's upper edge, m
+
+    def look(z: float) -> tuple[float, float]:  # (u, v) m from the aim point to height z
+        return 0.0, (z - p.aim_point[2]) / p.frame.v[2]
+
+    assert 3.0 * (spot + position) + 0.5 > 2.5  # the footprint reaches past the 2.5 m
+    near = look(top + 2.5)
+    assert p.search_pose(near, model, None) is None
+    pose = p._steps(p.aim_point + near[1] * p.frame.v, model)
+    assert not p.on_other_target([pose]).any()  # the central ray alone would have been let through
+    assert p.search_pose(look(top + 3.0 * (spot + position) + 1.0), model, None) is not None
+    bare = pointing(None)
+    assert bare.search_pose(look(top + 2.5), None, None) is not None

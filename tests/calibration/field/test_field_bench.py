@@ -10,8 +10,11 @@ import numpy as np
 import pytest
 import yaml
 
+from controller.calibration.beams.slots import pass_layout, spot_reaches_m, target_frame
 from controller.calibration.campaign.observers import CampaignObserver
 from controller.calibration.campaign.runner import Campaign, CampaignOptions
+from controller.calibration.night.passes import night_passes
+from controller.calibration.night.planner import plan_field
 from controller.commands.cheap_night import cheap_field, run_cheap_night
 from controller.commands.field import open_store
 from controller.commands.sim.field import OnTarget, run_planned_night, seed_from_truth, strays
@@ -149,3 +152,52 @@ def test_a_beam_back_for_a_correction_leaves_the_target_to_one_waiting_to_be_mea
     assert c.group.alone[0] == frozen.queue[1]
     assert frozen.queue[0] in c.group.alone[1:] or first.status == "calibrated"
     assert strays(field, 4, {})[0] == 0  # never a beam in view that was not the capture's
+
+
+def test_a_pass_in_two_tiers_of_slots_measures_every_spot_where_its_own_beam_hit(base, tmp_path):
+    """K = 4 under a far lamp: the pass's smaller spots share rounds of four slots, the larger
+    ones rounds of two spaced for them (slots.pass_layout), the tiers in turn; every beam is
+    measured, no capture holds a beam that is not the capture's, and every recorded centroid
+    is where the heliostat's own beam hit (the cheap camera's truth)."""
+    field = CheapField(field_data(base, 60, 1, 1, beams=4), tmp_path, speedup=1000.0)
+    ids = [h.id for h in field.cfg.heliostats]
+    seed_from_truth(field, "n0")
+    store = CampaignStore(field.db_path, readonly=True)
+    try:
+        models = store.latest_models(ids)
+    finally:
+        store.close()
+    plan = plan_field(field.cfg, {h: models.get(h) for h in ids}, "n0/night-1", night_index=1)
+    tiered = None
+    for p in night_passes(plan.items, "n0/night-1"):
+        reach = spot_reaches_m(field.cfg, p.target, p.lamp, {h: models.get(h) for h in p.aims},
+                               field.cfg.target(p.target).center_enu_m)
+        layout, member = pass_layout(target_frame(field.cfg, p.target), 4, reach,
+                                     field.cfg.calibration.planner.view_margin_m)
+        if len(layout.tier_sizes) > 1 and min(np.bincount(member[member >= 0])) > 0:
+            tiered = (p.lamp, layout.tier_sizes)
+            break
+    assert tiered is not None, "the 60-heliostat field has no pass of two tiers to measure"
+    items = [it for it in plan.items if it.geometry.lamp == tiered[0]]
+    watch = OnTarget(field, items)
+    night = run_planned_night(field, items, "n0/night-1", 8 * 3600.0, heliostat_ids=ids,
+                              unmeasurable=plan.unmeasurable, observers=[watch])
+    store = CampaignStore(field.db_path, readonly=True)
+    try:
+        campaigns = [store.campaign_by_name(r.name) for r in night.results]
+        got = [(m.heliostat_id, np.asarray(m.centroid_enu)) for m in store.measurements()
+               if m.campaign_id in {c.id for c in campaigns}]
+    finally:
+        store.close()
+    beams = [c.meta["beams"] for c in campaigns if "beams" in c.meta]
+    assert [b["tiers"] for b in beams] == [tiered[1]]
+    assert len(got) >= len(items) - 1 and sum(b["rounds"] for b in beams) >= 2
+    assert max(len(b) for b in field.cameras["T1"].beams_in_view) >= 2  # beams shared captures
+    assert strays(field, 4, {})[0] == 0
+    own: dict[str, list] = {}
+    for cam in field.cameras.values():
+        for hits in cam.hits:
+            for hid, p in hits.items():
+                own.setdefault(hid, []).append(p)
+    for hid, c in got:  # m, about one pixel (7 cm)
+        assert np.min(np.linalg.norm(np.asarray(own[hid]) - c, axis=1)) < 0.1, hid
