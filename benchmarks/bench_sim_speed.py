@@ -38,8 +38,8 @@ import cv2
 import numpy as np
 
 import controller
-from controller.calibration.cycle.pointing import nominal_aims
 from controller.config import load_config
+from controller.geometry.nominal_aim import nominal_aims
 from controller.geometry.vectors import unit
 from simplant.devices.grids import camera_grid
 from simplant.devices.plant_camera import PlantCamera

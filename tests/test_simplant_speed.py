@@ -86,7 +86,7 @@ def test_safety_monitor_sees_the_same_beams_on_every_target(plant):
 
 
 def _aim_steps(plant: SimulatedPlant, hid: str, target: str) -> tuple[int, int]:
-    from controller.calibration.cycle.pointing import nominal_aims
+    from controller.geometry.nominal_aim import nominal_aims
 
     cfg = plant.cfg.for_target(target)
     return next((a.az_steps, a.el_steps) for a in nominal_aims(cfg, [hid]))

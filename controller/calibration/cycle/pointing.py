@@ -7,7 +7,6 @@ corrections it moves by. The beam-safety geometry it checks every pose and slew 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -22,11 +21,10 @@ from controller.config import (
     LampSource,
     ModelSettings,
     PersonZone,
-    PlantConfig,
     Target,
 )
-from controller.errors import InputError, LimitError
-from controller.geometry.aiming import aim_normal, source_direction
+from controller.errors import LimitError
+from controller.geometry.aiming import source_direction
 from controller.geometry.correction import correction_from_offset
 from controller.geometry.kinematics import HeliostatKinematics
 from controller.geometry.model.tracking import TERMS, TrackingModel, model_aim
@@ -38,7 +36,6 @@ from controller.geometry.spot import (
     predict_spots,
 )
 from controller.geometry.target_frame import TargetFrame
-from controller.geometry.vectors import vector_to_azel
 
 PARK_MARGIN_M = 0.5  # a parked spot's 3σ footprint ends at least this far outside the camera's view
 # Steps solved by GeometryPointing._steps: (heliostat config object, model terms, point, source)
@@ -54,10 +51,11 @@ DEFAULT_SETTINGS = ModelSettings()  # one object: the clearances' key names the 
 class GeometryPointing(BeamSafety):
     """:class:`controller.calibration.cycle.machine.Pointing` on controller.geometry.
 
-    The aim point is the target centre; the standby point lies ``standby_offset_m`` beside it in
-    the target plane, on the heliostat's own side, so the approach is a short horizontal slew —
-    farther when the parked spot, at 3σ of its size and of its position's uncertainty
-    (``model``'s covariance), would reach into the camera's view (:meth:`park_clearance_m`).
+    The aim point is the target centre (or given); the standby point lies beside it in the target
+    plane (:meth:`side_points`), so the approach is a short horizontal slew: ``standby_offset_m``
+    from the aim at least, and far enough from the centre that the parked spot, at 3σ of its size
+    and of its position's uncertainty (``model``'s covariance), stays out of the camera's view
+    (:meth:`park_clearance_m`).
     ``others``: the plant's other targets, which slews must never cross either (their beams
     belong to other pipelines that run at the same time). ``zones``: the plant's person zones
     (config ``person_zones``), which the beam must never enter — at standby, on a slew, on the
@@ -94,10 +92,11 @@ class GeometryPointing(BeamSafety):
 
     @property
     def standby_offset_m(self) -> float:
-        """How far beside the aim point (m) the standby point lies: parked there, the spot must
-        stay out of the camera's view — at least the configured offset, more for a large or
-        uncertain spot (:meth:`park_clearance_m`, computed when first asked for; many heliostats
-        at once: :mod:`controller.calibration.cycle.warm`)."""
+        """How far beside the aim point (m) the standby point on the far side of the centre lies
+        (both sides for an aim at the centre): parked there, the spot must stay out of the
+        camera's view — at least the configured offset, more for a large or uncertain spot
+        (:meth:`park_clearance_m`, computed when first asked for; many heliostats at once:
+        :mod:`controller.calibration.cycle.warm`)."""
         if self._offset_m is None:
             across = abs(float((self.aim_point - self.frame.center) @ self.frame.u))
             clearance = self.park_clearance_m(self.source, self.model)
@@ -112,10 +111,24 @@ class GeometryPointing(BeamSafety):
             self._standby_point = self._choose_standby()
         return self._standby_point
 
+    def side_points(self) -> tuple[np.ndarray, np.ndarray]:
+        """The standby points (m ENU) on the heliostat's own side of the target and on the other:
+        along the view's width, u = s · max(c, s · a + d) from the centre on side s = ±1, with c
+        the park clearance (:meth:`park_clearance_m`), a the aim point's u and d the configured
+        offset — a slot's beam parks beside its own side of the view, not the aim's offset
+        beyond it (before 2026-11-29: c + |a| from the aim on both sides)."""
+        f = self.frame
+        a = float((self.aim_point - f.center) @ f.u)
+        c = self.standby_offset_m - abs(a)  # the clearance, or less where d sets the offset
+        own = float(f.side(self.heliostat_pos) @ f.u)
+        return tuple(self.aim_point + (s * max(c, s * a + self._least_offset_m) - a) * f.u
+                     for s in (own, -own))
+
     def _choose_standby(self) -> np.ndarray:
         current_steps, model, frame = self._current, self.model, self.frame
         own = frame.side(self.heliostat_pos)
-        chosen = self.aim_point + self.standby_offset_m * own
+        points = self.side_points()
+        chosen = points[0]
         if current_steps is not None or self.zone_ids:
             # Park on the side where the beam is now (its ray beside the target: what the slew's
             # beam-safety check traces), else the side the slew from the present pose
@@ -124,8 +137,7 @@ class GeometryPointing(BeamSafety):
             # Never on a side whose standby beam would enter a person zone.
             now = self._beam_side(current_steps) if current_steps is not None else 0.0
             best = None
-            for side in (own, -own):
-                point = self.aim_point + self.standby_offset_m * side
+            for side, point in zip((own, -own), points, strict=True):
                 try:  # the steps the model will take there: far from nominal, a side's may differ
                     az, el = self._steps(point, model) if model is not None else self.kin.aim(self.source_dir,
                                                                                               point)
@@ -292,15 +304,15 @@ class GeometryPointing(BeamSafety):
         return standby
 
     def leave_steps(self, model: ModelRecord | None) -> tuple[int, int]:
-        """Steps onto the standby point on the side of the target nearest the aim point (the
-        same offset from it, :attr:`standby_offset_m`): the standby point itself when the aim is
-        on the target's centre line. LimitError, ValueError or UnsafePath (a person zone) when
-        it cannot be reached safely."""
+        """Steps onto the standby point on the side of the target nearest the aim point
+        (:meth:`side_points`): the standby point itself when the aim is on the target's centre
+        line. LimitError, ValueError or UnsafePath (a person zone) when it cannot be reached
+        safely."""
         off = float((self.aim_point - self.frame.center) @ self.frame.u)
         if off == 0.0:
             return self.standby_steps(model)
-        offset = math.copysign(self.standby_offset_m, off)
-        return self.standby_steps(model, self.aim_point + offset * self.frame.u)
+        near = [p for p in self.side_points() if float((p - self.frame.center) @ self.frame.u) * off > 0]
+        return self.standby_steps(model, near[0])
 
     def fine_correction(self, az_steps: int, el_steps: int, offset_enu: np.ndarray) -> Step:
         c = correction_from_offset(self.kin, az_steps, el_steps, self.source_dir, None, self.target,
@@ -338,40 +350,6 @@ def steps_to_aim(kin: HeliostatKinematics, model: ModelRecord | None, source_dir
         return kin.aim(source_dir, point)
     return model_aim(kin, TrackingModel.from_dict(model.params), source_dir, point,
                      lamp_position=lamp_position)
-
-
-@dataclass(frozen=True)
-class NominalAim:
-    """Aim of one heliostat with the nominal kinematics (no error model): light-source
-    direction and mirror normal (ENU unit vectors), normal azimuth/elevation (degrees,
-    azimuth clockwise from north) and motor steps."""
-
-    heliostat_id: str
-    source_dir: np.ndarray
-    normal: np.ndarray
-    az_deg: float
-    el_deg: float
-    az_steps: int
-    el_steps: int
-
-
-def nominal_aims(cfg: PlantConfig, ids: list[str]) -> list[NominalAim]:
-    """Nominal aim of each heliostat at the calibration target's centre under the
-    calibration light source (a lamp)."""
-    src = cfg.light_source()
-    if not isinstance(src, LampSource):
-        raise InputError("calibration.light_source must be a lamp for a nightly aim")
-    target = np.asarray(cfg.target().center_enu_m, float)
-    out = []
-    for hid in ids:
-        h = cfg.heliostat(hid)
-        pos = np.asarray(h.position_enu_m, float)
-        s = source_direction(src, pos)
-        normal = aim_normal(s, pos, target)
-        az, el = vector_to_azel(normal)
-        a, e = HeliostatKinematics.from_config(h).steps_for_normal(normal)
-        out.append(NominalAim(hid, s, normal, float(az), float(el), int(a), int(e)))
-    return out
 
 
 def model_covariance(model: ModelRecord | None, settings: ModelSettings) -> tuple[TrackingModel, np.ndarray]:

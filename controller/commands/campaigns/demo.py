@@ -72,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--nights must be 0 … 30, got {args.nights}")
     ids = field_selection(cfg, args.heliostats)
     if args.aim_only:
-        from controller.calibration.cycle.pointing import nominal_aims
+        from controller.geometry.nominal_aim import nominal_aims
 
         rows = [{"heliostat": a.heliostat_id, "source_dir": a.source_dir.round(6).tolist(),
                  "normal": a.normal.round(6).tolist(), "az_deg": round(a.az_deg, 4),

@@ -139,7 +139,8 @@ def test_beam_chain_matches_with_a_multi_threshold_library(small_config):
 @pytest.mark.parametrize("side", [1.0, -1.0])
 def test_a_beam_measured_beside_the_centre_parks_on_that_side(cfg, side):
     """Several beams per target: a heliostat measured at a slot off the centre parks on the
-    slot's side, whichever side it waited on, its standby offset from the slot."""
+    slot's side, whichever side it waited on, its park clearance from the centre (at least the
+    configured offset from the slot): nearer the slot than the other side's standby."""
     from controller.geometry.spot import hit_uv
 
     frame = TargetFrame.from_config(cfg.target(), (768, 1024))
@@ -149,7 +150,9 @@ def test_a_beam_measured_beside_the_centre_parks_on_that_side(cfg, side):
     leave = p.leave_steps(None)
     c, b = p.rays([leave])
     u, _ = hit_uv(c, b, frame.center, frame.normal, frame.u, frame.v)[0]
-    assert u == pytest.approx(side * (2.0 + p.standby_offset_m), abs=0.05)
+    assert u == pytest.approx(side * max(p.park_clearance_m(lamp, None), 2.0 + 8.0), abs=0.05)
+    far = [q for q in p.side_points() if float((q - frame.center) @ frame.u) * side < 0][0]
+    assert abs(u - 2.0 * side) < abs(float((far - aim) @ frame.u)) == pytest.approx(p.standby_offset_m)
     assert not p.beam_on_target(*leave, margin_m=0.0)
     assert p.path_to(p.aim_steps(None), leave)[-1] == leave  # off the target the short way, never back
     centre = GeometryPointing(h, target, lamp, frame, 8.0, None)
