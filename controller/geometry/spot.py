@@ -62,6 +62,11 @@ from controller.geometry.pose_batch import KinStack, aim_steps, forward_jacobian
 from controller.geometry.target_frame import TargetFrame
 
 SIGMAS = 3.0  # k of Eq. (4)
+# A parked spot waits beside the view through a pass's captures, hundreds of them: its position
+# is taken at this many σ of the model's covariance (its size at SIGMAS). At 3σ the 10,000
+# field's parks put a few beams' edges into the view (2026-11-29), models seeded near the
+# target's centre being less sure of a pose 25 m beside it than their covariance says.
+PARK_POSITION_SIGMAS = 4.0
 # park_clearance_m: the iteration converges while each step is at most this fraction of the last
 CONTRACTION = 0.8
 
@@ -220,7 +225,9 @@ def park_clearances_m(kin: KinStack, optics: MirrorOptics, values: np.ndarray, c
     :func:`controller.geometry.pose_batch.aim_steps`): ``kin`` their stack, ``values`` (H, p)
     and ``covariance`` (H, p, p) their models, ``optics`` fields (H, 1), the source and
     ``floor_rad`` as :func:`predict_spots` takes them; ``position_floor_m`` (H,) or scalar, the
-    least σ of a spot's position (a heliostat's first-light σ)."""
+    least σ of a spot's position (a heliostat's first-light σ). The position is taken at
+    :data:`PARK_POSITION_SIGMAS` σ of the covariance (at least the floor at k σ): c = H +
+    k σ_spot + max(k_park σ_pos, k floor) + m."""
     values = np.asarray(values, float)
     n = len(values)
     floor = np.broadcast_to(np.asarray(position_floor_m, float), (n,))[:, None]
@@ -234,7 +241,8 @@ def park_clearances_m(kin: KinStack, optics: MirrorOptics, values: np.ndarray, c
         steps, reach = aim_steps(kin.shaped(2), values[:, None, :], points, lamp=lamp, source_dirs=dirs)
         spot = predict_spots(kin, optics, values, covariance, steps, points, frame, floor_rad=floor_rad,
                              **light)
-        s = spot.sigma_m[..., 0] + np.maximum(spot.position_sigma_m[..., 0], floor)
+        position = PARK_POSITION_SIGMAS / SIGMAS * spot.position_sigma_m[..., 0]
+        s = spot.sigma_m[..., 0] + np.maximum(position, floor)
         s = np.where(reach, s, -np.inf).max(axis=1)
         return np.where(np.isfinite(s), s, np.nan)
 

@@ -176,16 +176,16 @@ class SharedCapture:
 
     def leave_pose(self, cyc) -> tuple[int, int]:
         """Where ``cyc``'s heliostat parks after its measurement: the standby point on its slot's
-        side of the target (:meth:`GeometryPointing.leave_steps`), so that its beam leaves the
+        side (:meth:`GeometryPointing.leave_steps`, solved with the model refitted on this
+        measurement if any: it has seen where this beam went), so that its beam leaves the
         target the short way and the slot goes on sooner (:meth:`hand_over`) — if the slew there
-        from where it stands keeps the beam off the other targets and out of the person zones
-        (``BeamSafety.path_to``); else its standby point, whose slews were checked before it
-        took the slot (:func:`slot_parks`)."""
+        keeps the beam off the other targets and out of the person zones (``BeamSafety.path_to``);
+        else its standby point, whose slews were checked before it took the slot (:func:`slot_parks`)."""
         p = cyc.ctx.pointing
         if cyc.at is None:
             return cyc.standby
         try:
-            pose = p.leave_steps(cyc.ctx.model)
+            pose = p.leave_steps(cyc.run_rec.model or cyc.ctx.model)
             p.path_to(cyc.at, pose)
         except (HeliocalError, ValueError):
             return cyc.standby
