@@ -196,18 +196,18 @@ def park_clearance_m(size_at: Callable[[np.ndarray], np.ndarray], half_view_m: f
     r < :data:`CONTRACTION` it converges, and what is left after ``rounds`` is the geometric
     tail, step · r / (1 − r), added. Where they do not (a spot whose position is uncertain by
     metres, as with the prior alone, grows faster aside than the offset), no clearance along the
-    width holds at k σ: such a spot keeps c₁ = H + k s(c₀) + m, its size beside the view's edge."""
+    width holds at k σ: such a spot keeps the clearance reached when its steps stopped shrinking,
+    at least c₁ = H + k s(c₀) + m, its size beside the view's edge (before 2026-11-29: c₁ even
+    when the iteration had climbed past it, so a spot growing a little faster aside parked nearer)."""
     c = np.full(shape, half_view_m + margin_m)
-    first = last = step = np.full(shape, np.inf)
+    last = step = np.full(shape, np.inf)
     live = np.ones(shape, bool)
-    for n in range(rounds):
+    for _ in range(rounds):
         s = size_at(c)
         grown = np.where(live & np.isfinite(s), half_view_m + k * s + margin_m, c)
         last, step = step, np.maximum(grown - c, 0.0)
         diverging = live & (step > tol_m) & (step > CONTRACTION * last)
-        c = np.where(diverging, first, c + step)
-        if n == 0:
-            first = c.copy()
+        c = np.where(diverging, c, c + step)
         live &= (step > tol_m) & ~diverging
         if not live.any():
             return c

@@ -97,7 +97,8 @@ def test_park_clearance_is_the_fixed_point_of_the_spot_sized_where_it_parks():
     """c = H + 3 s(c) + m from the view's edge: a spot that grows aside (s = a + b c,
     3b < 0.8) converges to (H + 3a + m) / (1 − 3b), the geometric tail included; one that grows
     too fast (3b ≥ 0.8: hardly or no clearance holds at 3σ) keeps its size beside the view's
-    edge, H + 3 s(H + m) + m; one out of reach aside (NaN) the view's edge."""
+    edge, H + 3 s(H + m) + m, or what it had reached when it stopped converging; one out of
+    reach aside (NaN) the view's edge."""
     a = np.array([0.5, 0.5, 0.5, 0.1])
     b = np.array([0.05, 0.2, 0.3, 0.0])
 
@@ -109,6 +110,41 @@ def test_park_clearance_is_the_fixed_point_of_the_spot_sized_where_it_parks():
     assert c[1] == pytest.approx((4.0 + 1.5 + 0.5) / (1 - 0.6), abs=0.05)
     assert c[2] == pytest.approx(4.0 + 3 * (0.5 + 0.3 * 4.5) + 0.5)
     assert c[3] == 4.5
+    # steps 1.5, then 1.0 (shrinking), then 1.2 (growing again): it keeps the 7.0 m reached, not c₁ = 6.0
+    late = park_clearance_m(lambda c: np.interp(c, [4.5, 6.0, 7.0, 100.0], [0.5, 2.5 / 3, 3.7 / 3, 40.0]),
+                            4.0, 0.5)
+    assert float(late) == pytest.approx(7.0)
+
+
+def test_a_parked_spots_position_counts_at_four_sigma_its_size_at_three(cfg, monkeypatch):
+    """The park clearance takes the spot's position at PARK_POSITION_SIGMAS (4) σ of the
+    covariance: with the prior's covariance it lies about one σ of the parked spot's position
+    farther out than at 3σ (a calibrated model's covariance, a tenth of the prior's: the
+    clearance converges); without position uncertainty the two agree."""
+    from controller.geometry import spot as spot_mod
+    from controller.geometry.pose_batch import KinStack
+
+    frame = TargetFrame.from_config(cfg.target(), (cfg.camera.height_px, cfg.camera.width_px))
+    lamp = cfg.light_source()
+    pos = np.asarray(lamp.position_enu_m, float)
+    h = cfg.heliostat("H13")
+    kin = KinStack.of([HeliostatKinematics.from_config(h)])
+    optics = MirrorOptics.stack([h.mirror])
+    values = TrackingModel.zero().values[None]
+    got = {}
+    for scale in (0.0, 0.1):
+        cov = np.diag((scale * PRIOR_SIGMA_SI) ** 2)[None]
+        for k in (4.0, 3.0):
+            monkeypatch.setattr(spot_mod, "PARK_POSITION_SIGMAS", k)
+            got[scale, k] = float(spot_mod.park_clearances_m(kin, optics, values, cov, frame, 0.5, lamp=pos,
+                                                             lamp_diameter_m=lamp.diameter_m)[0])
+    assert got[0.0, 4.0] == pytest.approx(got[0.0, 3.0], abs=1e-9)
+    centre = np.asarray(cfg.target().center_enu_m, float)
+    steps, _ = pose_batch.aim_steps(HeliostatKinematics.from_config(h), values[0], centre[None], lamp=pos)
+    at_aim = predict_spots(HeliostatKinematics.from_config(h), MirrorOptics.from_config(h.mirror), values[0],
+                           np.diag((0.1 * PRIOR_SIGMA_SI) ** 2), steps, centre[None], frame, lamp=pos,
+                           lamp_diameter_m=lamp.diameter_m).position_sigma_m[0, 0]
+    assert got[0.1, 4.0] - got[0.1, 3.0] >= 0.9 * at_aim > 0
 
 
 def test_position_uncertainty_follows_the_covariance_and_distance(cfg):

@@ -8,6 +8,7 @@ import pytest
 from controller.calibration.campaign.queue_order import order_queue, slew_time_s
 from controller.calibration.cycle.beam_safety import UnsafePath
 from controller.calibration.cycle.pointing import GeometryPointing
+from controller.calibration.records import ModelRecord
 from controller.config import load_config
 from controller.geometry.target_frame import TargetFrame
 from simplant.optics import TargetGrid
@@ -157,3 +158,30 @@ def test_a_beam_measured_beside_the_centre_parks_on_that_side(cfg, side):
     assert p.path_to(p.aim_steps(None), leave)[-1] == leave  # off the target the short way, never back
     centre = GeometryPointing(h, target, lamp, frame, 8.0, None)
     assert centre.leave_steps(None) == centre.standby_steps(None)  # on the centre line: its standby
+
+
+def test_a_round_member_parks_with_the_model_refitted_on_its_measurement(cfg):
+    """After a shared capture the heliostat leaves for its slot's side with the model its run
+    just refitted (it has seen where the beam went), not the one it came with; a run without a
+    new model leaves with the old one."""
+    from types import SimpleNamespace
+
+    from controller.calibration.beams.group import SharedCapture
+    from tests.calibration.conftest import calibrated_record
+
+    frame = TargetFrame.from_config(cfg.target(), (768, 1024))
+    aim = np.asarray(cfg.target().center_enu_m, float) + 2.0 * frame.u
+    old = calibrated_record(cfg, "H04")
+    shifted = {**old.params, "el_offset_mrad": old.params["el_offset_mrad"] + 2.0}
+    new = ModelRecord(shifted, {}, 0.2, 4, old.detail)
+    p = GeometryPointing(cfg.heliostat("H04"), cfg.target(), cfg.light_source(), frame, 8.0, None,
+                         aim_point=aim, model=old)
+    at = p.aim_steps(old)
+
+    def cycle(refit):
+        return SimpleNamespace(ctx=SimpleNamespace(pointing=p, model=old), at=at,
+                               standby=p.standby_steps(old), run_rec=SimpleNamespace(model=refit))
+
+    assert p.leave_steps(new) != p.leave_steps(old)
+    assert SharedCapture.leave_pose(None, cycle(new)) == p.leave_steps(new)
+    assert SharedCapture.leave_pose(None, cycle(None)) == p.leave_steps(old)
