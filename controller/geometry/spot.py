@@ -35,7 +35,7 @@ its centre's k-σ uncertainty stays a margin m inside:
 
 (3σ of a Gaussian spot holds 98.9 % of its power; the sum of the two σ is the conservative
 bound of the footprint's edge). Parked beams are the converse: a standby spot must end at
-least that far *outside* every view (:func:`standby_clearance_m`) — sized where it is parked,
+least that far *outside* every view, H + k (σ_spot + σ_pos) + m — sized where it is parked,
 not at the aim point: beside a wide view the parked beam is longer and meets the plane more
 obliquely, so its spot and its position's uncertainty are larger (:func:`park_clearance_m`).
 
@@ -173,14 +173,6 @@ def predicted_spot(offset_m, spot_cov: np.ndarray, position_cov: np.ndarray) -> 
     return PredictedSpot(np.asarray(offset_m, float),
                          np.sqrt(np.clip(np.diagonal(spot_cov, axis1=-2, axis2=-1), 0.0, None)),
                          np.sqrt(np.clip(np.diagonal(position_cov, axis1=-2, axis2=-1), 0.0, None)))
-
-
-def standby_clearance_m(half_view_m: float, spot_sigma_m: float, position_sigma_m: float, margin_m: float,
-                        k: float = SIGMAS) -> float:
-    """The least distance (m) from the target centre, along one axis of the view, at which a
-    parked spot's k-σ footprint, displaced by k σ of its centre, stays a margin outside a view
-    of half-size ``half_view_m``: H + k (σ_spot + σ_pos) + m (the converse of Eq. 4)."""
-    return float(half_view_m + k * (spot_sigma_m + position_sigma_m) + margin_m)
 
 
 def park_clearance_m(size_at: Callable[[np.ndarray], np.ndarray], half_view_m: float, margin_m: float,

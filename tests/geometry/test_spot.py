@@ -27,7 +27,6 @@ from controller.geometry.spot import (
     park_clearance_m,
     predict_spots,
     spot_covariance,
-    standby_clearance_m,
 )
 from controller.geometry.target_frame import TargetFrame
 from tests.calibration.conftest import REPO
@@ -90,7 +89,6 @@ def test_in_view_is_eq_4_on_both_axes():
     assert spots.reach_m()[0] == pytest.approx([3.1, 1.2])
     assert spots.in_view([3.3, 3.5], 0.2).tolist() == [True, True, False]
     assert spots.in_view([3.29, 3.5], 0.2).tolist() == [False, False, False]
-    assert standby_clearance_m(4.0, 0.5, 0.2, 0.5) == pytest.approx(4.0 + 2.1 + 0.5)
 
 
 def test_park_clearance_is_the_fixed_point_of_the_spot_sized_where_it_parks():
