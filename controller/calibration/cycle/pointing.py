@@ -31,6 +31,7 @@ from controller.geometry.model.tracking import TERMS, TrackingModel, model_aim
 from controller.geometry.pose_batch import KinStack
 from controller.geometry.search_pattern import search_steps, spiral_offsets
 from controller.geometry.spot import (
+    SIGMAS,
     MirrorOptics,
     park_clearances_m,
     predict_spots,
@@ -268,7 +269,7 @@ class GeometryPointing(BeamSafety):
         spot, position = sigmas or (0.0, 0.0)
         f, t = self.frame, self.target
         excess = np.maximum(np.array([f.width_m - t.width_m, f.height_m - t.height_m]) / 2.0, 0.0)
-        return 3.0 * (spot + position) + PARK_MARGIN_M + excess
+        return SIGMAS * (spot + position) + PARK_MARGIN_M + excess
 
     def _steps(self, point: np.ndarray, model: ModelRecord | None) -> tuple[int, int]:
         return _AIMS.get(self._aim_key(point, model), (self.heliostat,),

@@ -46,9 +46,7 @@ def warm_aims(pointings: Iterable[GeometryPointing]) -> None:
     warm_clearances(pointings)
     todo: dict[tuple, list] = {}
     for p in pointings:
-        side = p.frame.side(p.heliostat_pos)
-        offset = p.standby_offset_m
-        points = [p.aim_point, p.aim_point + offset * side, p.aim_point + offset * -side]
+        points = [p.aim_point, *p.side_points()]
         keys = [p._aim_key(x, p.model) for x in points]
         if any(_AIMS.peek(k, (p.heliostat,)) is None for k in keys):
             todo.setdefault((p.source_dir.tobytes(), p.source_pos), []).append((p, np.array(points), keys))

@@ -53,9 +53,7 @@ def test_warmed_clearances_and_steps_are_those_solved_one_at_a_time(field, lamp,
         key = p._clearance_key(p.source, p.model)
         assert warm._CLEARANCES.peek(key, (p.heliostat, p.model_settings)) == pytest.approx(
             alone[id(p.heliostat)], abs=1e-9)
-        side = p.frame.side(p.heliostat_pos)
-        for point in (p.aim_point, p.aim_point + p.standby_offset_m * side,
-                      p.aim_point + p.standby_offset_m * -side):
+        for point in (p.aim_point, *p.side_points()):
             kept = warm._AIMS.peek(p._aim_key(point, p.model), (p.heliostat,))
             try:
                 scalar = steps_to_aim(p.kin, p.model, p.source_dir, point, p.source_pos)
