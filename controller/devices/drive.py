@@ -16,6 +16,9 @@ from controller.errors import DeviceError, LimitError
 
 # Drive waits poll faster than the default plant time: a move's end is worth catching early.
 DRIVE_TIME = PlantTime(poll_s=0.02)
+# The longest pause between two status polls of a moving drive, in polling periods: how late a
+# stop request or a fault is noticed at most (:func:`poll_pause`).
+POLL_PAUSE_MAX = 10.0
 
 
 class DriveError(DeviceError):
@@ -139,6 +142,33 @@ class MoveResult:
                 "retries": self.retries, "outcome": "executed"}
 
 
+def poll_pause(poll_s: float, before: DriveStatus, now: DriveStatus, dt_s: float) -> float:
+    """Plant seconds until the next status poll of a moving drive: a quarter of the time its
+    slower axis still needs at the speed it moved since the last poll (``before``, ``dt_s``
+    plant seconds ago),
+
+        pause = clamp(¼ · max_axis |target − steps| · Δt / |Δsteps|, poll_s, POLL_PAUSE_MAX · poll_s),
+
+    so a move of T seconds is read about log_{4/3}(T / poll_s) times instead of T / poll_s.
+    A quarter, not a half: the speed read while an axis still accelerates from rest is low
+    (0.1 s into the configured 0.5 s ramp, a tenth of the cruise speed), and with a quarter the
+    end of every trapezoidal move is still caught within ``poll_s`` of it
+    (tests/core/test_drive_polls.py). The cap bounds how late a stop or a fault is noticed.
+    ``poll_s`` while an axis with steps to go has not moved (just commanded, or stalled)."""
+    if dt_s <= 0.0:
+        return poll_s
+    eta = 0.0
+    for pos, was, target in ((now.az_steps, before.az_steps, now.az_target),
+                             (now.el_steps, before.el_steps, now.el_target)):
+        to_go = abs(target - pos)
+        if to_go:
+            moved = abs(pos - was)
+            if not moved:
+                return poll_s
+            eta = max(eta, to_go * dt_s / moved)
+    return min(max(0.25 * eta, poll_s), POLL_PAUSE_MAX * poll_s)
+
+
 class Drive(ABC):
     """A two-axis heliostat drive on some link.
 
@@ -208,10 +238,13 @@ class Drive(ABC):
         """Poll :meth:`status` every ``time.poll_s`` until both axes are in position.
 
         One clock for the whole wait: the deadline ``timeout_s`` and the polling period are
-        both plant seconds of ``time`` (a simulated plant hands in its plant clock).
-        ``expect``: the target this wait is for — a drive that stopped elsewhere, or sits idle
-        with another target, is an error. ``watch``: called with every status read without a
-        fault (to act on where the drive is along the move).
+        both plant seconds of ``time`` (a simulated plant hands in its plant clock). A long move
+        is polled less often while it is far from its end (:func:`poll_pause`): every poll
+        costs a bus transaction and the controller's time, and the end is still caught within
+        ``time.poll_s``. ``expect``: the target this wait is for — a drive that stopped
+        elsewhere, or sits idle with another target, is an error. ``watch``: called with every
+        status read without a fault (to act on where the drive is along the move); while it
+        returns True the next status is read after ``time.poll_s``.
 
         Raises :class:`MoveCancelled` as soon as ``cancelled()`` returns True,
         :class:`ActuatorFault` on latched faults, :class:`DriveError` on timeout or an
@@ -221,6 +254,7 @@ class Drive(ABC):
         clock = time.now
         deadline = clock() + timeout_s
         missed = 0
+        last: tuple[float, DriveStatus] | None = None
         while True:
             if cancelled is not None and cancelled():
                 raise MoveCancelled(f"unit {self.unit}: wait cancelled; the drive may still be moving")
@@ -237,8 +271,7 @@ class Drive(ABC):
                 if st.faults:
                     raise ActuatorFault(f"unit {self.unit}: actuator fault {', '.join(st.faults)} at "
                                         f"az={st.az_steps} el={st.el_steps}", list(st.faults))
-                if watch is not None:
-                    watch(st)
+                close = watch is not None and watch(st) is True
                 if st.in_position:
                     if expect is not None and (st.az_steps, st.el_steps) != expect:
                         raise DriveError(f"unit {self.unit}: stopped at ({st.az_steps}, {st.el_steps}), "
@@ -247,11 +280,17 @@ class Drive(ABC):
                 if expect is not None and not st.moving and (st.az_target, st.el_target) != expect:
                     raise DriveError(f"unit {self.unit}: target changed to ({st.az_target}, "
                                      f"{st.el_target}) without a command (controller restarted?)")
-            if clock() >= deadline:
+            now = clock()
+            if now >= deadline:
                 where = (f" (az {st.az_steps}->{st.az_target}, el {st.el_steps}->{st.el_target})"
                          if st is not None else "")
                 raise DriveError(f"unit {self.unit}: not in position after {timeout_s:g} s{where}")
-            time.sleep(time.poll_s)
+            pause = time.poll_s
+            if st is not None:
+                if last is not None and not close:
+                    pause = poll_pause(time.poll_s, last[1], st, now - last[0])
+                last = (now, st)
+            time.sleep(min(pause, max(time.poll_s, deadline - now)))
 
     def move_and_wait(self, az_steps: int, el_steps: int, *, timeout_s: float, time: PlantTime = DRIVE_TIME,
                       cancelled: Callable[[], bool] | None = None,

@@ -32,6 +32,7 @@ References
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -109,12 +110,33 @@ def angles_for_normal_with_errors(params: TrackingErrorParams, desired_normal,
 
     Fixed-point iteration on the ideal inverse: (α, ε) += angles(desired) − angles(n*(α, ε)).
     The error rotation is small, so each pass shrinks the error by about its size in radians.
+    The rotations of Eq. (1) that do not move with the joints are multiplied once, and each
+    pass turns R_e(μ) b = (0, −cos μ, −sin μ) through the rest in floats: the controller
+    solves poses thousands of times a night (aims, standby points, slots, lamp changes).
     """
-    goal = np.array(angles_from_normal(desired_normal))
-    x = goal.copy()
+    p = params
+    (b00, b01, b02), (b10, b11, b12), (b20, b21, b22) = (
+        rotation_u(p.base_yaw) @ rotation_n(p.tilt_east) @ rotation_e(-p.tilt_north)).tolist()
+    cm, sm = math.cos(p.mirror_offset), math.sin(p.mirror_offset)
+    cd, sd = math.cos(p.non_orthogonality), math.sin(p.non_orthogonality)
+
+    def angles_of_actual(alpha: float, eps: float) -> tuple[float, float]:
+        a, e = alpha + p.az_offset, eps + p.el_offset - math.pi / 2.0
+        wx, wy, wz = math.sin(a) * cm, -math.cos(a) * cm, -sm  # R_u(α + Δα) R_e(μ) b
+        wx, wz = cd * wx + sd * wz, cd * wz - sd * wx  # R_n(δ)
+        ce, se = math.cos(e), math.sin(e)
+        wy, wz = ce * wy - se * wz, se * wy + ce * wz  # R_e(ε + Δε − π/2)
+        nx, ny, nz = (b00 * wx + b01 * wy + b02 * wz, b10 * wx + b11 * wy + b12 * wz,
+                      b20 * wx + b21 * wy + b22 * wz)
+        sin_a = nx / math.sqrt(nx * nx + ny * ny + nz * nz)
+        return math.asin(min(1.0, max(-1.0, sin_a))), math.atan2(-ny, nz)
+
+    ga, ge = angles_from_normal(desired_normal)
+    x = (ga, ge)
     for _ in range(max_iterations):
-        step = goal - np.array(angles_from_normal(actual_normal_from_angles(params, *x)))
-        x = x + step
-        if np.max(np.abs(step)) < tol_rad:
+        a, e = angles_of_actual(*x)
+        step = (ga - a, ge - e)
+        x = (x[0] + step[0], x[1] + step[1])
+        if max(abs(step[0]), abs(step[1])) < tol_rad:
             break
     return float(x[0]), float(x[1])

@@ -161,9 +161,8 @@ class SharedCapture:
 
     def _pixel_m(self) -> float:
         """The size of the view's pixels on the target, m (the smaller side)."""
-        f = self.frame
-        rows, cols = f.shape
-        return min(f.width_m / cols, f.height_m / rows)
+        rows, cols = self.frame.shape
+        return min(self.frame.width_m / cols, self.frame.height_m / rows)
 
     def _max_shift_px(self) -> int:
         """The largest shift searched between a round's captures: twice the identity step."""
@@ -192,20 +191,21 @@ class SharedCapture:
         return pose
 
     def hand_over(self, cyc):
-        """A drive watch for ``cyc``'s park after its measurement: its slot goes to the next
-        heliostat (:meth:`TargetGate.vacate`) once its beam is off the target, margin included
-        (``BeamSafety.beam_on_target``); the park path never brings it back (``BeamSafety.path_to``),
-        so once it is off, the rest of the park's status polls trace no ray."""
+        """A drive watch for ``cyc``'s park after its measurement: its slot goes to the next heliostat
+        (:meth:`TargetGate.vacate`) once its beam is off the target, margin included, read every polling
+        period until then (``BeamSafety.beam_on_target``; True: ``Drive.wait_in_position``); the park
+        path never brings it back (``BeamSafety.path_to``), so the rest of the park's polls trace no ray."""
         left = False
 
-        def watch(st) -> None:
+        def watch(st) -> bool:
             nonlocal left
             if not left and not cyc.ctx.pointing.beam_on_target(st.az_steps, st.el_steps):
                 left = True
                 self.gate.vacate(cyc._ticket)
+            return not left
         return watch
 
-    # -- the round -----------------------------------------------------------------------------
+    # -- the round ---------------------------------------------------------------------------
     def _fires(self) -> bool:
         g = self.gate
         if self._round is not None or not g.holders or not g.holders <= self._ready or g.leaving:

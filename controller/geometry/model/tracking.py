@@ -226,14 +226,15 @@ def model_aim(kin: HeliostatKinematics, model: TrackingModel, source_dir, point,
     |c|/distance). For a lamp pass ``lamp_position`` (m ENU) and the source direction is taken
     from the mirror centre. LimitError when out of reach."""
     point = np.asarray(point, float)
-    center = (kin.position + model.position_offset()
-              + error_rotation(model.rigid(), 0.0, 0.0) @ kin.concentrator_translation)
+    ak, rigid, pivot = actuated(kin, model), model.rigid(), kin.position + model.position_offset()
+    center = pivot + error_rotation(rigid, 0.0, 0.0) @ kin.concentrator_translation
     steps = (0, 0)
-    for _ in range(iterations):
+    for _ in range(iterations):  # steps_for_normal and model_mirror_center, the model unpacked once
         if lamp_position is not None:
             source_dir = unit(np.asarray(lamp_position, float) - center)
-        steps = steps_for_normal(kin, model, aim_normal(source_dir, center, point))
-        center = model_mirror_center(kin, model, *steps)
+        normal = aim_normal(source_dir, center, point)
+        steps = ak.steps_for_angles(*angles_for_normal_with_errors(rigid, normal))
+        center = pivot + error_rotation(rigid, *ak.angles(*steps)) @ kin.concentrator_translation
     return steps
 
 
