@@ -19,6 +19,7 @@ Units and conventions: those of the scalar modules (SI inside: rad, m; ENU; moto
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, fields
 
 import numpy as np
@@ -107,6 +108,8 @@ def normal_and_center(kin: HeliostatKinematics, values: np.ndarray,
     ``steps`` (..., 2) for model ``values`` (..., 14) SI, broadcast (P parameter sets at K poses:
     values (P, 1, 14), steps (K, 2)): shapes (..., 3)."""
     v = np.asarray(values, float)
+    if v.ndim == 1 and np.shape(steps) == (1, 2):  # one pose of one model: a beam-safety check
+        return _one_pose(kin, v, *np.asarray(steps, float)[0])
     a, e = angles(kin, v, steps)
     n = turn(v, a, e, BODY_NORMAL)
     pos = v[..., [_I["position_e"], _I["position_n"], _I["position_u"]]]
@@ -115,6 +118,38 @@ def normal_and_center(kin: HeliostatKinematics, values: np.ndarray,
     else:
         c = np.zeros_like(n)
     return n, kin.position + pos + c
+
+
+def _one_pose(kin: HeliostatKinematics, v: np.ndarray, az: float, el: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`normal_and_center` at one pose of one model, in floats: the same equations
+    (actuators Eq. 1-3, the module equation) without the arrays' per-call cost, for the
+    thousands of single-pose checks of a night (a slot handed over at each status poll of a
+    park, a standby pose's person zones). Shapes (1, 3)."""
+    p = v.tolist()
+
+    def joint(act: LinearActuator, steps: float, d_stroke0: float, d_radius: float) -> float:
+        l0, r, o = act.initial_stroke_length + d_stroke0, act.pivot_radius + d_radius, act.offset
+
+        def phi(stroke: float) -> float:
+            c = (o * o + r * r - stroke * stroke) / (2.0 * o * r)
+            return math.acos(c) if abs(c) <= 1.0 else math.nan
+        sign = 1.0 if act.clockwise_axis_movement else -1.0
+        return act.initial_angle + sign * (phi(l0) - phi(steps / act.increment + l0))
+
+    i = _I
+    a = joint(kin.azimuth, az, p[i["az_stroke0"]], p[i["az_pivot_radius"]])
+    e = joint(kin.elevation, el, p[i["el_stroke0"]], p[i["el_pivot_radius"]])
+    bodies = [BODY_NORMAL.tolist(), kin.concentrator_translation.tolist()]
+    for angle, axis in ((p[i["mirror_offset"]], 0), (a + p[i["az_offset"]], 2),
+                        (p[i["non_orthogonality"]], 1), (e + p[i["el_offset"]] - math.pi / 2.0, 0),
+                        (-p[i["tilt_north"]], 0), (p[i["tilt_east"]], 1), (p[i["base_yaw"]], 2)):
+        c, s = math.cos(angle), math.sin(angle)
+        j, k = ((1, 2), (2, 0), (0, 1))[axis]  # as _rot
+        for b in bodies:
+            b[j], b[k] = c * b[j] - s * b[k], s * b[j] + c * b[k]
+    pos = (p[i["position_e"]], p[i["position_n"]], p[i["position_u"]])
+    return (np.array([bodies[0]]),
+            np.array([[kin.position[m] + pos[m] + bodies[1][m] for m in range(3)]]))
 
 
 def _unit(v: np.ndarray) -> np.ndarray:

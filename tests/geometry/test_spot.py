@@ -62,6 +62,28 @@ def test_batched_aim_and_pose_equal_the_scalar_model(cfg):
                 assert c[0, k] == pytest.approx(model_mirror_center(kin, model, *st), abs=1e-12)
 
 
+def test_one_pose_of_one_model_equals_the_scalar_model_and_the_batch(cfg):
+    """normal_and_center's float path (one pose, one model: beam-safety checks) against the
+    scalar model and the array path, with a concentrator translation; a pose beyond the
+    actuator triangle is NaN in both paths."""
+    rng = np.random.default_rng(11)
+    for h in cfg.heliostats[::3]:
+        kin = HeliostatKinematics.from_config(h)
+        kin = type(kin)(kin.heliostat_id, kin.position, kin.azimuth, kin.elevation, rng.normal(0.0, 0.3, 3))
+        model = TrackingModel(rng.normal(0.0, PRIOR_SIGMA_SI))
+        for st in rng.uniform([kin.azimuth.min_steps, kin.elevation.min_steps],
+                              [kin.azimuth.max_steps, kin.elevation.max_steps], (5, 2)):
+            n, c = pose_batch.normal_and_center(kin, model.values, st[None])
+            assert n.shape == c.shape == (1, 3)
+            assert n[0] == pytest.approx(model_normal(kin, model, *st), abs=1e-12)
+            assert c[0] == pytest.approx(model_mirror_center(kin, model, *st), abs=1e-12)
+            nb, cb = pose_batch.normal_and_center(kin, model.values, np.vstack([st, st]))
+            assert n[0] == pytest.approx(nb[1], abs=1e-13) and c[0] == pytest.approx(cb[1], abs=1e-13)
+        far = np.array([[kin.azimuth.max_increment * 50.0, kin.elevation.min_steps]])
+        assert np.isnan(pose_batch.normal_and_center(kin, model.values, far)[0]).all()
+        assert np.isnan(pose_batch.normal_and_center(kin, model.values, np.vstack([far, far]))[0]).all()
+
+
 def test_spot_size_terms_and_their_limits():
     beam = np.array([0.0, -1.0, 0.0])  # head-on to a north-facing... plane whose normal is N
     # A mirror focused on the target, without slope error: only the lamp's disc, σ = αL/4.
