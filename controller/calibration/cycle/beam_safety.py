@@ -146,7 +146,9 @@ class BeamSafety:
         first, else azimuth first.
         The motion model moves each axis at its configured speed (acceleration ignored).
         Nor does it enter a person zone (a beam that starts in one may leave it).
-        Raises :class:`UnsafePath` when no such path exists."""
+        Raises :class:`UnsafePath` when no such path exists; no waypoint when it stands there."""
+        if tuple(start) == tuple(end):
+            return []
 
         def never_back(flags: np.ndarray) -> bool:
             # A beam that starts on a target (in a zone) may leave it; once off it must never enter.

@@ -41,7 +41,7 @@ from controller.calibration.cycle.park import park
 from controller.calibration.cycle.search import cycle_search
 from controller.calibration.cycle.shared_machine import shared_machine
 from controller.calibration.records import CorrectionRecord, RunRecord, measurement_record
-from controller.devices.drive import DriveError, LinkError, MoveCancelled
+from controller.devices.drive import POLL_PAUSE_MAX, DriveError, LinkError, MoveCancelled
 from controller.recognition.library import Match
 
 # -- the tables ---------------------------------------------------------------------------------
@@ -202,12 +202,12 @@ class CalibrationCycle:
         return self.ctx.queue_index if self.ctx.ticket is None else self.ctx.ticket
 
     def _wait(self, state: str, seconds: float) -> None:
-        """Wait ``seconds`` of plant time, giving up if the machine leaves ``state``."""
+        """Wait ``seconds`` of plant time, giving up if the machine leaves ``state`` (as a drive wait)."""
         t = self.ctx.time
         end = t.now() + seconds
-        while t.now() < end:
+        while (left := end - t.now()) > 0:
             self._check_current(state)
-            t.sleep(t.poll_s)
+            t.sleep(min(left, POLL_PAUSE_MAX * t.poll_s))
 
     def _move(self, state: str, az: int, el: int, watch=None) -> None:
         """Absolute move and wait in position on the plant clock, giving up if the machine

@@ -67,6 +67,7 @@ def test_path_from_stow_never_crosses_the_target(cfg, hid):
     assert p.beam_on_target(*p.aim_steps(None), margin_m=0.0)
     path = p.path_to((500, 500), standby)
     assert path[-1] == standby
+    assert p.path_to(standby, standby) == []  # parked already: nothing to move
     # independent check: sample every leg with each axis at its own speed
     pts, start = [], np.array([500.0, 500.0])
     for wp in path:
