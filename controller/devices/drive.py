@@ -235,7 +235,7 @@ class Drive(ABC):
                          cancelled: Callable[[], bool] | None = None,
                          expect: tuple[int, int] | None = None,
                          watch: Callable[[DriveStatus], object] | None = None) -> DriveStatus:
-        """Poll :meth:`status` every ``time.poll_s`` until both axes are in position.
+        """Poll :meth:`status` until both axes are in position.
 
         One clock for the whole wait: the deadline ``timeout_s`` and the polling period are
         both plant seconds of ``time`` (a simulated plant hands in its plant clock). A long move

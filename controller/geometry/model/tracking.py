@@ -214,8 +214,13 @@ def bisector_normal(center: np.ndarray, source_dir, spot, source_pos=None) -> np
 def steps_for_normal(kin: HeliostatKinematics, model: TrackingModel, desired_normal) -> tuple[int, int]:
     """Whole motor steps whose *actual* normal is ``desired_normal`` (ENU). LimitError naming
     the axis when the pose is outside the soft limits."""
-    alpha, eps = angles_for_normal_with_errors(model.rigid(), unit(desired_normal))
-    return actuated(kin, model).steps_for_angles(alpha, eps)
+    return _steps_for_normal(actuated(kin, model), model.rigid(), desired_normal)
+
+
+def _steps_for_normal(actuated_kin: HeliostatKinematics, rigid: TrackingErrorParams,
+                      desired_normal) -> tuple[int, int]:
+    """:func:`steps_for_normal` with the model unpacked (:func:`actuated`, ``TrackingModel.rigid``)."""
+    return actuated_kin.steps_for_angles(*angles_for_normal_with_errors(rigid, unit(desired_normal)))
 
 
 def model_aim(kin: HeliostatKinematics, model: TrackingModel, source_dir, point, *,
@@ -229,11 +234,10 @@ def model_aim(kin: HeliostatKinematics, model: TrackingModel, source_dir, point,
     ak, rigid, pivot = actuated(kin, model), model.rigid(), kin.position + model.position_offset()
     center = pivot + error_rotation(rigid, 0.0, 0.0) @ kin.concentrator_translation
     steps = (0, 0)
-    for _ in range(iterations):  # steps_for_normal and model_mirror_center, the model unpacked once
+    for _ in range(iterations):  # the model unpacked once, not per pass
         if lamp_position is not None:
             source_dir = unit(np.asarray(lamp_position, float) - center)
-        normal = aim_normal(source_dir, center, point)
-        steps = ak.steps_for_angles(*angles_for_normal_with_errors(rigid, normal))
+        steps = _steps_for_normal(ak, rigid, aim_normal(source_dir, center, point))
         center = pivot + error_rotation(rigid, *ak.angles(*steps)) @ kin.concentrator_translation
     return steps
 
