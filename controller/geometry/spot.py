@@ -35,9 +35,10 @@ its centre's k-σ uncertainty stays a margin m inside:
 
 (3σ of a Gaussian spot holds 98.9 % of its power; the sum of the two σ is the conservative
 bound of the footprint's edge). Parked beams are the converse: a standby spot must end at
-least that far *outside* every view, H + k (σ_spot + σ_pos) + m — sized where it is parked,
-not at the aim point: beside a wide view the parked beam is longer and meets the plane more
-obliquely, so its spot and its position's uncertainty are larger (:func:`park_clearance_m`).
+least that far *outside* every view, H + k σ_spot + k_park σ_pos + m (its position at
+:data:`PARK_POSITION_SIGMAS`) — sized where it is parked, not at the aim point: beside a wide
+view the parked beam is longer and meets the plane more obliquely, so its spot and its
+position's uncertainty are larger (:func:`park_clearance_m`).
 
 Units: metres, radians; arrays broadcast over leading axes.
 
