@@ -23,12 +23,17 @@ class PlantClock:
         self._realtime = 0
         self._local = threading.local()  # per thread: depth of frozen blocks, CPU time at the outermost
         self.frozen_cpu_s = 0.0  # CPU seconds spent inside frozen blocks, every thread
+        self._faster = threading.Condition(self._lock)  # the clock may run faster (sleep)
+        self._slow = 0  # sleeps timed at 1x or begun while still, waiting on _faster
 
     def __call__(self) -> float:
         with self._lock:
-            if self._frozen:
-                return self._frozen_at
-            return self._base + (time.monotonic() - self._wall0) * self._rate()
+            return self._now()
+
+    def _now(self) -> float:
+        if self._frozen:
+            return self._frozen_at
+        return self._base + (time.monotonic() - self._wall0) * self._rate()
 
     @contextlib.contextmanager
     def frozen(self, advance_s: float = 0.0):
@@ -50,6 +55,7 @@ class PlantClock:
                 if not self._frozen:
                     self._base = self._frozen_at + advance_s
                     self._wall0 = time.monotonic()
+                    self._wake_slow()
                 local.depth = depth
                 if not depth:
                     self.frozen_cpu_s += time.thread_time() - local.cpu0
@@ -67,6 +73,14 @@ class PlantClock:
             with self._lock:
                 self._rebase()
                 self._realtime -= 1
+                if not self._realtime:
+                    self._wake_slow()
+
+    def _wake_slow(self) -> None:
+        """The clock may run faster now: sleeps timed at 1x (or begun while it stood still) wait
+        again for what is left at the new rate."""
+        if self._slow:
+            self._faster.notify_all()
 
     def _rebase(self) -> None:
         if not self._frozen:
@@ -78,5 +92,19 @@ class PlantClock:
         return 1.0 if self._realtime else self.speedup
 
     def sleep(self, plant_seconds: float) -> None:
-        """Sleep for ``plant_seconds`` of plant time (in wall time: divided by the speedup)."""
-        time.sleep(max(0.0, plant_seconds) / self.speedup)
+        """Sleep until ``plant_seconds`` of plant time have passed. The clock's rate changes while
+        the sleep lasts — 1x while any thread computes (:meth:`realtime`), still while the
+        simulator works (:meth:`frozen`) — so the sleep waits again for what is left at the rate
+        of the moment; a sleep begun at 1x or still is timed at 1x and woken when that ends. (Before
+        2026-11-29 it slept ``plant_seconds / speedup`` of wall time: with a night's cycles
+        computing in turn, a 0.1 s poll pause lasted about 0.01 plant s, and a drive's wait read
+        its status 23 times where 8 would do; issue 42.)"""
+        with self._lock:
+            end = self._now() + max(0.0, plant_seconds)
+            while (left := end - self._now()) > 0:
+                slow = bool(self._realtime or self._frozen)  # timed at 1x: woken when that ends
+                self._slow += slow
+                try:
+                    self._faster.wait(left if slow else left / self.speedup)
+                finally:
+                    self._slow -= slow

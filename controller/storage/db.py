@@ -53,7 +53,7 @@ from controller.storage.checks import (
 from controller.storage.db_file import check_foreign, records_nothing, remove_new_database, upgrade
 from controller.storage.images import insert_images
 from controller.storage.lock import CampaignLock
-from controller.storage.rows import campaign_from_row, measurement_from_row, model_from_row, run_from_row
+from controller.storage.rows import ModelRows, campaign_from_row, measurement_from_row, run_from_row
 from controller.storage.schema import MIGRATIONS, SCHEMA_VERSION
 from controller.storage.searches import insert_search
 
@@ -78,6 +78,7 @@ class CampaignStore:
         self.readonly = readonly
         self._lock = threading.RLock()
         self.campaign_lock = CampaignLock(self.path)
+        self._models = ModelRows(self.path)  # the records are shared: never change one
         check_regular(self.path, "database")  # a FIFO would block sqlite's first read
         # a new (or empty) file this open creates is removed again when the open is refused
         self._existed = self.path.exists()
@@ -358,18 +359,13 @@ class CampaignStore:
     def latest_model(self, heliostat_id: str) -> ModelRecord | None:
         """The most recent fitted tracking-error parameters of a heliostat, or None."""
         with self._lock:
-            row = self._db.execute("SELECT * FROM model_params WHERE heliostat_id=? ORDER BY id DESC LIMIT 1",
-                                   (heliostat_id,)).fetchone()
-        return None if row is None else model_from_row(row, self.path)
+            return self._models.latest(self._db, [heliostat_id]).get(heliostat_id)
 
     def latest_models(self, heliostat_ids=None) -> dict[str, ModelRecord]:
-        """The latest model of each heliostat that has one (of ``heliostat_ids``, or all), in one query."""
+        """The latest model of each heliostat that has one (of ``heliostat_ids``, or all); rows
+        read before are not parsed again, and their records are shared (:class:`ModelRows`)."""
         with self._lock:
-            rows = self._db.execute("SELECT * FROM model_params WHERE id IN "
-                                    "(SELECT MAX(id) FROM model_params GROUP BY heliostat_id)").fetchall()
-        wanted = None if heliostat_ids is None else set(heliostat_ids)
-        return {r["heliostat_id"]: model_from_row(r, self.path) for r in rows
-                if wanted is None or r["heliostat_id"] in wanted}
+            return self._models.latest(self._db, heliostat_ids)
 
     def query(self, sql: str, args: tuple = ()) -> list[sqlite3.Row]:
         """Rows of one read-only SELECT (for the storage modules beside this one)."""

@@ -24,12 +24,12 @@ class ImageArchive:
         out = []
         for kind, img in (("low", frame.low), ("high", frame.high)):
             p = self.base / campaign / f"{heliostat_id}-it{iteration}-{kind}.png"
-
-            def w(t: Path, img=img) -> None:
-                if not cv2.imwrite(str(t), img):
-                    raise OSError(f"could not write {t}")
-            write_atomic(p, w)
-            out.append(ImageRecord(kind, str(p), hashlib.sha256(p.read_bytes()).hexdigest(),
+            ok, buf = cv2.imencode(".png", img)
+            if not ok:
+                raise OSError(f"could not encode {p} as PNG")
+            data = buf.tobytes()  # hashed as written: the file is not read back
+            write_atomic(p, lambda t, data=data: t.write_bytes(data))
+            out.append(ImageRecord(kind, str(p), hashlib.sha256(data).hexdigest(),
                                    tuple(float(t) for t in frame.exposures)))
         return out
 

@@ -67,3 +67,36 @@ def model_from_row(row: sqlite3.Row, path: Path) -> ModelRecord:
         return json_column(path, "model_params", row, col, dict, default)
     return ModelRecord(js("params_json"), js("sigma_json"), row["residual_mrad"], row["n_measurements"],
                        js("detail_json", {}))
+
+
+class ModelRows:
+    """The decoded ``model_params`` rows of one open store, by row id: a model row is written
+    once and never changed, and a night asks for the latest models of its whole field at every
+    lamp change and campaign — without this, 10,000 rows and their covariances parsed each time
+    (issue 42). Holds at most ``kept`` records; the oldest go first."""
+
+    def __init__(self, path: Path, kept: int = 100_000) -> None:
+        self.path, self.kept = path, kept
+        self._by_id: dict[int, ModelRecord] = {}
+
+    def latest(self, db: sqlite3.Connection, heliostat_ids=None) -> dict[str, ModelRecord]:
+        """The latest model of each heliostat that has one (of ``heliostat_ids``, or all): their
+        row ids in one query on the index, the rows not decoded before in as few as SQLite's
+        parameter limit allows."""
+        ids = None if heliostat_ids is None else list(heliostat_ids)
+        if ids is not None and len(ids) == 1:  # one heliostat: its rows only, on the index
+            rows = db.execute("SELECT MAX(id), heliostat_id FROM model_params WHERE heliostat_id=?", ids)
+        else:
+            rows = db.execute("SELECT MAX(id), heliostat_id FROM model_params GROUP BY heliostat_id")
+        wanted = None if ids is None else set(ids)
+        latest = [(int(i), h) for i, h in rows.fetchall()
+                  if i is not None and (wanted is None or h in wanted)]
+        missing = [i for i, _ in latest if i not in self._by_id]
+        for k in range(0, len(missing), 500):
+            chunk = missing[k:k + 500]
+            for r in db.execute(f"SELECT * FROM model_params WHERE id IN ({','.join('?' * len(chunk))})",
+                                chunk).fetchall():
+                self._by_id[int(r["id"])] = model_from_row(r, self.path)
+        while len(self._by_id) > self.kept:
+            del self._by_id[next(iter(self._by_id))]
+        return {h: self._by_id[i] for i, h in latest}

@@ -139,6 +139,34 @@ def test_latest_model(store):
     assert store.latest_model("H9") is None
 
 
+def test_latest_models_parse_each_row_once(store, tmp_path):
+    """A model row is decoded once per open store (``ModelRows``); a newer row of a heliostat
+    replaces it, and another open of the file reads the same records afresh."""
+    cid, _ = _open(store, queue=("H1", "H2", "H3"))
+    for hid in ("H1", "H2"):
+        store.record_run(cid, _run(hid))
+    first = store.latest_models()
+    assert sorted(first) == ["H1", "H2"]
+    again = store.latest_models(["H2", "H9"])
+    assert list(again) == ["H2"] and again["H2"] is first["H2"]  # not parsed again
+    assert store.latest_model("H1") is first["H1"]
+    newer = _run("H3")
+    newer.model = ModelRecord({"az_offset_mrad": -0.5}, {"az_offset_mrad": 0.2}, 0.04, 3)
+    store.record_run(cid, newer)
+    with store.tx() as db:  # a second model of H1, as a refit of the field writes it
+        db.execute("INSERT INTO model_params (heliostat_id, campaign_id, run_id, params_json, sigma_json, "
+                   "residual_mrad, n_measurements, created_utc) SELECT heliostat_id, campaign_id, run_id, "
+                   "'{\"az_offset_mrad\": 2.5}', sigma_json, residual_mrad, 7, created_utc FROM model_params "
+                   "WHERE heliostat_id='H1'")
+    now = store.latest_models()
+    assert now["H1"].params == {"az_offset_mrad": 2.5} and now["H1"].n_measurements == 7
+    assert now["H3"].params == {"az_offset_mrad": -0.5} and now["H2"] is first["H2"]
+    with CampaignStore(tmp_path / "c.db", readonly=True) as other:
+        fresh = other.latest_models()
+        assert fresh["H2"] is not first["H2"] and fresh["H2"] == first["H2"]
+        assert {h: m.params for h, m in fresh.items()} == {h: m.params for h, m in now.items()}
+
+
 @pytest.mark.parametrize(
     "north, paint", [(265.60, -85.60), (180.0, 0.0), (90.0, 90.0), (0.0, 180.0), (270.0, -90.0)]
 )

@@ -48,7 +48,10 @@ LENGTHENS = 5
 def saturated_both(pair: FramePair, bit_depth: int) -> int:
     """Pixels at full scale in the LOW (shorter) exposure, hence in both sensors: their merged
     value is only a lower bound."""
-    return int(np.count_nonzero(np.asarray(pair.low) >= (1 << bit_depth) - 1))
+    low, full = np.asarray(pair.low), (1 << bit_depth) - 1
+    if low.max(initial=0) < full:  # the common case, without a mask of the whole frame
+        return 0
+    return int(np.count_nonzero(low >= full))
 
 
 def _dim(pair: FramePair, bit_depth: int) -> bool:

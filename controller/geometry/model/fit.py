@@ -286,7 +286,7 @@ def fit_model(kin: HeliostatKinematics, samples: Sequence[Sample], *, noise_mrad
     x[:pb.npar] = (st.values - st.prior) / st.sigma
     pb.set_bases(x)
     weights = np.ones(len(samples))
-    converged = False
+    converged, last = False, None
     for it in range(MAX_STEPS):
         w = np.repeat(np.sqrt(weights * pb.age_w), 2)
         r, jac = pb.linearise(x)
@@ -302,18 +302,21 @@ def fit_model(kin: HeliostatKinematics, samples: Sequence[Sample], *, noise_mrad
         new = _robust(norms, redescending=it >= WARMUP) if robust else weights
         settled = np.max(np.abs(dx)) < 1e-6 and np.allclose(new, weights, atol=1e-3)
         if settled and (it >= WARMUP or not robust):
-            converged = True
+            # The residuals at x and the Jacobian at the step before, under 1e-6 (whitened)
+            # away: the optimum's, far inside the forward differences' own step (_JAC_STEP).
+            converged, last = True, (res, jac)
             break
         weights = new
-    return _result(pb, samples, x, weights, converged, st.notes, p0)
+    return _result(pb, samples, x, weights, converged, st.notes, p0, last)
 
 
 def _result(pb: _Problem, samples: Sequence[Sample], x: np.ndarray, weights: np.ndarray, converged: bool,
-            notes: tuple[str, ...], p0: np.ndarray) -> ModelFit:
-    """ModelFit at the optimum x: Σ and identification of Eq. (2), residuals per sample."""
+            notes: tuple[str, ...], p0: np.ndarray, linear=None) -> ModelFit:
+    """ModelFit at the optimum x: Σ and identification of Eq. (2), residuals per sample;
+    ``linear``: (residuals, Jacobian) there, when the last step computed them."""
     npar = pb.npar
     w = np.repeat(np.sqrt(weights * pb.age_w), 2)
-    r, jac = pb.linearise(x)
+    r, jac = pb.linearise(x) if linear is None else linear
     jd = w[:, None] * jac
     post_x = np.linalg.inv(jd.T @ jd + pb.precision)
     ratio2 = np.clip(np.diag(post_x)[:npar], 0.0, 1.0)
