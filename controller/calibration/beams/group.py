@@ -91,7 +91,7 @@ def slot_parks(pointing, slot: int, k: int, frame, current: tuple[int, int] | No
         pointing.kin.elevation.check(stepped[1], "the identity step")
         for pose in (current, aim, stepped):
             if pose is not None:
-                pointing.path_to(pose, standby, bow_ok=True)
+                pointing.path_to(pose, standby)
     except (HeliocalError, ValueError):  # out of reach, or no safe slew
         return False
     return True

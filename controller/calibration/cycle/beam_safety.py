@@ -21,11 +21,6 @@ from controller.geometry.pose_batch import normal_and_center
 from controller.geometry.target_frame import TargetFrame
 from controller.geometry.zones import rays_enter_any, zone_boxes, zone_entered
 
-# How much closer (m) than both its ends a slew's beam may come to a camera's view: the sweep's
-# samples on a curved path, not a bow towards the view.
-BOW_TOLERANCE_M = 0.25
-PATHS_KEPT = 8  # path_to's results kept per heliostat and source
-
 
 class UnsafePath(HeliocalError):
     """No slew keeps the beam off the target (beam safety); nothing was sent."""
@@ -50,7 +45,6 @@ class BeamSafety:
                             for t in others if t.id != target.id)
         self.zones, self.zone_ids = zone_boxes(zones), [z.id for z in zones]
         self.ray_model = (model or TrackingModel.zero()).values
-        self._paths: dict[tuple, list[tuple[int, int]]] = {}  # path_to's last few
 
     def rays(self, poses) -> tuple[np.ndarray, np.ndarray]:
         """Mirror centres and unit reflected beams (N, 3) at ``poses`` (N, 2) motor steps."""
@@ -146,81 +140,30 @@ class BeamSafety:
         return (ok & (np.abs(hit @ frame.u) <= target.width_m / 2 + mu)
                 & (np.abs(hit @ frame.v) <= target.height_m / 2 + mv))
 
-    def reach_m(self) -> np.ndarray | None:
-        """How far (u, v, m) beyond a target's edges a camera may see this heliostat's spot, or
-        None when unknown: :meth:`path_to` then has no preference among the slews that keep the
-        central ray off the targets."""
-        return None
-
-    def _outside(self, c: np.ndarray, b: np.ndarray, reach: np.ndarray) -> np.ndarray:
-        """(N, T): how far (m) each ray of ``c``, ``b`` (N, 3) lands outside each target's reach
-        (the target, then ``others``; its edges moved out by ``reach`` (u, v)), the larger of the
-        two axes' distances, negative inside, +inf where the ray misses the target's plane."""
-        out = []
-        for centre, f, t in ((self.frame.center, self.frame, self.target), *self.others):
-            with np.errstate(divide="ignore", invalid="ignore"):
-                d = ((centre - c) @ f.normal) / (b @ f.normal)
-            hit = c + d[:, None] * b - centre
-            e = np.maximum(np.abs(hit @ f.u) - t.width_m / 2 - reach[0],
-                           np.abs(hit @ f.v) - t.height_m / 2 - reach[1])
-            out.append(np.where(np.isfinite(d) & (d >= 0.0), e, np.inf))
-        return np.stack(out, axis=1)
-
-    def path_to(self, start: tuple[int, int], end: tuple[int, int], *,
-                bow_ok: bool = False) -> list[tuple[int, int]]:
+    def path_to(self, start: tuple[int, int], end: tuple[int, int]) -> list[tuple[int, int]]:
         """Waypoints from ``start`` to ``end`` (a point off the target) along which the beam
         never crosses the target nor any of the ``others``: both axes together, else elevation
         first, else azimuth first.
         The motion model moves each axis at its configured speed (acceleration ignored).
         Nor does it enter a person zone (a beam that starts in one may leave it).
-        Of those slews, the first whose beam comes no closer to any target's camera view
-        (:meth:`reach_m`) than both its ends do, or than outside the view's reach: a slew between
-        two parks beside a target moves both axes, and its beam may bow towards the target on
-        the way, its spot's tails into a camera that measures another beam (issue 42).
-        ``bow_ok``: the first clear slew, bowing or not — whether a park exists, not its path
-        (:func:`controller.calibration.beams.group.slot_parks`).
-        Raises :class:`UnsafePath` when no such path exists; no waypoint when it stands there.
-        The last few paths are kept: a slot's checks, the check of a leave pose and the park
-        itself ask for the same one."""
-        start, end = (int(start[0]), int(start[1])), (int(end[0]), int(end[1]))
-        if start == end:
+        Raises :class:`UnsafePath` when no such path exists; no waypoint when it stands there."""
+        if tuple(start) == tuple(end):
             return []
-        key = (start, end, self.ray_model.tobytes())
-        if key in self._paths:
-            return list(self._paths[key])
-        reach = None if bow_ok else self.reach_m()
 
         def never_back(flags: np.ndarray) -> bool:
             # A beam that starts on a target (in a zone) may leave it; once off it must never enter.
             off = np.flatnonzero(~flags)
             return not len(off) or not flags[off[0]:].any()
 
-        def judge(plan: list[tuple[int, int]]) -> tuple[bool, bool]:
-            """(the central ray stays off the targets and zones, the spot comes no closer to a view)."""
+        def clear(plan: list[tuple[int, int]]) -> bool:
             poses = np.vstack([self._sweep(a, b) for a, b in zip([start] + plan[:-1], plan, strict=True)])
-            c, b = self.rays(np.vstack([np.asarray(start, float)[None], poses]))  # traced once for all
-            safe = (never_back(self._lands_on(c, b, self.frame.center, self.frame, self.target, 2.0))
+            c, b = self.rays(np.vstack([np.asarray(start, float)[None], poses]))  # traced once for all three
+            return (never_back(self._lands_on(c, b, self.frame.center, self.frame, self.target, 2.0))
                     and never_back(self._on_others(c, b, 2.0)) and never_back(self._in_zone(c, b)))
-            if not safe or reach is None:
-                return safe, safe
-            e = self._outside(c, b, reach)
-            return True, bool((e >= np.minimum(np.minimum(e[0], e[-1]), 0.0) - BOW_TOLERANCE_M).all())
 
         plans = ([end], [(start[0], end[1]), end], [(end[0], start[1]), end])
-        first = None
         for plan in plans:
-            safe, close = judge(plan)
-            if close:
-                first = plan
-                break
-            if safe and first is None:
-                first = plan
-        if first is not None:
-            path = [p for p in first if p != start]
-            if not bow_ok:
-                if len(self._paths) >= PATHS_KEPT:
-                    del self._paths[next(iter(self._paths))]
-                self._paths[key] = path
-            return list(path)
+            if clear(plan):
+                return [p for p in plan if p != start]
         raise UnsafePath(f"{self.heliostat.id}: no slew from {start} to standby {end} keeps the beam "
                          "off the targets")

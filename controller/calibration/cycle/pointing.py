@@ -90,7 +90,6 @@ class GeometryPointing(BeamSafety):
                            else None)
         self._least_offset_m, self._offset_m = standby_offset_m, None
         self._current, self._standby_point = current_steps, None
-        self._reach: np.ndarray | None = None
 
     @property
     def standby_offset_m(self) -> float:
@@ -268,22 +267,9 @@ class GeometryPointing(BeamSafety):
         search explores (first-light σ of metres would refuse every look near another target)."""
         sigmas = self.spot_sigmas_m(self.source, model) if model is not None else None
         spot, position = sigmas or (0.0, 0.0)
-        return SIGMAS * (spot + position) + PARK_MARGIN_M + self._view_excess_m()
-
-    def _view_excess_m(self) -> np.ndarray:
-        """How far (u, v, m) the camera's view exceeds the target on each side."""
         f, t = self.frame, self.target
-        return np.maximum(np.array([f.width_m - t.width_m, f.height_m - t.height_m]) / 2.0, 0.0)
-
-    def reach_m(self) -> np.ndarray:
-        """How far (u, v, m) beyond a target's edges a camera may see this heliostat's parked spot
-        (:meth:`BeamSafety.reach_m`): the view's excess over the target plus the park clearance
-        beyond the view (:meth:`park_clearance_m`, other cameras taken to frame theirs alike); a
-        standby point at the clearance lies on its edge."""
-        if self._reach is None:
-            clearance = self.park_clearance_m(self.source, self.model)
-            self._reach = self._view_excess_m() + (clearance - self.frame.width_m / 2)
-        return self._reach
+        excess = np.maximum(np.array([f.width_m - t.width_m, f.height_m - t.height_m]) / 2.0, 0.0)
+        return SIGMAS * (spot + position) + PARK_MARGIN_M + excess
 
     def _steps(self, point: np.ndarray, model: ModelRecord | None) -> tuple[int, int]:
         return _AIMS.get(self._aim_key(point, model), (self.heliostat,),
