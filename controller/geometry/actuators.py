@@ -54,7 +54,7 @@ def lever_angle(stroke_m, offset: float, pivot_radius: float):
     Raises ValueError when no triangle exists (|o − r| ≤ L ≤ o + r is violated).
     """
     c = (offset**2 + pivot_radius**2 - np.asarray(stroke_m, dtype=float) ** 2) / (2.0 * offset * pivot_radius)
-    if np.any(np.abs(c) > 1.0):
+    if (np.abs(c) > 1.0).any():  # the method: np.any's dispatch costs more than the test
         raise ValueError(f"stroke outside the actuator triangle [{abs(offset - pivot_radius):.6g}, "
                          f"{offset + pivot_radius:.6g}] m")
     return np.arccos(c)
@@ -122,7 +122,7 @@ class LinearActuator:
         """Motor steps (unrounded) giving joint angle θ, rad: inverse of Eq. 3, 1, 2."""
         phi0 = lever_angle(self.initial_stroke_length, self.offset, self.pivot_radius)
         phi = phi0 - self._sign * (np.asarray(angle_rad, dtype=float) - self.initial_angle)
-        if np.any((phi < 0.0) | (phi > math.pi)):
+        if ((phi < 0.0) | (phi > math.pi)).any():
             raise LimitError(f"{self.name} axis: angle {np.degrees(angle_rad):.4f}° cannot be reached by "
                              "the actuator (no actuator triangle)")
         return steps_from_stroke(stroke_from_lever_angle(phi, self.offset, self.pivot_radius),

@@ -19,7 +19,7 @@ from datetime import datetime
 import numpy as np
 
 from controller.errors import InputError
-from controller.geometry.vectors import azel_to_vector, unit
+from controller.geometry.vectors import azel_to_vector, cross, norm, unit
 
 
 def aim_normal(source_dir, heliostat_pos, aim_point) -> np.ndarray:
@@ -97,7 +97,7 @@ def source_direction(source, heliostat_pos, *, when: datetime | None = None, sit
 def angle_mrad(u, v) -> np.ndarray:
     """Angle between directions u and v, mrad (atan2 form, accurate at small angles)."""
     a, b = unit(u), unit(v)
-    return 1e3 * np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), np.sum(a * b, axis=-1))
+    return 1e3 * np.arctan2(norm(cross(a, b))[..., 0], np.sum(a * b, axis=-1))
 
 
 def normal_error_mrad(normal, reference_normal) -> np.ndarray:

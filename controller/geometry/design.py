@@ -41,7 +41,7 @@ import numpy as np
 from controller.geometry.kinematics import HeliostatKinematics
 from controller.geometry.model.tracking import TrackingModel
 from controller.geometry.pose_batch import STEP_SI, aim_steps, forward_jacobian, normal_and_center, perturbed
-from controller.geometry.vectors import unit
+from controller.geometry.vectors import cross, unit
 
 
 def jacobian(fun, x: np.ndarray, step: np.ndarray, fx: np.ndarray | None = None) -> np.ndarray:
@@ -99,8 +99,8 @@ def tangents_batch(n: np.ndarray) -> np.ndarray:
     """:func:`tangents` of each unit vector of ``n`` (K, 3): (K, 2, 3)."""
     n = np.asarray(n, float)
     helper = np.where((np.abs(n[..., 2]) < 0.9)[..., None], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0])
-    t1 = unit(np.cross(helper, n))
-    return np.stack([t1, np.cross(n, t1)], axis=-2)
+    t1 = unit(cross(helper, n))
+    return np.stack([t1, cross(n, t1)], axis=-2)
 
 
 def beam_jacobians(kin: HeliostatKinematics, model: TrackingModel, source_dirs: np.ndarray,

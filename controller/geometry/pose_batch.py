@@ -27,6 +27,7 @@ import numpy as np
 from controller.geometry.actuators import LinearActuator
 from controller.geometry.kinematics import BODY_NORMAL, HeliostatKinematics
 from controller.geometry.model.tracking import NAMES
+from controller.geometry.vectors import norm
 
 _I = {n: i for i, n in enumerate(NAMES)}
 STEP_SI = 1e-6  # forward-difference step of the Jacobians (design._STEP): linear range, far above rounding
@@ -37,7 +38,9 @@ def _rot(v: np.ndarray, angle: np.ndarray, axis: int) -> np.ndarray:
     ``angle`` (broadcast against v[..., 0])."""
     c, s = np.cos(angle), np.sin(angle)
     i, j = ((1, 2), (2, 0), (0, 1))[axis]  # the plane turned: y→z about E, z→x about N, x→y about U
-    out = np.empty(np.broadcast_shapes(v.shape, np.shape(c) + (3,)))
+    # Mostly the angles have the vectors' leading shape: no broadcast to work out.
+    shape = v.shape if np.shape(c) == v.shape[:-1] else np.broadcast_shapes(v.shape, np.shape(c) + (3,))
+    out = np.empty(shape)
     out[..., axis] = v[..., axis]
     out[..., i] = c * v[..., i] - s * v[..., j]
     out[..., j] = s * v[..., i] + c * v[..., j]
@@ -113,7 +116,7 @@ def normal_and_center(kin: HeliostatKinematics, values: np.ndarray,
     a, e = angles(kin, v, steps)
     n = turn(v, a, e, BODY_NORMAL)
     pos = v[..., [_I["position_e"], _I["position_n"], _I["position_u"]]]
-    if np.any(kin.concentrator_translation):
+    if kin.concentrator_translation.any():
         c = turn(v, a, e, kin.concentrator_translation)
     else:
         c = np.zeros_like(n)
@@ -153,7 +156,7 @@ def _one_pose(kin: HeliostatKinematics, v: np.ndarray, az: float, el: float) -> 
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
-    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+    return v / norm(v)
 
 
 def angles_for_normals(values: np.ndarray, normals: np.ndarray, max_iterations: int = 50,
@@ -169,7 +172,7 @@ def angles_for_normals(values: np.ndarray, normals: np.ndarray, max_iterations: 
         got = np.stack([np.arcsin(np.clip(m[..., 0], -1.0, 1.0)), np.arctan2(-m[..., 1], m[..., 2])], axis=-1)
         step = goal - got
         x = x + step
-        if not np.any(np.abs(step) >= tol_rad):
+        if not (np.abs(step) >= tol_rad).any():
             break
     return x[..., 0], x[..., 1]
 

@@ -89,6 +89,17 @@ def _read_bytes(p: Path) -> bytes:
     return read_bytes(p, "image file", MAX_FILE_BYTES)
 
 
+def _read_umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+# Read once, at import: reading it means setting it, and for that instant every file another
+# thread creates would get mode 0666 (the night's cycles write images side by side).
+_UMASK = _read_umask()
+
+
 def write_atomic(path: str | Path, writer) -> None:
     """Call ``writer(tmp_path)`` then rename onto ``path``, so nothing half-written remains."""
     p = Path(path)
@@ -98,9 +109,7 @@ def write_atomic(path: str | Path, writer) -> None:
     try:
         writer(Path(tmp))
         # mkstemp creates 0600; give the file the mode a plain open() would (umask applied).
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
+        os.chmod(tmp, 0o666 & ~_UMASK)
         os.replace(tmp, p)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)

@@ -15,6 +15,7 @@ database, the table and, where there is one, the row id (exit 2) — never a tra
 
 from __future__ import annotations
 
+import functools
 import json
 import re
 import sqlite3
@@ -143,11 +144,18 @@ def stored_image_path(db_path: Path, image: str | Path) -> str:
     """How an image path is stored: relative to the database's folder when the image lies under
     it, else absolute — so reports find it from any working directory."""
     p = Path(image).resolve()
-    base = Path(db_path).resolve().parent
+    base = _folder(str(Path(db_path).absolute()))
     try:
         return p.relative_to(base).as_posix()
     except ValueError:
         return str(p)
+
+
+@functools.lru_cache(maxsize=16)
+def _folder(db_path: str) -> Path:
+    """The folder of the database at absolute path ``db_path``, resolved (symbolic links) once
+    per database: asked for with every image stored."""
+    return Path(db_path).resolve().parent
 
 
 def resolved_image_path(db_path: Path, stored: str) -> str:

@@ -179,6 +179,12 @@ class LinearPointing:
     def path_to(self, start, end):
         return [end]
 
+    def stay_margin_m(self) -> float:
+        return 2.0
+
+    def may_wait_at(self, pose, standby, aim, margin_m) -> bool:
+        return False  # the fake plant's heliostat always parks at standby first
+
     def beam_on_target(self, az, el, margin_m: float = 2.0) -> bool:
         """The true beam within 3 m (plus the margin) of the aim point."""
         out = np.array((az, el), float) + self.p.hidden_steps - np.array(self.p.ideal)

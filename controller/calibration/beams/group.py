@@ -349,7 +349,7 @@ class SharedCapture:
                     if rnd.stays is not None:
                         self.gate.reserve_alone(rnd.stays)
                     self.gate.held = False
-                    self.gate.cv.notify_all()
+                    self.gate.changed()
             return rnd.assigned.get(ticket)
 
     def _leave(self, rnd: _Round, ticket: int, stepped: bool = False) -> None:
@@ -361,7 +361,7 @@ class SharedCapture:
             if set(rnd.members) <= rnd.left and self._round is rnd:
                 self._round = None
                 g.held = False
-            g.cv.notify_all()
+            g.changed()
 
     def _alone_here(self, cyc, pose: tuple[int, int]):
         """Step back to ``pose`` while the others park (backlash taken up again), take the target

@@ -104,10 +104,9 @@ class LampChanger:
         under ``lamp`` is off every target (module docstring); LampChangeError otherwise."""
         self.lights_out()
         # A heliostat stays put only when its beam lands as far from every target as its standby
-        # beam would (its standby offset grows with its spot, GeometryPointing.park_clearance_m):
+        # beam would (GeometryPointing.stay_margin_m; its standby offset grows with its spot):
         # closer, its spot's tails would fall into a camera's view and spoil others'
         # measurements, though it is off the target.
-        half = max(max(t.width_m, t.height_m) for t in self.cfg.targets) / 2
         moving: dict[str, tuple[Drive, GeometryPointing, tuple[int, int] | None]] = {}
         stowed: list[str] = []
         # Checking and commanding the field is the controller's own work, costing the plant the
@@ -128,8 +127,7 @@ class LampChanger:
             warm_aims(check.values())  # their standby offsets and steps, in batches
             for hid, p in check.items():
                 where, drive, model = standby[hid], drives[hid], models[hid]
-                stay_margin = max(2.0, p.standby_offset_m - half)
-                if not where.required and _safe(p, *poses[hid], stay_margin):
+                if not where.required and _safe(p, *poses[hid], p.stay_margin_m()):
                     continue
                 pose = _safe_standby(p, model)
                 try:

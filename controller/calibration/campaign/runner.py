@@ -22,8 +22,7 @@ bar, a web console, or a simulation harness that keeps its own truth.
   a heliostat interrupted mid-cycle has no record and is calibrated again.
 * **Timing** is read from the injected plant ``clock`` (seconds), so throughput is in plant
   time; target occupancy = from the approach command until the beam is parked at standby.
-
-Measurement chain per capture: :class:`controller.calibration.cycle.beam_chain.BeamChain`.
+* Measurement chain per capture: :class:`controller.calibration.cycle.beam_chain.BeamChain`.
 """
 
 from __future__ import annotations
@@ -268,17 +267,20 @@ class Campaign:
         self.group = None
         if self.slots is not None:
             # Each heliostat at a slot that suits it; one capture for all beams, identity by a step.
-            at_slot: dict[tuple[int, int], GeometryPointing] = {}
+            # Its tier's slots (none: alone, or not in the layout's reckoning: resumed).
+            open_ = [self.slots.tier_slots(self._tier.get(h, -1)) for _, h in todo]
 
             def fits(ticket: int, slot: int) -> bool:
-                hid = todo[ticket][1]
-                at_slot[ticket, slot] = self._pointing_at(hid, self.slots.aim(slot))
+                if (ticket, slot) not in at_slot:  # not the slot it would take if every slot suited
+                    at_slot[ticket, slot] = self._pointing_at(todo[ticket][1], self.slots.aim(slot))
                 return slot_parks(at_slot[ticket, slot], *self.slots.rank(slot), self.chain.frame,
-                                  self._current.get(hid), self.slots.step_m)
+                                  self._current.get(todo[ticket][1]), self.slots.step_m)
 
             with self.time.computing():
-                # Its tier's slots (none: alone, or not in the layout's reckoning: resumed).
-                slots = assign_slots([self.slots.tier_slots(self._tier.get(h, -1)) for _, h in todo], fits)
+                at_slot = {(t, s): self._pointing_at(todo[t][1], self.slots.aim(s))
+                           for t, s in enumerate(assign_slots(open_, lambda *_: True)) if s is not None}
+                warm_aims(at_slot.values())  # in batches, the steps of the slot each takes if all suit it
+                slots = assign_slots(open_, fits)
             for ticket, slot in enumerate(slots):
                 if slot is not None:  # else its planned aim, the target to itself (group.py)
                     pointing[todo[ticket][1]] = at_slot[ticket, slot]

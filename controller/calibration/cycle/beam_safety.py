@@ -11,6 +11,8 @@ samples) through :mod:`controller.geometry.pose_batch`."""
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from controller.config import Heliostat, PersonZone, Target
@@ -41,10 +43,26 @@ class BeamSafety:
         self.source_dir = source_dir
         self.target = target
         self.frame = frame
-        self.others = tuple((np.asarray(t.center_enu_m, float), TargetFrame.from_config(t, (1, 1)), t)
-                            for t in others if t.id != target.id)
+        self.others = _other_frames(tuple(others), target.id)
         self.zones, self.zone_ids = zone_boxes(zones), [z.id for z in zones]
         self.ray_model = (model or TrackingModel.zero()).values
+        self._poses: dict[tuple, tuple[int, int] | str] = {}  # _kept's
+
+    def _kept(self, key: tuple, compute) -> tuple[int, int]:
+        """``compute()``'s pose, kept by ``key`` and the ray's model: a pointing is asked for its
+        aim and standby steps several times (a slot's checks, preparing, each park), and each
+        answer traces the beam through the person zones. An UnsafePath is kept as its message."""
+        key = (*key, self.ray_model.tobytes())
+        kept = self._poses.get(key)
+        if kept is None:
+            try:
+                kept = compute()
+            except UnsafePath as exc:
+                kept = str(exc)
+            self._poses[key] = kept
+        if isinstance(kept, str):
+            raise UnsafePath(kept)
+        return kept
 
     def rays(self, poses) -> tuple[np.ndarray, np.ndarray]:
         """Mirror centres and unit reflected beams (N, 3) at ``poses`` (N, 2) motor steps."""
@@ -140,6 +158,25 @@ class BeamSafety:
         return (ok & (np.abs(hit @ frame.u) <= target.width_m / 2 + mu)
                 & (np.abs(hit @ frame.v) <= target.height_m / 2 + mv))
 
+    def may_wait_at(self, pose, standby, aim, margin_m: float) -> bool:
+        """Whether a heliostat about to take its turn may wait at ``pose`` (motor steps, where it
+        stands still) rather than slew to ``standby`` first: its beam there lands off every
+        target grown by ``margin_m`` (the margin a lamp change lets a heliostat stay with) and in
+        no person zone, the slew to ``standby`` would bring it within that margin of a target,
+        and the approach from ``pose`` to ``aim`` keeps it off the other targets and out of the
+        person zones. The two axes of a slew between two parks beside a target move at their
+        own speeds: the beam may bow towards the target on the way, the spot's tails into the
+        camera while it measures other beams (issue 42)."""
+        if tuple(pose) == tuple(standby):
+            return False
+        c, b = self.rays(np.vstack([np.asarray(pose, float)[None], self._sweep(pose, standby)]))
+        near = (self._lands_on(c, b, self.frame.center, self.frame, self.target, margin_m)
+                | self._on_others(c, b, margin_m))
+        if near[0] or not near.any() or self._in_zone(c[:1], b[:1])[0]:
+            return False
+        c, b = self.rays(self._sweep(pose, aim))
+        return not (self._on_others(c, b, 2.0).any() or self._in_zone(c, b).any())
+
     def path_to(self, start: tuple[int, int], end: tuple[int, int]) -> list[tuple[int, int]]:
         """Waypoints from ``start`` to ``end`` (a point off the target) along which the beam
         never crosses the target nor any of the ``others``: both axes together, else elevation
@@ -167,3 +204,20 @@ class BeamSafety:
                 return [p for p in plan if p != start]
         raise UnsafePath(f"{self.heliostat.id}: no slew from {start} to standby {end} keeps the beam "
                          "off the targets")
+
+
+@functools.lru_cache(maxsize=64)
+def _other_frames(others: tuple[Target, ...], target_id: str) -> tuple:
+    """(centre, view of 1 × 1 pixel, target) of each of ``others`` but ``target_id``: the same
+    for every heliostat of a plant (configs are frozen), asked for with each of a night's
+    pointings (three per measurement). The arrays are read-only, being shared."""
+    out = []
+    for t in others:
+        if t.id == target_id:
+            continue
+        frame = TargetFrame.from_config(t, (1, 1))
+        centre = np.asarray(t.center_enu_m, float)
+        for a in (centre, frame.center, frame.normal, frame.u, frame.v):
+            a.flags.writeable = False
+        out.append((centre, frame, t))
+    return tuple(out)

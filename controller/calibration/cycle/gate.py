@@ -6,6 +6,11 @@ from __future__ import annotations
 import threading
 from collections.abc import Callable, Mapping, Sequence, Set
 
+# Wall seconds between a waiting ticket's checks of ``cancelled``: whatever may admit a ticket
+# notifies the waiters (TargetGate.changed), so this only bounds how late a cycle that timed out
+# or was aborted while waiting notices it. At 0.05 s two dozen cycles waiting at once (a night
+# of three targets, K = 4) woke some 500 times a wall second between them.
+POLL_S = 0.5
 
 class TargetGate:
     """Hands the target to heliostats in queue order (tickets 0, 1, 2, …), ``beams`` at a time.
@@ -44,7 +49,12 @@ class TargetGate:
         if beams < 1:
             raise ValueError(f"beams per target must be at least 1, got {beams}")
         self.beams = beams
-        self.cv = threading.Condition()
+        lock = threading.RLock()
+        # Two conditions on one lock: the tickets waiting for their turn (acquire) are woken only
+        # by what may admit one (changed()), not by every step of a round, whose members wait
+        # on cv (group.py): a night's two dozen waiting cycles woke 94 times per measurement.
+        self.cv = threading.Condition(lock)
+        self.turns = threading.Condition(lock)
         self._next = 0  # the next ticket to admit, in queue order
         self._done: set[int] = set()
         self.holders: set[int] = set()
@@ -94,30 +104,39 @@ class TargetGate:
                 # the one before may have been skipped while the one before it still holds the slot
                 and all(self.slot(h) not in near for h in self.holders))
 
+    def changed(self) -> None:
+        """Wake every waiter, those for a turn and a round's members (the caller holds ``cv``):
+        something that may admit a ticket or fire a round changed."""
+        self.turns.notify_all()
+        self.cv.notify_all()
+
     @property
     def leaving(self) -> set[int]:
         """Tickets whose beam left the target (:meth:`vacate`) and that are not parked yet."""
         return self._vacated - self._done
 
-    def acquire(self, ticket: int, cancelled: Callable[[], bool], poll_s: float = 0.05) -> bool:
+    def acquire(self, ticket: int, cancelled: Callable[[], bool], poll_s: float = POLL_S) -> bool:
         with self.cv:
             self.waiting.add(ticket)
-            self.cv.notify_all()  # a first-round ticket may wait for this one
+            # A round may wait for this one (cv); a first-round ticket too, if it is one of them.
+            self.changed() if ticket in self._together else self.cv.notify_all()
             try:
                 while not self.admissible(ticket):
                     if cancelled() or self.blocked:
                         return False
-                    self.cv.wait(poll_s)
+                    self.turns.wait(poll_s)
                 self.holders.add(ticket)
                 self._next += 1
                 while self._next in self._done:
                     self._next += 1
+                # A holder more admits no other ticket (it was waiting, for the first round's
+                # rule): only a round's members need to know.
                 self.cv.notify_all()
                 return True
             finally:
                 self.waiting.discard(ticket)
 
-    def acquire_alone(self, ticket: int, cancelled: Callable[[], bool], poll_s: float = 0.05) -> bool:
+    def acquire_alone(self, ticket: int, cancelled: Callable[[], bool], poll_s: float = POLL_S) -> bool:
         """Take the target with no other beam on it (module docstring); the ticket must have
         given its slot back first (:meth:`give_back`)."""
         with self.cv:
@@ -127,12 +146,12 @@ class TargetGate:
                        or self._alone_waiting[0] != ticket):
                     if cancelled() or self.blocked:
                         return False
-                    self.cv.wait(poll_s)
+                    self.turns.wait(poll_s)
                 self.alone = ticket
                 return True
             finally:
                 self._forget_alone(ticket)
-                self.cv.notify_all()
+                self.changed()
 
     def others_alone(self, ticket: int) -> bool:
         """Is another ticket measured alone now, or waiting to be? (the caller holds ``cv``) A
@@ -162,7 +181,7 @@ class TargetGate:
                 if self.alone == ticket:
                     self.alone = None
                 self._vacated.add(ticket)
-                self.cv.notify_all()
+                self.changed()
 
     def give_back(self, ticket: int, beam_off_target: bool = True) -> None:
         """Give the slot back without ending the ticket (its beam parked, to be measured alone)."""
@@ -170,7 +189,7 @@ class TargetGate:
             if not beam_off_target:
                 self.blocked = True
             self.holders.discard(ticket)
-            self.cv.notify_all()
+            self.changed()
 
     def release(self, ticket: int, beam_off_target: bool = True) -> None:
         """Give the target back (or skip this ticket if it never held it)."""
@@ -183,4 +202,4 @@ class TargetGate:
             if self._next == ticket:  # skipped before its turn came
                 while self._next in self._done:
                     self._next += 1
-            self.cv.notify_all()
+            self.changed()

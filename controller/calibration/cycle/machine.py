@@ -11,7 +11,8 @@ interrupt a blocking call, so every wait in a ``do_`` method polls :meth:`_check
 once the machine left that state. An exception in a ``do_`` method fires ``fail``.
 
 Beam safety:
-* a heliostat approaches the target only from standby (``preparing`` parks it there first);
+* a heliostat approaches the target only from standby (``preparing`` parks it there first) or
+  from a pose as far off every target, whose approach was checked (``Pointing.may_wait_at``);
 * :class:`TargetGate` hands the target out in queue order, one beam at a time, back once the beam
   is parked off it (K beams under lamps, each slot once its beam is off: calibration.group);
 * after its measurement (or a fault) the beam is always moved back to standby before the cycle
@@ -21,9 +22,8 @@ Beam safety:
 Correction (docs/campaigns.md): coarse (:mod:`controller.calibration.cycle.coarse`) or fine (the centroid,
 ``Pointing.fine_correction``) until within ``tolerance_mrad`` or ``max_iterations`` measurements (one on a
 planned observation); then ``Pointing.fit`` refits the model. Measuring moves end moving up on both axes
-(``approach``, backlash); a look without a spot goes on to a beam search's next look (``search``).
-
-Units: motor steps (int), degrees at this edge, mrad (reflected beam), ENU m, plant-clock s.
+(``approach``, backlash); a look without a spot goes on to a beam search's next look (``search``). Units:
+motor steps (int), degrees at this edge, mrad (reflected beam), ENU m, plant-clock s.
 """
 
 from __future__ import annotations
@@ -134,9 +134,8 @@ class CalibrationCycle:
         self.observer.state_changed(self.ctx.heliostat_id, self.state)
 
     def _on_exception(self, *_event_args) -> None:
-        # Called inside the machine's ``except`` block (with send_event=False it gets the
-        # trigger's arguments, not the exception). A trigger that is no longer valid lost a
-        # race with a timeout or abort from another thread: the machine already moved on.
+        # Called inside the machine's ``except`` block (send_event=False: the trigger's arguments). A
+        # trigger no longer valid lost a race with a timeout or abort: the machine already moved on.
         exc = sys.exc_info()[1]
         if not isinstance(exc, MachineError):
             self.cause = self.cause or f"state machine error: {exc!r}"
@@ -221,19 +220,24 @@ class CalibrationCycle:
         self.az, self.el = self.at = st.az_steps, st.el_steps
 
     def do_preparing(self) -> str:
-        p = self.ctx.pointing
+        p, st = self.ctx.pointing, self.ctx.drive.status()
         with self.ctx.time.computing():
             self.aim, self.standby = p.aim_steps(self.ctx.model), p.standby_steps(self.ctx.model)
-        self._park("preparing")
+            # Parked beside the target (a lamp change's standby), it may wait there (may_wait_at).
+            here = (st.az_steps, st.el_steps)
+            wait = not st.moving and p.may_wait_at(here, self.standby, self.aim, p.stay_margin_m())
+        if wait:
+            self.az, self.el = self.at = here
+        else:
+            self._park("preparing", status=st)
         self.run_rec.at_standby_s = self.ctx.time.now()
         return "parked"
 
-    def _park(self, state: str, watch=None) -> None:
-        # The slew to standby must not sweep the beam across a target (someone else may be
-        # measured there) nor into a person zone: the pointing plans waypoints that keep it off,
-        # from wherever the drive stands (after a fault, anywhere along a move).
+    def _park(self, state: str, watch=None, status=None) -> None:
+        # The slew to standby must not sweep the beam across a target (someone else may be measured
+        # there) nor into a person zone: waypoints from wherever it stands (after a fault, anywhere).
         park(self.ctx.drive, self.ctx.pointing, self.standby, lambda az, el: self._move(state, az, el, watch),
-             computing=self.ctx.time.computing)
+             status, self.ctx.time.computing)
 
     def do_standby(self) -> str:
         if self.measured or self.cause:
@@ -342,8 +346,7 @@ class CalibrationCycle:
     def do_fault(self) -> str:
         """Make the heliostat safe: clear latched faults, park at standby, else stow."""
         d = self.ctx.drive
-        self.status = "failed"
-        first: Exception | None = None
+        self.status, first = "failed", None  # first: the first exception (Exception | None)
         # A link that dropped may come back (reconnect): a few attempts, a second apart.
         for attempt in range(FAULT_ATTEMPTS):
             try:
@@ -386,11 +389,8 @@ class CalibrationCycle:
         if self.cause:
             self.status = "no_beam" if self.no_beam and self.state != "aborted" else "failed"
         r = self.run_rec
-        r.status = self.status
-        r.final_state = self.state
-        r.fault_cause = self.cause
-        r.fault_state = self.fault_state
-        r.end_s = self.ctx.time.now()
+        r.status, r.final_state, r.fault_cause = self.status, self.state, self.cause
+        r.fault_state, r.end_s = self.fault_state, self.ctx.time.now()
         self.machine.remove_model(self)
         return r
 

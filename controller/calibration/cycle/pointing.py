@@ -104,6 +104,13 @@ class GeometryPointing(BeamSafety):
             self._offset_m = max(self._least_offset_m, clearance + across)
         return self._offset_m
 
+    def stay_margin_m(self) -> float:
+        """How far (m) off every target the beam of a heliostat that stays where it is must land
+        (a lamp change, :meth:`may_wait_at`): as far as its standby beam, its standby offset less
+        half the largest target, at least 2 m — closer, its spot's tails would fall into a view."""
+        half = max(max(t.width_m, t.height_m) for t in (self.target, *(o[2] for o in self.others))) / 2
+        return max(2.0, self.standby_offset_m - half)
+
     @property
     def standby_point(self) -> np.ndarray:
         """The standby point (m ENU), chosen when first asked for: a lamp change asks only
@@ -282,6 +289,9 @@ class GeometryPointing(BeamSafety):
     def aim_steps(self, model: ModelRecord | None) -> tuple[int, int]:
         """Steps onto the aim point; UnsafePath when the beam there, or on the approach from
         standby, would enter a person zone (nothing has moved yet)."""
+        return self._kept(("aim", self._aim_key(self.aim_point, model)), lambda: self._aim_steps(model))
+
+    def _aim_steps(self, model: ModelRecord | None) -> tuple[int, int]:
         aim = self._steps(self.aim_point, model)
         if self.zone_ids:
             sweep = self._sweep(self.standby_steps(model), aim)
@@ -297,7 +307,11 @@ class GeometryPointing(BeamSafety):
     def standby_steps(self, model: ModelRecord | None, point=None) -> tuple[int, int]:
         """Steps onto the standby point (or ``point``, m ENU); UnsafePath when the beam there
         would enter a person zone."""
-        standby = self._steps(self.standby_point if point is None else point, model)
+        point = self.standby_point if point is None else point
+        return self._kept(("standby", self._aim_key(point, model)), lambda: self._standby_steps(point, model))
+
+    def _standby_steps(self, point, model: ModelRecord | None) -> tuple[int, int]:
+        standby = self._steps(point, model)
         zone = self.beam_in_zone(*standby)
         if zone is not None:
             raise UnsafePath(f"{self.heliostat.id}: the standby pose {standby} would send the beam into "

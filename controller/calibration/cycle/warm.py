@@ -49,7 +49,10 @@ def warm_aims(pointings: Iterable[GeometryPointing]) -> None:
         points = [p.aim_point, *p.side_points()]
         keys = [p._aim_key(x, p.model) for x in points]
         if any(_AIMS.peek(k, (p.heliostat,)) is None for k in keys):
-            todo.setdefault((p.source_dir.tobytes(), p.source_pos), []).append((p, np.array(points), keys))
+            # A lamp's direction is taken from each mirror centre: one batch per lamp (keyed by
+            # each heliostat's direction to it, every heliostat was a batch of its own).
+            group = (p.source_pos,) if p.source_pos is not None else (p.source_dir.tobytes(),)
+            todo.setdefault(group, []).append((p, np.array(points), keys))
     for items in todo.values():
         p0 = items[0][0]
         kin = KinStack.of([p.kin for p, _, _ in items])

@@ -259,9 +259,6 @@ class _Problem:
         jd = (member2[:, :, None] * off[:, None, :] * self.sess.scale[None, :, None]).reshape(len(r[0]), -1)
         return r[0], np.hstack([jt, jd[:, :k * (self.sess.count - 1)]])
 
-    def data_res(self, x: np.ndarray) -> np.ndarray:
-        return self.residuals(self.values(x)[None], x)[0]
-
 
 def fit_model(kin: HeliostatKinematics, samples: Sequence[Sample], *, noise_mrad: float = 0.3,
               prior: TrackingModel | None = None, prior_sigma: np.ndarray | None = None,
@@ -286,37 +283,37 @@ def fit_model(kin: HeliostatKinematics, samples: Sequence[Sample], *, noise_mrad
     x[:pb.npar] = (st.values - st.prior) / st.sigma
     pb.set_bases(x)
     weights = np.ones(len(samples))
-    converged, last = False, None
+    converged = False
+    r, jac = pb.linearise(x)
     for it in range(MAX_STEPS):
         w = np.repeat(np.sqrt(weights * pb.age_w), 2)
-        r, jac = pb.linearise(x)
         jd = w[:, None] * jac
         dx = -np.linalg.solve(jd.T @ jd + pb.precision, jd.T @ (w * r) + pb.precision @ x)
-        for _ in range(20):  # a step that leaves an actuator's triangle is halved
-            res = pb.data_res(x + dx)
-            if np.all(np.isfinite(res)):
+        # The next step's residuals and Jacobian, taken where this one lands (one evaluation
+        # of the model for both); a step that leaves an actuator's triangle is halved.
+        for _ in range(20):
+            r, jac = pb.linearise(x + dx)
+            if np.all(np.isfinite(r)):
                 break
             dx = dx / 2.0
         x = x + dx
-        norms = np.sqrt(pb.age_w) * np.linalg.norm(res.reshape(-1, 2), axis=1)
+        norms = np.sqrt(pb.age_w) * np.linalg.norm(r.reshape(-1, 2), axis=1)
         new = _robust(norms, redescending=it >= WARMUP) if robust else weights
         settled = np.max(np.abs(dx)) < 1e-6 and np.allclose(new, weights, atol=1e-3)
         if settled and (it >= WARMUP or not robust):
-            # The residuals at x and the Jacobian at the step before, under 1e-6 (whitened)
-            # away: the optimum's, far inside the forward differences' own step (_JAC_STEP).
-            converged, last = True, (res, jac)
+            converged = True
             break
         weights = new
-    return _result(pb, samples, x, weights, converged, st.notes, p0, last)
+    return _result(pb, samples, x, weights, converged, st.notes, p0, (r, jac))
 
 
 def _result(pb: _Problem, samples: Sequence[Sample], x: np.ndarray, weights: np.ndarray, converged: bool,
-            notes: tuple[str, ...], p0: np.ndarray, linear=None) -> ModelFit:
+            notes: tuple[str, ...], p0: np.ndarray, linear: tuple[np.ndarray, np.ndarray]) -> ModelFit:
     """ModelFit at the optimum x: Σ and identification of Eq. (2), residuals per sample;
-    ``linear``: (residuals, Jacobian) there, when the last step computed them."""
+    ``linear``: (residuals, Jacobian) at x."""
     npar = pb.npar
     w = np.repeat(np.sqrt(weights * pb.age_w), 2)
-    r, jac = pb.linearise(x) if linear is None else linear
+    r, jac = linear
     jd = w[:, None] * jac
     post_x = np.linalg.inv(jd.T @ jd + pb.precision)
     ratio2 = np.clip(np.diag(post_x)[:npar], 0.0, 1.0)

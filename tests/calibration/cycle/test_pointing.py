@@ -79,6 +79,44 @@ def test_path_from_stow_never_crosses_the_target(cfg, hid):
     assert not any(p.beam_on_target(*q, margin_m=0.0) for q in pts)
 
 
+def _sampled(p, start, end, n=400):
+    """Poses along the slew from ``start`` to ``end``, each axis at its configured speed
+    (independent of ``BeamSafety._sweep``)."""
+    ax = p.heliostat.axes
+    speed = np.array([ax.azimuth.speed_steps_per_s, ax.elevation.speed_steps_per_s])
+    a, b = np.array(start, float), np.array(end, float)
+    dur = np.abs(b - a) / speed
+    return np.array([a + np.minimum(1, t / np.maximum(dur, 1e-12)) * (b - a) for t in np.linspace(0, dur.max(), n)])
+
+
+def test_a_heliostat_waits_where_it_stands_when_the_slew_to_standby_would_bow_towards_the_target(cfg):
+    """Parked beside the target (a lamp change's standby) and about to be measured: it waits there
+    (``may_wait_at``) exactly when its beam there is off the target by the stay margin and the slew
+    to its standby, higher or lower beside the target, would bring the beam closer than that
+    (both axes move at their own speeds: the beam bows); a beam already inside the margin moves."""
+    waits = moves = 0
+    for h in cfg.heliostats:
+        p = _pointing(cfg, h.id, None)
+        f, m, aim = p.frame, p.stay_margin_m(), p.aim_steps(None)
+        out = max(p.park_clearance_m(p.source, None), p.target.width_m / 2 + m) + 1.0
+        for side in (1.0, -1.0):
+            for dv in (-6.0, -3.0, 3.0, 6.0):
+                a = p.kin.aim(p.source_dir, f.center + side * out * f.u)
+                b = p.kin.aim(p.source_dir, f.center + side * out * f.u + dv * f.v)
+                assert not p.on_target([a], margin_m=m).any()
+                poses = _sampled(p, a, b)
+                if p.on_target(poses, margin_m=m - 0.25).any():  # bows into the margin
+                    assert p.may_wait_at(a, b, aim, m), (h.id, side, dv)
+                    waits += 1
+                elif not p.on_target(poses, margin_m=m + 0.25).any():
+                    assert not p.may_wait_at(a, b, aim, m), (h.id, side, dv)
+                    moves += 1
+                inside = p.kin.aim(p.source_dir, f.center + side * (p.target.width_m / 2 + m - 1.0) * f.u)
+                assert p.on_target([inside], margin_m=m).any()
+                assert not p.may_wait_at(inside, b, aim, m)
+    assert waits and moves  # both cases arise on the demo field
+
+
 def test_path_across_the_target_is_refused(cfg):
     p = _pointing(cfg, "H04", None)
     west = p.kin.aim(p.source_dir, p.aim_point + 8.0 * np.array([-1.0, 0.0, 0.0]))
@@ -186,3 +224,26 @@ def test_a_round_member_parks_with_the_model_refitted_on_its_measurement(cfg):
     assert p.leave_steps(new) != p.leave_steps(old)
     assert SharedCapture.leave_pose(None, cycle(new)) == p.leave_steps(new)
     assert SharedCapture.leave_pose(None, cycle(None)) == p.leave_steps(old)
+
+
+def test_aim_and_standby_steps_are_traced_once_per_model_and_ray_model(cfg, monkeypatch):
+    """A pointing keeps its aim and standby steps (each traced through the person zones): asked
+    again with the same model it traces nothing; another model, or another model for its rays
+    (a search's fit), is traced again; the answers are those of a fresh pointing."""
+    p = _pointing(cfg, "H04", None)
+    traced = []
+    real = p.in_zone
+    monkeypatch.setattr(p, "zone_ids", ["z"])  # traced as if the plant had a zone
+    monkeypatch.setattr(p, "in_zone", lambda poses: traced.append(len(poses)) or real(poses))
+    monkeypatch.setattr(p, "beam_in_zone", lambda az, el: traced.append(1) and None)
+    first = p.aim_steps(None), p.standby_steps(None)
+    n = len(traced)
+    assert n and (p.aim_steps(None), p.standby_steps(None)) == first and len(traced) == n
+    model = ModelRecord({"az_offset_mrad": 0.5}, {}, 0.0, 1)
+    assert p.aim_steps(model) != first[0] and len(traced) > n
+    n = len(traced)
+    p.ray_model = p.ray_model + 1e-4
+    p.aim_steps(model)
+    assert len(traced) > n
+    fresh = _pointing(cfg, "H04", None)
+    assert (fresh.aim_steps(None), fresh.standby_steps(None)) == first

@@ -16,6 +16,7 @@ from controller.calibration.cycle.pointing import GeometryPointing, steps_to_aim
 from controller.calibration.cycle.solved import Solved
 from controller.config import parse_config
 from controller.errors import LimitError
+from controller.geometry.pose_batch import aim_steps
 from controller.geometry.target_frame import TargetFrame
 from simplant.cheap_night import field_data
 from tests.calibration.conftest import calibrated_record
@@ -47,7 +48,10 @@ def test_warmed_clearances_and_steps_are_those_solved_one_at_a_time(field, lamp,
         monkeypatch.setattr(pointing_mod, name, store)
         monkeypatch.setattr(warm, name, store)
     ps = _pointings(field, lamp, True)
+    batches = []
+    monkeypatch.setattr(warm, "aim_steps", lambda *a, **k: batches.append(1) or aim_steps(*a, **k))
     warm.warm_aims(ps)
+    assert len(batches) == 1  # one lamp: one batch (each heliostat's direction to it differs)
     solved = 0
     for p in ps:
         key = p._clearance_key(p.source, p.model)
