@@ -52,7 +52,8 @@ class TargetGate:
         lock = threading.RLock()
         # Two conditions on one lock: the tickets waiting for their turn (acquire) are woken only
         # by what may admit one (changed()), not by every step of a round, whose members wait
-        # on cv (group.py): a night's two dozen waiting cycles woke 94 times per measurement.
+        # on cv (group.py). With one condition, a cycle of a 10,000-heliostat night (3 targets,
+        # K = 4) woke 94 times on average while it waited for its turn.
         self.cv = threading.Condition(lock)
         self.turns = threading.Condition(lock)
         self._next = 0  # the next ticket to admit, in queue order

@@ -130,7 +130,8 @@ def test_preparing_waits_where_the_drive_stands_when_the_pointing_says_it_may(ma
     bow towards it): *preparing* commands no move and the approach starts from where the drive
     stands; after the measurement the beam parks at standby as always."""
     cyc, plant, drive = make_cycle(match=MATCH)
-    st = drive.move_and_wait(plant.standby[0] - 3000, plant.standby[1] + 500, timeout_s=60.0, time=cyc.ctx.time)
+    away = (plant.standby[0] - 3000, plant.standby[1] + 500)
+    st = drive.move_and_wait(*away, timeout_s=60.0, time=cyc.ctx.time)
     here, asked, visited = (st.az_steps, st.el_steps), [], []
     cyc.ctx.pointing.may_wait_at = lambda pose, standby, aim, m: asked.append((pose, standby, m)) or True
     real_move = drive._send_move_abs

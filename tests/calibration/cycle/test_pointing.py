@@ -86,7 +86,8 @@ def _sampled(p, start, end, n=400):
     speed = np.array([ax.azimuth.speed_steps_per_s, ax.elevation.speed_steps_per_s])
     a, b = np.array(start, float), np.array(end, float)
     dur = np.abs(b - a) / speed
-    return np.array([a + np.minimum(1, t / np.maximum(dur, 1e-12)) * (b - a) for t in np.linspace(0, dur.max(), n)])
+    times = np.linspace(0, dur.max(), n)
+    return np.array([a + np.minimum(1, t / np.maximum(dur, 1e-12)) * (b - a) for t in times])
 
 
 def test_a_heliostat_waits_where_it_stands_when_the_slew_to_standby_would_bow_towards_the_target(cfg):
