@@ -126,6 +126,10 @@ class TargetGate:
                     if cancelled() or self.blocked:
                         return False
                     self.turns.wait(poll_s)
+                    # Held back while it waited (a pass stopped), it may be woken by the very
+                    # release that would admit it, before its own poll would have seen it.
+                    if cancelled():
+                        return False
                 self.holders.add(ticket)
                 self._next += 1
                 while self._next in self._done:
@@ -148,6 +152,8 @@ class TargetGate:
                     if cancelled() or self.blocked:
                         return False
                     self.turns.wait(poll_s)
+                    if cancelled():  # as in acquire
+                        return False
                 self.alone = ticket
                 return True
             finally:
