@@ -18,10 +18,9 @@ model on all of them, weighted by age (``calibration.model.age_halflife_days``).
 
 from __future__ import annotations
 
-import gc
 import threading
 from collections.abc import Callable
-from contextlib import AbstractContextManager, contextmanager, nullcontext
+from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass
 
 from controller.calibration.beams.slots import lamp_rate
@@ -117,25 +116,6 @@ def run_night(plan: list[PlanItem], night: str, run_pass: Callable[[Pass], Campa
     night with the lamp dark. Without it the caller guarantees that no heliostat of the night
     can reflect the next lamp onto a target (a single-lamp night). ``next_lamp(lamps, passes)``:
     which of the lamps not yet lit comes next (default: in order of first appearance)."""
-    with _frozen_heap():
-        return _run_night(plan, night, run_pass, stop_all, change_lamp, next_lamp)
-
-
-@contextmanager
-def _frozen_heap():
-    """What exists when the passes start (the field, its models, the plan, the stores' caches)
-    lives all night: it is kept out of the garbage collector's full passes (``gc.freeze``) until
-    the night ends. Each full pass walked it again: in a sampled 10,000-heliostat benchmark run
-    (planning, night and refit), 21 full passes cost 11 s of CPU."""
-    gc.collect()
-    gc.freeze()
-    try:
-        yield
-    finally:
-        gc.unfreeze()
-
-
-def _run_night(plan, night, run_pass, stop_all, change_lamp, next_lamp) -> list[CampaignResult]:
     results: list[CampaignResult] = []
     halted = threading.Event()
     passes = night_passes(plan, night)
