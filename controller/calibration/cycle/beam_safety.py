@@ -48,11 +48,10 @@ class BeamSafety:
         self.ray_model = (model or TrackingModel.zero()).values
         self._poses: dict[tuple, tuple[int, int] | str] = {}  # _kept's
 
-    def _kept(self, key: tuple, compute) -> tuple:
-        """``compute()``'s answer (a pose, a path), kept by ``key`` and the ray's model: a pointing
-        is asked for its aim and standby steps and its paths several times (a slot's checks,
-        preparing, each park), and each answer traces the beam through the targets and person
-        zones. An UnsafePath is kept as its message."""
+    def _kept(self, key: tuple, compute) -> tuple[int, int]:
+        """``compute()``'s pose, kept by ``key`` and the ray's model: a pointing is asked for its
+        aim and standby steps several times (a slot's checks, preparing, each park), and each
+        answer traces the beam through the person zones. An UnsafePath is kept as its message."""
         key = (*key, self.ray_model.tobytes())
         kept = self._poses.get(key)
         if kept is None:
@@ -184,14 +183,10 @@ class BeamSafety:
         first, else azimuth first.
         The motion model moves each axis at its configured speed (acceleration ignored).
         Nor does it enter a person zone (a beam that starts in one may leave it).
-        Raises :class:`UnsafePath` when no such path exists; no waypoint when it stands there.
-        Kept (:meth:`_kept`): a slot's check, a leave pose's check and the park ask for the same."""
+        Raises :class:`UnsafePath` when no such path exists; no waypoint when it stands there."""
         if tuple(start) == tuple(end):
             return []
-        start, end = tuple(start), tuple(end)
-        return list(self._kept(("path", start, end), lambda: tuple(self._path(start, end))))
 
-    def _path(self, start: tuple[int, int], end: tuple[int, int]) -> list[tuple[int, int]]:
         def never_back(flags: np.ndarray) -> bool:
             # A beam that starts on a target (in a zone) may leave it; once off it must never enter.
             off = np.flatnonzero(~flags)

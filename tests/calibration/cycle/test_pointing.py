@@ -249,25 +249,3 @@ def test_aim_and_standby_steps_are_traced_once_per_model_and_ray_model(cfg, monk
     fresh = _pointing(cfg, "H04", None)
     assert (fresh.aim_steps(None), fresh.standby_steps(None)) == first
 
-
-def test_a_path_is_traced_once_per_pointing_and_ray_model(cfg, monkeypatch):
-    """``path_to`` keeps its answer: the same path again without tracing a ray, a refusal again
-    as a refusal; another ray model (a search's fit) traces it again."""
-    p = _pointing(cfg, "H04", None)
-    traced = []
-    real = p.rays
-    monkeypatch.setattr(p, "rays", lambda poses: traced.append(1) or real(poses))
-    start, end = p.aim_steps(None), p.standby_steps(None)
-    path = p.path_to(start, end)
-    n = len(traced)
-    assert n and path[-1] == end and p.path_to(start, end) == path and len(traced) == n
-    west = p.kin.aim(p.source_dir, p.aim_point + 8.0 * np.array([-1.0, 0.0, 0.0]))
-    east = p.kin.aim(p.source_dir, p.aim_point + 8.0 * np.array([1.0, 0.0, 0.0]))
-    with pytest.raises(UnsafePath):
-        p.path_to(west, east)
-    n = len(traced)
-    with pytest.raises(UnsafePath):
-        p.path_to(west, east)
-    assert len(traced) == n
-    p.ray_model = p.ray_model + 1e-6
-    assert p.path_to(start, end) == path and len(traced) > n
