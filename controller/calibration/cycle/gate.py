@@ -120,7 +120,10 @@ class TargetGate:
         with self.cv:
             self.waiting.add(ticket)
             # A round may wait for this one (cv); a first-round ticket too, if it is one of them.
-            self.changed() if ticket in self._together else self.cv.notify_all()
+            if ticket in self._together:
+                self.changed()
+            else:
+                self.cv.notify_all()
             try:
                 while not self.admissible(ticket):
                     if cancelled() or self.blocked:
