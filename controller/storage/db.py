@@ -150,15 +150,20 @@ class CampaignStore:
 
     @contextmanager
     def tx(self) -> Iterator[sqlite3.Connection]:
-        """One write transaction (BEGIN IMMEDIATE … COMMIT, ROLLBACK on any exception)."""
+        """One write transaction (BEGIN IMMEDIATE … COMMIT, ROLLBACK on any exception).
+
+        A Ctrl-C (SIGTERM) raised between the body and COMMIT, or cutting a ROLLBACK short, leaves
+        the transaction open: it is rolled back, here or by the next one; never half a write."""
         with self._lock:
-            self._db.execute("BEGIN IMMEDIATE")
-            try:
-                yield self._db
-            except BaseException:
+            if self._db.in_transaction:  # only an interrupted transaction is open here: undone
                 self._db.execute("ROLLBACK")
-                raise
-            self._db.execute("COMMIT")
+            try:
+                self._db.execute("BEGIN IMMEDIATE")
+                yield self._db
+                self._db.execute("COMMIT")
+            finally:
+                if self._db.in_transaction:
+                    self._db.execute("ROLLBACK")
 
     def close(self, refused: BaseException | None = None) -> None:
         """Close; after a refusal (an InputError) a database this open created, still empty, goes."""

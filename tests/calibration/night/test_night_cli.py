@@ -136,8 +136,8 @@ def test_ctrl_c_during_a_night_parks_and_the_rerun_resumes_it(small_config, tmp_
     p = _heliocal("campaign", "night", *common)
     assert _wait_for_rows(p, db, RUNS_OF.format(1), scaled_s(240)) and p.poll() is None
     p.send_signal(signal.SIGINT)
-    code, _, err = _done(p, scaled_s(60))
-    assert code == 130 and "interrupted" in err and "every lamp confirmed dark" in err
+    code, out, err = _done(p, scaled_s(60))
+    assert code == 130 and "interrupted" in err and "every lamp confirmed dark" in err, (out, err)
     with sqlite3.connect(db) as c:
         name, status, summary = c.execute("SELECT name, status, summary_json FROM nights "
                                           "WHERE idx=1").fetchone()
