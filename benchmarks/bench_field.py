@@ -37,6 +37,10 @@ What runs, in order, each timed:
 simulated truth: :attr:`simplant.devices.cheap_camera.CheapCamera.beams_in_view`).
 ``controller_cpu_s``: CPU seconds of this process and its worker processes over steps 2-5 —
 the night's share includes the in-process simulated plant (its cameras and physics).
+``night_gc``: the garbage collector during the night — how many collections ran at which
+``thresholds`` (``"young/middle/old"``; the passes at the night's,
+:mod:`controller.calibration.night.collector`, the night's planning at the process's),
+``collections`` and their ``cpu_s`` per generation (young, middle, full).
 
 **The peer** (``model``): a discrete-event model of the runner's rules over the same sample
 plan — slews at the configured axis speeds, settle and :data:`PROCESS_S` per measurement,
@@ -50,12 +54,14 @@ of their plant hours.
 from __future__ import annotations
 
 import argparse
+import gc
 import json
 import math
 import os
 import resource
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -95,6 +101,37 @@ def cpu_s() -> float:
     """CPU seconds of this process and its (finished) worker processes."""
     me, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
     return me.ru_utime + me.ru_stime + kids.ru_utime + kids.ru_stime
+
+
+class GcMeter:
+    """The garbage collector's collections per generation and their CPU s (thread time of the
+    thread that collected) while entered, and how many ran at which thresholds."""
+
+    def __init__(self) -> None:
+        self.collections, self.cpu_s = [0, 0, 0], [0.0, 0.0, 0.0]
+        self.at: dict[str, int] = {}
+        self._start: dict[int, float] = {}
+
+    def _callback(self, phase: str, info: dict) -> None:
+        me = threading.get_ident()
+        if phase == "start":
+            self._start[me] = time.thread_time()
+            key = "/".join(map(str, gc.get_threshold()))
+            self.at[key] = self.at.get(key, 0) + 1
+        elif me in self._start:
+            g = info["generation"]
+            self.collections[g] += 1
+            self.cpu_s[g] += time.thread_time() - self._start.pop(me)
+
+    def __enter__(self) -> GcMeter:
+        gc.callbacks.append(self._callback)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        gc.callbacks.remove(self._callback)
+
+    def to_json(self) -> dict:
+        return {"thresholds": self.at, "collections": self.collections, "cpu_s": self.cpu_s}
 
 
 def sample_plan(plan, ids: list[str], limit: int, targets: int) -> tuple[list, list[str]]:
@@ -239,8 +276,9 @@ def main() -> None:
     watch = OnTarget(cheap, items)
     since = {tid: len(cam.beams_in_view) for tid, cam in cheap.cameras.items()}
     cpu0, sim0 = cpu_s(), clock.frozen_cpu_s
-    r = run_planned_night(cheap, items, night, 3600.0 * args.night_h, heliostat_ids=ids,
-                          unmeasurable=plan.unmeasurable, workers=args.workers, observers=[watch])
+    with GcMeter() as collector:
+        r = run_planned_night(cheap, items, night, 3600.0 * args.night_h, heliostat_ids=ids,
+                              unmeasurable=plan.unmeasurable, workers=args.workers, observers=[watch])
     night_cpu, plant_cpu = cpu_s() - cpu0, clock.frozen_cpu_s - sim0
     say(f"night: {len(r.measured)}/{r.planned} measured, {r.plant_s / 3600:.2f} plant h, "
         f"{r.wall_s:.0f} s wall, {night_cpu:.0f} s CPU ({plant_cpu:.0f} s of it the simulated plant's)")
@@ -280,6 +318,7 @@ def main() -> None:
         "controller_ms_per_measurement": 1e3 * (night_cpu - plant_cpu) / max(1, measured),
         "plant_ms_per_measurement": 1e3 * plant_cpu / max(1, measured),
         "night_cpu_s": night_cpu, "night_plant_cpu_s": plant_cpu, "night_wall_s": r.wall_s,
+        "night_gc": collector.to_json(),
         "night0": {"closed_loop_heliostats": z.heliostats, "calibrated": z.calibrated, "statuses": z.statuses,
                    "measurements": z.measurements, "plant_hours": z.plant_s / 3600.0, "wall_s": z.wall_s,
                    "captures_with_a_stray_beam": z_bad, "captures": z_caps,
