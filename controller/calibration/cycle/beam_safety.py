@@ -177,15 +177,21 @@ class BeamSafety:
         c, b = self.rays(self._sweep(pose, aim))
         return not (self._on_others(c, b, 2.0).any() or self._in_zone(c, b).any())
 
+    def path_margin_m(self) -> float | np.ndarray:
+        """How far (m; or (u, v) m) beyond each target's edges a slew keeps the central ray: 2 m
+        here; a pointing that knows its spot keeps the spot out of the cameras' views."""
+        return 2.0
+
     def path_to(self, start: tuple[int, int], end: tuple[int, int]) -> list[tuple[int, int]]:
         """Waypoints from ``start`` to ``end`` (a point off the target) along which the beam
-        never crosses the target nor any of the ``others``: both axes together, else elevation
-        first, else azimuth first.
+        never crosses the target nor any of the ``others`` grown by :meth:`path_margin_m`: both
+        axes together, else elevation first, else azimuth first.
         The motion model moves each axis at its configured speed (acceleration ignored).
         Nor does it enter a person zone (a beam that starts in one may leave it).
         Raises :class:`UnsafePath` when no such path exists; no waypoint when it stands there."""
         if tuple(start) == tuple(end):
             return []
+        margin = self.path_margin_m()
 
         def never_back(flags: np.ndarray) -> bool:
             # A beam that starts on a target (in a zone) may leave it; once off it must never enter.
@@ -195,8 +201,8 @@ class BeamSafety:
         def clear(plan: list[tuple[int, int]]) -> bool:
             poses = np.vstack([self._sweep(a, b) for a, b in zip([start] + plan[:-1], plan, strict=True)])
             c, b = self.rays(np.vstack([np.asarray(start, float)[None], poses]))  # traced once for all three
-            return (never_back(self._lands_on(c, b, self.frame.center, self.frame, self.target, 2.0))
-                    and never_back(self._on_others(c, b, 2.0)) and never_back(self._in_zone(c, b)))
+            return (never_back(self._lands_on(c, b, self.frame.center, self.frame, self.target, margin))
+                    and never_back(self._on_others(c, b, margin)) and never_back(self._in_zone(c, b)))
 
         plans = ([end], [(start[0], end[1]), end], [(end[0], start[1]), end])
         for plan in plans:

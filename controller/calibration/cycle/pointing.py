@@ -15,14 +15,7 @@ from controller.calibration.cycle.model_update import fit_measurements, model_pr
 from controller.calibration.cycle.observations import Step
 from controller.calibration.cycle.solved import Solved
 from controller.calibration.records import MeasurementRecord, ModelRecord
-from controller.config import (
-    BeamSearch,
-    Heliostat,
-    LampSource,
-    ModelSettings,
-    PersonZone,
-    Target,
-)
+from controller.config import BeamSearch, Heliostat, LampSource, ModelSettings, PersonZone, Target
 from controller.errors import LimitError
 from controller.geometry.aiming import source_direction
 from controller.geometry.correction import correction_from_offset
@@ -30,12 +23,7 @@ from controller.geometry.kinematics import HeliostatKinematics
 from controller.geometry.model.tracking import TERMS, TrackingModel, model_aim
 from controller.geometry.pose_batch import KinStack
 from controller.geometry.search_pattern import search_steps, spiral_offsets
-from controller.geometry.spot import (
-    SIGMAS,
-    MirrorOptics,
-    park_clearances_m,
-    predict_spots,
-)
+from controller.geometry.spot import SIGMAS, MirrorOptics, park_clearances_m, predict_spots
 from controller.geometry.target_frame import TargetFrame
 
 PARK_MARGIN_M = 0.5  # a parked spot's 3σ footprint ends at least this far outside the camera's view
@@ -45,6 +33,7 @@ AIMS_KEPT = 200_000
 _AIMS = Solved(AIMS_KEPT)
 # GeometryPointing.park_clearance_m: (heliostat, settings, model terms, source, view) -> m.
 _CLEARANCES = Solved(AIMS_KEPT)
+_SPOTS = Solved(AIMS_KEPT)  # GeometryPointing.path_margin_m: the same key -> (u, v) m
 DEFAULT_SETTINGS = ModelSettings()  # one object: the clearances' key names the settings by id
 
 
@@ -266,6 +255,19 @@ class GeometryPointing(BeamSafety):
             return None
         return pose
 
+    def path_margin_m(self) -> np.ndarray:
+        """A slew keeps its spot out of every view (another beam may be measured there): the
+        central ray at least the spot's footprint beyond a view's edges (:meth:`_footprint_m`:
+        3σ of its size and position plus :data:`PARK_MARGIN_M`; a park lies 1σ farther out),
+        at least 2 m beyond the target's (u, v, m)."""
+        key, owners = self._clearance_key(self.source, self.model), (self.heliostat, self.model_settings)
+        return _SPOTS.get(key, owners, lambda: np.maximum(2.0, self._footprint_m(self.model)))
+
+    def _view_excess_m(self) -> np.ndarray:
+        """How far (u, v, m) the camera's view reaches beyond the target on each side."""
+        f, t = self.frame, self.target
+        return np.maximum(np.array([f.width_m - t.width_m, f.height_m - t.height_m]) / 2.0, 0.0)
+
     def _footprint_m(self, model: ModelRecord | None) -> np.ndarray:
         """How far (u, v, m) beyond another target's edges its camera may see this heliostat's
         spot: 3σ of the spot's size and, with a model, of its position (:meth:`spot_sigmas_m`),
@@ -274,9 +276,7 @@ class GeometryPointing(BeamSafety):
         search explores (first-light σ of metres would refuse every look near another target)."""
         sigmas = self.spot_sigmas_m(self.source, model) if model is not None else None
         spot, position = sigmas or (0.0, 0.0)
-        f, t = self.frame, self.target
-        excess = np.maximum(np.array([f.width_m - t.width_m, f.height_m - t.height_m]) / 2.0, 0.0)
-        return SIGMAS * (spot + position) + PARK_MARGIN_M + excess
+        return SIGMAS * (spot + position) + PARK_MARGIN_M + self._view_excess_m()
 
     def _steps(self, point: np.ndarray, model: ModelRecord | None) -> tuple[int, int]:
         return _AIMS.get(self._aim_key(point, model), (self.heliostat,),

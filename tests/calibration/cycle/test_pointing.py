@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -16,8 +18,6 @@ from simplant.optics import TargetGrid
 
 @pytest.fixture(scope="module")
 def cfg():
-    from pathlib import Path
-
     return load_config(Path(__file__).resolve().parents[3] / "configs" / "demo.yaml")
 
 
@@ -124,6 +124,53 @@ def test_path_across_the_target_is_refused(cfg):
     east = p.kin.aim(p.source_dir, p.aim_point + 8.0 * np.array([1.0, 0.0, 0.0]))
     with pytest.raises(UnsafePath, match="off the target"):
         p.path_to(west, east)
+
+
+@pytest.fixture(scope="module")
+def wide(cfg):
+    """A 300-heliostat field of the 10,000-field's kind (simplant.cheap_night, K = 4): targets
+    sized for the far rows' spots, a camera view reaching beyond each side of its target."""
+    import yaml
+
+    from controller.config import parse_config
+    from simplant.cheap_night import field_data
+
+    base = yaml.safe_load((Path(__file__).resolve().parents[3] / "configs" / "demo.yaml").read_text())
+    return parse_config(field_data(base, 300, 1, 1, beams=4), "wide.yaml")
+
+
+def test_a_slew_keeps_its_spot_out_of_the_view_not_only_its_ray_off_the_target(wide):
+    """Issue 42: a slew beside the target whose central ray stayed 2 m off it put the spot's
+    tails into the camera's view (which reaches beyond the target) while other beams were
+    measured there. The margin is the spot's footprint beyond the view. From below the target to
+    above it along the side of the view, just inside the margin and just beyond it: a path is
+    refused, or its whole sweep keeps out of the margin (wider than the old 2 m)."""
+    from tests.calibration.conftest import calibrated_record
+
+    cam, t = wide.camera, wide.target()
+    f = TargetFrame.from_config(t, (cam.height_px, cam.width_px))
+    excess = np.array([f.width_m - t.width_m, f.height_m - t.height_m]) / 2
+    for hid in ("F0001", "F0100", "F0200", "F0300"):
+        model = calibrated_record(wide, hid)
+        p = GeometryPointing(wide.heliostat(hid), t, wide.light_source(), f, 12.0, None, model=model)
+        size, position = p.spot_sigmas_m(p.source, model)
+        margin = p.path_margin_m()
+        np.testing.assert_allclose(margin, np.maximum(2.0, 3.0 * (size + position) + 0.5 + excess))
+        assert margin[0] > 2.5 and excess[0] > 0.5  # the view's side and the spot count
+        below, above = -(t.height_m / 2 + margin[1] + 1.0), t.height_m / 2 + margin[1] + 1.0
+        for u in (t.width_m / 2 + margin[0] - 0.5, t.width_m / 2 + margin[0] + 0.5):
+            start = p._steps(f.center + u * f.u + below * f.v, model)  # the model its rays are traced with
+            end = p._steps(f.center + u * f.u + above * f.v, model)
+            assert not p.on_target([start, end], margin_m=margin).any()  # both ends out of the margin
+            through = p.on_target(p._sweep(start, end), margin_m=margin).any()
+            try:
+                path = p.path_to(start, end)
+            except UnsafePath:
+                assert through
+                continue
+            assert path[-1] == end and (path != [end] or not through)
+            sweep = np.vstack([p._sweep(a, b) for a, b in zip([start, *path[:-1]], path, strict=True)])
+            assert not p.on_target(sweep, margin_m=margin).any()
 
 
 def test_queue_shortest_slew_first(cfg):

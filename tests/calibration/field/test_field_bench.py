@@ -141,7 +141,8 @@ def test_a_beam_back_for_a_correction_leaves_the_target_to_one_waiting_to_be_mea
         r = c.run()
     finally:
         store.close()
-    assert c.slots is not None and c.slots.k >= 2 and c.group.gate.slot(1) == 1
+    # The first two of the queue share the first round, each at its own slot.
+    assert c.slots is not None and c.slots.k >= 2 and c.group.gate.slot(1) != c.group.gate.slot(0)
     # Nobody stalled: every run measured; a look within the 0.01 mrad tolerance (rare, under a
     # loaded machine's timing) ends its cycle calibrated without a correction.
     ended = {run.status for run in r.runs}
