@@ -38,9 +38,8 @@ simulated truth: :attr:`simplant.devices.cheap_camera.CheapCamera.beams_in_view`
 ``controller_cpu_s``: CPU seconds of this process and its worker processes over steps 2-5 —
 the night's share includes the in-process simulated plant (its cameras and physics).
 ``night_gc``: the garbage collector during the night — how many collections ran at which
-``thresholds`` (``"young/middle/old"``; the passes at the night's,
-:mod:`controller.calibration.night.collector`, the night's planning at the process's),
-``collections`` and their ``cpu_s`` per generation (young, middle, full).
+``thresholds`` (``"young/middle/old"``), ``collections`` and their ``cpu_s`` per generation
+(young, middle, full).
 
 **The peer** (``model``): a discrete-event model of the runner's rules over the same sample
 plan — slews at the configured axis speeds, settle and :data:`PROCESS_S` per measurement,

@@ -28,7 +28,6 @@ from controller.calibration.campaign.lamp_change import LampChange, Standby
 from controller.calibration.campaign.outcome import looked_and_failed
 from controller.calibration.campaign.parallel import run_per_target
 from controller.calibration.campaign.runner import CampaignResult
-from controller.calibration.night.collector import night_collector
 from controller.calibration.night.planner import PlanItem, geometry_key
 from controller.calibration.records import ModelRecord
 from controller.config import PlantConfig
@@ -102,7 +101,6 @@ def lamps_by_rate(cfg: PlantConfig, models_of: Callable[[list[str]], dict[str, M
     return choose
 
 
-@night_collector()
 def run_night(plan: list[PlanItem], night: str, run_pass: Callable[[Pass], CampaignResult],
               stop_all: Callable[[], None] | None = None,
               change_lamp: Callable[[str, dict[str, Standby]], LampChange] | None = None,
@@ -117,8 +115,7 @@ def run_night(plan: list[PlanItem], night: str, run_pass: Callable[[Pass], Campa
     (a :class:`controller.calibration.campaign.lamp_change.LampChanger`); its LampChangeError ends the
     night with the lamp dark. Without it the caller guarantees that no heliostat of the night
     can reflect the next lamp onto a target (a single-lamp night). ``next_lamp(lamps, passes)``:
-    which of the lamps not yet lit comes next (default: in order of first appearance). The
-    garbage collector runs at the night's pace meanwhile (:mod:`.collector`)."""
+    which of the lamps not yet lit comes next (default: in order of first appearance)."""
     results: list[CampaignResult] = []
     halted = threading.Event()
     passes = night_passes(plan, night)
