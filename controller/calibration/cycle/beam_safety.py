@@ -23,6 +23,10 @@ from controller.geometry.pose_batch import normal_and_center
 from controller.geometry.target_frame import TargetFrame
 from controller.geometry.zones import rays_enter_any, zone_boxes, zone_entered
 
+# A slew that starts inside a target's margin may not come closer to it than it started (the
+# rays' excess over the grown target never falls by more than this, m): sampling wobble only.
+SLIDE_TOL_M = 0.05
+
 
 class UnsafePath(HeliocalError):
     """No slew keeps the beam off the target (beam safety); nothing was sent."""
@@ -46,12 +50,13 @@ class BeamSafety:
         self.others = _other_frames(tuple(others), target.id)
         self.zones, self.zone_ids = zone_boxes(zones), [z.id for z in zones]
         self.ray_model = (model or TrackingModel.zero()).values
-        self._poses: dict[tuple, tuple[int, int] | str] = {}  # _kept's
+        self._poses: dict[tuple, tuple | str] = {}  # _kept's
 
-    def _kept(self, key: tuple, compute) -> tuple[int, int]:
-        """``compute()``'s pose, kept by ``key`` and the ray's model: a pointing is asked for its
-        aim and standby steps several times (a slot's checks, preparing, each park), and each
-        answer traces the beam through the person zones. An UnsafePath is kept as its message."""
+    def _kept(self, key: tuple, compute) -> tuple:
+        """``compute()``'s pose (or path), kept by ``key`` and the ray's model: a pointing is
+        asked for its aim and standby steps and its slews several times (a slot's checks,
+        preparing, each park), and each answer traces the beam past the targets and through the
+        person zones. An UnsafePath is kept as its message."""
         key = (*key, self.ray_model.tobytes())
         kept = self._poses.get(key)
         if kept is None:
@@ -150,13 +155,31 @@ class BeamSafety:
                   margin_m) -> np.ndarray:
         """Whether the rays from ``c`` along ``b`` (N, 3) land on ``target`` grown by ``margin_m``
         (m; or (u, v) m per axis; a ray pointing away from its plane does not)."""
+        return BeamSafety._excess_m(c, b, center, frame, target, margin_m) <= 0.0
+
+    @staticmethod
+    def _excess_m(c: np.ndarray, b: np.ndarray, center: np.ndarray, frame: TargetFrame, target: Target,
+                  margin_m) -> np.ndarray:
+        """How far (m, (N,)) outside ``target`` grown by ``margin_m`` the rays from ``c`` along
+        ``b`` land: max(|u| − w/2 − m_u, |v| − h/2 − m_v) at the hit (u, v), ≤ 0 on it, +∞ for a
+        ray pointing away from its plane."""
         with np.errstate(divide="ignore", invalid="ignore"):
             t = ((center - c) @ frame.normal) / (b @ frame.normal)
         hit = c + t[:, None] * b - center
         ok = np.isfinite(t) & (t >= 0.0)
         mu, mv = np.broadcast_to(np.asarray(margin_m, float), (2,))
-        return (ok & (np.abs(hit @ frame.u) <= target.width_m / 2 + mu)
-                & (np.abs(hit @ frame.v) <= target.height_m / 2 + mv))
+        e = np.maximum(np.abs(hit @ frame.u) - target.width_m / 2 - mu,
+                       np.abs(hit @ frame.v) - target.height_m / 2 - mv)
+        return np.where(ok, e, np.inf)
+
+    def _nearest_m(self, c: np.ndarray, b: np.ndarray, margin_m) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`_excess_m` of the rays over the target and over the nearest of ``others``
+        (+∞ without others)."""
+        own = self._excess_m(c, b, self.frame.center, self.frame, self.target, margin_m)
+        others = np.full(len(c), np.inf)
+        for centre, f, t in self.others:
+            others = np.minimum(others, self._excess_m(c, b, centre, f, t, margin_m))
+        return own, others
 
     def may_wait_at(self, pose, standby, aim, margin_m: float) -> bool:
         """Whether a heliostat about to take its turn may wait at ``pose`` (motor steps, where it
@@ -187,22 +210,44 @@ class BeamSafety:
         never crosses the target nor any of the ``others`` grown by :meth:`path_margin_m`: both
         axes together, else elevation first, else azimuth first.
         The motion model moves each axis at its configured speed (acceleration ignored).
-        Nor does it enter a person zone (a beam that starts in one may leave it).
+        Nor does it enter a person zone (a beam that starts in one may leave it). A beam that
+        starts beside a target, inside its grown margin, only moves away from it until it is out
+        (before 2026-11-29 it could slide along the margin, its spot's tails into a view).
         Raises :class:`UnsafePath` when no such path exists; no waypoint when it stands there."""
         if tuple(start) == tuple(end):
             return []
         margin = self.path_margin_m()
+        # A slot's checks ask for the slews its cycle takes again (from where it stands, from
+        # its aim): each answer traces three sweeps of 120 poses.
+        key = ("path", *map(float, start), *map(float, end), np.asarray(margin, float).tobytes())
+        return list(self._kept(key, lambda: tuple(self._path(start, end, margin))))
+
+    def _path(self, start: tuple[int, int], end: tuple[int, int], margin) -> list[tuple[int, int]]:
 
         def never_back(flags: np.ndarray) -> bool:
             # A beam that starts on a target (in a zone) may leave it; once off it must never enter.
             off = np.flatnonzero(~flags)
             return not len(off) or not flags[off[0]:].any()
 
+        def never_closer(excess: np.ndarray, on_target: bool) -> bool:
+            # A beam that starts beside a target, inside the grown margin (a lamp change leaves
+            # it where its spot is out of the view), may only move away from it until it is out:
+            # sliding along the margin it would bring its spot's tails into the view of a camera
+            # that measures other beams (issue 42). One on the target itself leaves any way.
+            inside = excess <= 0.0
+            if not never_back(inside):
+                return False
+            if on_target or not inside[0]:
+                return True
+            out = np.flatnonzero(~inside)
+            return bool((excess[:out[0] if len(out) else len(excess)] >= excess[0] - SLIDE_TOL_M).all())
+
         def clear(plan: list[tuple[int, int]]) -> bool:
             poses = np.vstack([self._sweep(a, b) for a, b in zip([start] + plan[:-1], plan, strict=True)])
             c, b = self.rays(np.vstack([np.asarray(start, float)[None], poses]))  # traced once for all three
-            return (never_back(self._lands_on(c, b, self.frame.center, self.frame, self.target, margin))
-                    and never_back(self._on_others(c, b, margin)) and never_back(self._in_zone(c, b)))
+            own, others = self._nearest_m(c, b, margin)
+            on = bool(self._lands_on(c[:1], b[:1], self.frame.center, self.frame, self.target, 0.0)[0])
+            return never_closer(own, on) and never_closer(others, False) and never_back(self._in_zone(c, b))
 
         plans = ([end], [(start[0], end[1]), end], [(end[0], start[1]), end])
         for plan in plans:
