@@ -23,10 +23,6 @@ from controller.geometry.pose_batch import normal_and_center
 from controller.geometry.target_frame import TargetFrame
 from controller.geometry.zones import rays_enter_any, zone_boxes, zone_entered
 
-# A slew that starts inside a target's margin may not come closer to it than it started (the
-# rays' excess over the grown target never falls by more than this, m): sampling wobble only.
-SLIDE_TOL_M = 0.05
-
 
 class UnsafePath(HeliocalError):
     """No slew keeps the beam off the target (beam safety); nothing was sent."""
@@ -155,31 +151,13 @@ class BeamSafety:
                   margin_m) -> np.ndarray:
         """Whether the rays from ``c`` along ``b`` (N, 3) land on ``target`` grown by ``margin_m``
         (m; or (u, v) m per axis; a ray pointing away from its plane does not)."""
-        return BeamSafety._excess_m(c, b, center, frame, target, margin_m) <= 0.0
-
-    @staticmethod
-    def _excess_m(c: np.ndarray, b: np.ndarray, center: np.ndarray, frame: TargetFrame, target: Target,
-                  margin_m) -> np.ndarray:
-        """How far (m, (N,)) outside ``target`` grown by ``margin_m`` the rays from ``c`` along
-        ``b`` land: max(|u| − w/2 − m_u, |v| − h/2 − m_v) at the hit (u, v), ≤ 0 on it, +∞ for a
-        ray pointing away from its plane."""
         with np.errstate(divide="ignore", invalid="ignore"):
             t = ((center - c) @ frame.normal) / (b @ frame.normal)
         hit = c + t[:, None] * b - center
         ok = np.isfinite(t) & (t >= 0.0)
         mu, mv = np.broadcast_to(np.asarray(margin_m, float), (2,))
-        e = np.maximum(np.abs(hit @ frame.u) - target.width_m / 2 - mu,
-                       np.abs(hit @ frame.v) - target.height_m / 2 - mv)
-        return np.where(ok, e, np.inf)
-
-    def _nearest_m(self, c: np.ndarray, b: np.ndarray, margin_m) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`_excess_m` of the rays over the target and over the nearest of ``others``
-        (+∞ without others)."""
-        own = self._excess_m(c, b, self.frame.center, self.frame, self.target, margin_m)
-        others = np.full(len(c), np.inf)
-        for centre, f, t in self.others:
-            others = np.minimum(others, self._excess_m(c, b, centre, f, t, margin_m))
-        return own, others
+        return (ok & (np.abs(hit @ frame.u) <= target.width_m / 2 + mu)
+                & (np.abs(hit @ frame.v) <= target.height_m / 2 + mv))
 
     def may_wait_at(self, pose, standby, aim, margin_m: float) -> bool:
         """Whether a heliostat about to take its turn may wait at ``pose`` (motor steps, where it
@@ -210,9 +188,7 @@ class BeamSafety:
         never crosses the target nor any of the ``others`` grown by :meth:`path_margin_m`: both
         axes together, else elevation first, else azimuth first.
         The motion model moves each axis at its configured speed (acceleration ignored).
-        Nor does it enter a person zone (a beam that starts in one may leave it). A beam that
-        starts beside a target, inside its grown margin, only moves away from it until it is out
-        (before 2026-11-29 it could slide along the margin, its spot's tails into a view).
+        Nor does it enter a person zone (a beam that starts in one may leave it).
         Raises :class:`UnsafePath` when no such path exists; no waypoint when it stands there."""
         if tuple(start) == tuple(end):
             return []
@@ -223,31 +199,18 @@ class BeamSafety:
         return list(self._kept(key, lambda: tuple(self._path(start, end, margin))))
 
     def _path(self, start: tuple[int, int], end: tuple[int, int], margin) -> list[tuple[int, int]]:
+        """:meth:`path_to`'s waypoints, traced with the target grown by ``margin``."""
 
         def never_back(flags: np.ndarray) -> bool:
             # A beam that starts on a target (in a zone) may leave it; once off it must never enter.
             off = np.flatnonzero(~flags)
             return not len(off) or not flags[off[0]:].any()
 
-        def never_closer(excess: np.ndarray, on_target: bool) -> bool:
-            # A beam that starts beside a target, inside the grown margin (a lamp change leaves
-            # it where its spot is out of the view), may only move away from it until it is out:
-            # sliding along the margin it would bring its spot's tails into the view of a camera
-            # that measures other beams (issue 42). One on the target itself leaves any way.
-            inside = excess <= 0.0
-            if not never_back(inside):
-                return False
-            if on_target or not inside[0]:
-                return True
-            out = np.flatnonzero(~inside)
-            return bool((excess[:out[0] if len(out) else len(excess)] >= excess[0] - SLIDE_TOL_M).all())
-
         def clear(plan: list[tuple[int, int]]) -> bool:
             poses = np.vstack([self._sweep(a, b) for a, b in zip([start] + plan[:-1], plan, strict=True)])
             c, b = self.rays(np.vstack([np.asarray(start, float)[None], poses]))  # traced once for all three
-            own, others = self._nearest_m(c, b, margin)
-            on = bool(self._lands_on(c[:1], b[:1], self.frame.center, self.frame, self.target, 0.0)[0])
-            return never_closer(own, on) and never_closer(others, False) and never_back(self._in_zone(c, b))
+            return (never_back(self._lands_on(c, b, self.frame.center, self.frame, self.target, margin))
+                    and never_back(self._on_others(c, b, margin)) and never_back(self._in_zone(c, b)))
 
         plans = ([end], [(start[0], end[1]), end], [(end[0], start[1]), end])
         for plan in plans:

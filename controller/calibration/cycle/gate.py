@@ -52,10 +52,9 @@ class TargetGate:
         self._lock = threading.RLock()
         # A round's members wait on cv (group.py); each ticket waiting for its turn waits on a
         # condition of its own on the same lock, woken by changed() only when it may go on
-        # (admitted, blocked or cancelled). With one condition for every waiting ticket, a
-        # 10,000-heliostat night (3 targets, K = 4) kept some two dozen cycles per target
-        # waiting, all woken by every change to be put back to sleep: 670 context switches per
-        # measurement, 9 ms of the kernel's CPU.
+        # (admitted, blocked or cancelled). With one condition for every waiting ticket, the
+        # two dozen cycles waiting on a target of a 10,000-heliostat night (3 targets, K = 4)
+        # were all woken by every change, to be put back to sleep (docs/architecture.md).
         self.cv = threading.Condition(self._lock)
         self._turns: dict[int, tuple[threading.Condition, Callable[[], bool]]] = {}
         self._next = 0  # the next ticket to admit, in queue order
