@@ -151,13 +151,27 @@ class BeamSafety:
                   margin_m) -> np.ndarray:
         """Whether the rays from ``c`` along ``b`` (N, 3) land on ``target`` grown by ``margin_m``
         (m; or (u, v) m per axis; a ray pointing away from its plane does not)."""
+        return BeamSafety._within(BeamSafety._reach(c, b, center, frame, target), margin_m)
+
+    @staticmethod
+    def _reach(c: np.ndarray, b: np.ndarray, center: np.ndarray, frame: TargetFrame,
+               target: Target) -> np.ndarray:
+        """How far (m, (N, 2)) beyond ``target``'s edges, along its width and height, the rays
+        from ``c`` along ``b`` (N, 3) land: |u| − w/2, |v| − h/2 at the hit (u, v); +∞ for a ray
+        pointing away from its plane."""
         with np.errstate(divide="ignore", invalid="ignore"):
             t = ((center - c) @ frame.normal) / (b @ frame.normal)
         hit = c + t[:, None] * b - center
-        ok = np.isfinite(t) & (t >= 0.0)
-        mu, mv = np.broadcast_to(np.asarray(margin_m, float), (2,))
-        return (ok & (np.abs(hit @ frame.u) <= target.width_m / 2 + mu)
-                & (np.abs(hit @ frame.v) <= target.height_m / 2 + mv))
+        out = np.column_stack([np.abs(hit @ frame.u) - target.width_m / 2,
+                               np.abs(hit @ frame.v) - target.height_m / 2])
+        out[~(np.isfinite(t) & (t >= 0.0))] = np.inf
+        return out
+
+    @staticmethod
+    def _within(reach: np.ndarray, margin_m) -> np.ndarray:
+        """Whether each :meth:`_reach` (N, 2) lies on the target grown by ``margin_m`` (m; or
+        (u, v) m): (N,) bool."""
+        return (reach <= np.broadcast_to(np.asarray(margin_m, float), (2,))).all(axis=1)
 
     def may_wait_at(self, pose, standby, aim, margin_m: float) -> bool:
         """Whether a heliostat about to take its turn may wait at ``pose`` (motor steps, where it
@@ -183,34 +197,51 @@ class BeamSafety:
         here; a pointing that knows its spot keeps the spot out of the cameras' views."""
         return 2.0
 
+    def view_margin_m(self) -> float | np.ndarray:
+        """How far (m; or (u, v) m) beyond each target's edges the central ray puts the spot's
+        footprint into a camera's view: :meth:`path_margin_m` here; a pointing that knows its
+        spot leaves out the slack a park keeps beyond it. A slew that starts between the two
+        (parked beside a view) must not come this close (:meth:`path_to`)."""
+        return self.path_margin_m()
+
     def path_to(self, start: tuple[int, int], end: tuple[int, int]) -> list[tuple[int, int]]:
         """Waypoints from ``start`` to ``end`` (a point off the target) along which the beam
         never crosses the target nor any of the ``others`` grown by :meth:`path_margin_m`: both
         axes together, else elevation first, else azimuth first.
         The motion model moves each axis at its configured speed (acceleration ignored).
-        Nor does it enter a person zone (a beam that starts in one may leave it).
+        Nor does it enter a person zone (a beam that starts in one may leave it). A beam that
+        starts inside that margin but off :meth:`view_margin_m` (a heliostat parked beside a
+        view) may move within the margin but must not come that close: before 2026-11-29 it
+        could slide along a view's side from one standby to the next with its spot's tails in
+        the view.
         Raises :class:`UnsafePath` when no such path exists; no waypoint when it stands there."""
         if tuple(start) == tuple(end):
             return []
-        margin = self.path_margin_m()
+        margin, view = self.path_margin_m(), self.view_margin_m()
         # A slot's checks ask for the slews its cycle takes again (from where it stands, from
         # its aim): each answer traces three sweeps of 120 poses.
-        key = ("path", *map(float, start), *map(float, end), np.asarray(margin, float).tobytes())
-        return list(self._kept(key, lambda: tuple(self._path(start, end, margin))))
+        key = ("path", *map(float, start), *map(float, end), np.asarray(margin, float).tobytes(),
+               np.asarray(view, float).tobytes())
+        return list(self._kept(key, lambda: tuple(self._path(start, end, margin, view))))
 
-    def _path(self, start: tuple[int, int], end: tuple[int, int], margin) -> list[tuple[int, int]]:
-        """:meth:`path_to`'s waypoints, traced with the target grown by ``margin``."""
+    def _path(self, start: tuple[int, int], end: tuple[int, int], margin, view) -> list[tuple[int, int]]:
+        """:meth:`path_to`'s waypoints, traced with the targets grown by ``margin`` and by ``view``."""
 
         def never_back(flags: np.ndarray) -> bool:
             # A beam that starts on a target (in a zone) may leave it; once off it must never enter.
             off = np.flatnonzero(~flags)
             return not len(off) or not flags[off[0]:].any()
 
+        def kept_off(reach: np.ndarray) -> bool:
+            # Off the margin once it is off, and never into a view it did not start in.
+            return never_back(self._within(reach, margin)) and never_back(self._within(reach, view))
+
         def clear(plan: list[tuple[int, int]]) -> bool:
             poses = np.vstack([self._sweep(a, b) for a, b in zip([start] + plan[:-1], plan, strict=True)])
             c, b = self.rays(np.vstack([np.asarray(start, float)[None], poses]))  # traced once for all three
-            return (never_back(self._lands_on(c, b, self.frame.center, self.frame, self.target, margin))
-                    and never_back(self._on_others(c, b, margin)) and never_back(self._in_zone(c, b)))
+            return (kept_off(self._reach(c, b, self.frame.center, self.frame, self.target))
+                    and all(kept_off(self._reach(c, b, centre, f, t)) for centre, f, t in self.others)
+                    and never_back(self._in_zone(c, b)))
 
         plans = ([end], [(start[0], end[1]), end], [(end[0], start[1]), end])
         for plan in plans:

@@ -263,6 +263,11 @@ class GeometryPointing(BeamSafety):
         key, owners = self._clearance_key(self.source, self.model), (self.heliostat, self.model_settings)
         return _SPOTS.get(key, owners, lambda: np.maximum(2.0, self._footprint_m(self.model)))
 
+    def view_margin_m(self) -> np.ndarray:
+        """:meth:`path_margin_m` less :data:`PARK_MARGIN_M`, at least 2 m: the central ray this
+        close to a target puts the spot's 3σ footprint into a view (u, v, m)."""
+        return np.maximum(2.0, self.path_margin_m() - PARK_MARGIN_M)
+
     def _view_excess_m(self) -> np.ndarray:
         """How far (u, v, m) the camera's view reaches beyond the target on each side."""
         f, t = self.frame, self.target
