@@ -70,6 +70,8 @@ SIGMAS = 3.0  # k of Eq. (4)
 PARK_POSITION_SIGMAS = 4.0
 # park_clearance_m: the iteration converges while each step is at most this fraction of the last
 CONTRACTION = 0.8
+# park_clearance_m: how far (m) beyond the view's edge a park is looked for when the edge is out of reach
+PARK_PROBES_M = (1.0, 2.0, 4.0, 8.0, 16.0)
 
 
 @dataclass(frozen=True)
@@ -191,14 +193,31 @@ def park_clearance_m(size_at: Callable[[np.ndarray], np.ndarray], half_view_m: f
     metres, as with the prior alone, grows faster aside than the offset), no clearance along the
     width holds at k σ: such a spot keeps the clearance reached when its steps stopped shrinking,
     at least c₁ = H + k s(c₀) + m, its size beside the view's edge (before 2026-11-29: c₁ even
-    when the iteration had climbed past it, so a spot growing a little faster aside parked nearer)."""
-    c = np.full(shape, half_view_m + margin_m)
+    when the iteration had climbed past it, so a spot growing a little faster aside parked nearer).
+
+    A spot out of reach on both sides at c₀ has no size there: it starts at the first of
+    c₀ + :data:`PARK_PROBES_M` in reach, and where none is, no park beside the view is in reach
+    (+∞). (Before 2026-11-29 it kept c₀ as if it were a point: a 10,000-heliostat night parked
+    such heliostats 0.5 m beside the view, and their spots' tails stood in it for a whole lamp.)"""
+    c0 = half_view_m + margin_m
+    c = np.full(shape, c0)
+    s = np.asarray(size_at(c), float)
+    for probe in PARK_PROBES_M:
+        unknown = ~np.isfinite(s)
+        if not unknown.any():
+            break
+        farther = np.asarray(size_at(np.where(unknown, c0 + probe, c)), float)
+        found = unknown & np.isfinite(farther)
+        c, s = np.where(found, c0 + probe, c), np.where(found, farther, s)
+    live = np.isfinite(s)
+    c = np.where(live, c, np.inf)
     last = step = np.full(shape, np.inf)
-    live = np.ones(shape, bool)
-    for _ in range(rounds):
-        s = size_at(c)
-        grown = np.where(live & np.isfinite(s), half_view_m + k * s + margin_m, c)
-        last, step = step, np.maximum(grown - c, 0.0)
+    for i in range(rounds):
+        at = np.where(live, c, c0)  # where a park is (being) sized; c₀ stands in for the others
+        if i:
+            s = np.asarray(size_at(at), float)
+        grown = np.where(live & np.isfinite(s), half_view_m + k * s + margin_m, at)
+        last, step = step, np.where(live, np.maximum(grown - at, 0.0), 0.0)
         diverging = live & (step > tol_m) & (step > CONTRACTION * last)
         c = np.where(diverging, c, c + step)
         live &= (step > tol_m) & ~diverging

@@ -190,6 +190,13 @@ class LinearPointing:
         out = np.array((az, el), float) + self.p.hidden_steps - np.array(self.p.ideal)
         return bool(np.all(np.abs(A @ out) <= 3.0 + margin_m))
 
+    def view_margin_m(self) -> float:
+        return 2.0
+
+    def off_targets(self, az, el, margin_m: float = 2.0) -> bool:
+        """The one target of the fake plant; no person zone."""
+        return not self.beam_on_target(az, el, margin_m)
+
     def fine_correction(self, az, el, offset_enu):
         d = np.linalg.solve(A, -np.array([offset_enu[0], offset_enu[2]]))
         return Step(float(d[0]) * 1e-3, float(d[1]) * 1e-3, int(round(d[0])), int(round(d[1])))

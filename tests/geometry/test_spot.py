@@ -118,7 +118,7 @@ def test_park_clearance_is_the_fixed_point_of_the_spot_sized_where_it_parks():
     3b < 0.8) converges to (H + 3a + m) / (1 − 3b), the geometric tail included; one that grows
     too fast (3b ≥ 0.8: hardly or no clearance holds at 3σ) keeps its size beside the view's
     edge, H + 3 s(H + m) + m, or what it had reached when it stopped converging; one out of
-    reach aside (NaN) the view's edge."""
+    reach aside (NaN) has no park beside the view (+∞)."""
     a = np.array([0.5, 0.5, 0.5, 0.1])
     b = np.array([0.05, 0.2, 0.3, 0.0])
 
@@ -129,11 +129,32 @@ def test_park_clearance_is_the_fixed_point_of_the_spot_sized_where_it_parks():
     assert c[0] == pytest.approx((4.0 + 1.5 + 0.5) / (1 - 0.15), abs=0.02)
     assert c[1] == pytest.approx((4.0 + 1.5 + 0.5) / (1 - 0.6), abs=0.05)
     assert c[2] == pytest.approx(4.0 + 3 * (0.5 + 0.3 * 4.5) + 0.5)
-    assert c[3] == 4.5
+    assert c[3] == np.inf
     # steps 1.5, then 1.0 (shrinking), then 1.2 (growing again): it keeps the 7.0 m reached, not c₁ = 6.0
     late = park_clearance_m(lambda c: np.interp(c, [4.5, 6.0, 7.0, 100.0], [0.5, 2.5 / 3, 3.7 / 3, 40.0]),
                             4.0, 0.5)
     assert float(late) == pytest.approx(7.0)
+
+
+def test_a_spot_out_of_reach_at_the_views_edge_parks_where_it_is_in_reach_and_sized():
+    """Issue 42: a heliostat that cannot aim at either side of the view's edge has no spot size
+    there; its clearance was the edge itself plus the margin, as if its spot were a point, and
+    a 10,000-heliostat night parked such spots 0.5 m beside the view. Now its park starts at the
+    first probe beyond the edge in reach (``PARK_PROBES_M``) and holds c ≥ H + 3 s(c) + m there;
+    one in reach nowhere aside has none (+∞)."""
+    from controller.geometry.spot import PARK_PROBES_M
+
+    reach_from = np.array([4.5, 6.0, 7.5, 4.5 + PARK_PROBES_M[-1] + 1.0])  # view edge H + m = 4.5
+
+    def size_at(c):
+        return np.where(c >= reach_from, 0.4 + 0.01 * c, np.nan)
+
+    c = park_clearance_m(size_at, 4.0, 0.5, (4,))
+    assert c[0] == pytest.approx(4.0 + 3 * (0.4 + 0.01 * c[0]) + 0.5, abs=0.02)  # as before
+    there = size_at(np.where(np.isfinite(c), c, 0.0))
+    assert np.all(c[1:3] >= reach_from[1:3]) and np.all(np.isfinite(there[:3]))
+    assert np.all(c[:3] >= 4.0 + 3 * there[:3] + 0.5 - 0.02)  # sized where it parks
+    assert c[3] == np.inf
 
 
 def test_a_parked_spots_position_counts_at_four_sigma_its_size_at_three(cfg, monkeypatch):

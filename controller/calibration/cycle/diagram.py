@@ -35,7 +35,8 @@ tests/calibration/cycle/test_machine.py fails when this file is not current. -->
 One calibration cycle of one heliostat. Each state's work is a short `do_<state>` method;
 any exception there fires `fail`, a state's timeout fires `timeout` (both lead to `fault`).
 From `fault` the controller clears latched faults and parks the beam at standby (`recovered`),
-else stows the heliostat (`stow`); if both fail the cycle ends `aborted` and the campaign
+else leaves it where it stands still with its beam off every view (`recovered`, the cause
+ending `stayed`), else stows the heliostat (`stow`); if both fail the cycle ends `aborted` and the campaign
 stops using the target, because a beam may still be on it. Only `done`, `stowed` and
 `aborted` are final; a run's *status* (`calibrated`, `not_converged`, `measured`, `no_beam`, `failed`) is
 recorded separately, with the fault cause (`no_beam`: the frame held no beam, docs/campaigns.md).

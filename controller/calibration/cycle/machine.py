@@ -15,15 +15,14 @@ Beam safety:
   from a pose as far off every target, whose approach was checked (``Pointing.may_wait_at``);
 * :class:`TargetGate` hands the target out in queue order, one beam at a time, back once the beam
   is parked off it (K beams under lamps, each slot once its beam is off: calibration.group);
-* after its measurement (or a fault) the beam is always moved back to standby before the cycle
-  ends; failing that the heliostat is stowed, failing that too the cycle ends *aborted*
-  (``beam_maybe_on_target``: the campaign stops using the target).
+* after its measurement (or a fault) the beam is moved back to standby before the cycle ends; failing that it
+  stays if its beam is off every view, else is stowed; failing that too the cycle ends *aborted*.
 
 Correction (docs/campaigns.md): coarse (:mod:`controller.calibration.cycle.coarse`) or fine (the centroid,
 ``Pointing.fine_correction``) until within ``tolerance_mrad`` or ``max_iterations`` measurements (one on a
 planned observation); then ``Pointing.fit`` refits the model. Measuring moves end moving up on both axes
-(``approach``, backlash); a look without a spot goes on to a beam search's next look (``search``). Units:
-motor steps (int), degrees at this edge, mrad (reflected beam), ENU m, plant-clock s.
+(``approach``, backlash); a look without a spot goes on to a beam search's next look (``search``).
+Units: motor steps (int), degrees at this edge, mrad (reflected beam), ENU m, plant-clock s.
 """
 
 from __future__ import annotations
@@ -37,7 +36,7 @@ from controller.calibration.cycle.approach import approach_path
 from controller.calibration.cycle.coarse import correction_step
 from controller.calibration.cycle.context import CycleContext, CycleObserver
 from controller.calibration.cycle.observations import BeamNotFound, NoBeam, Observation
-from controller.calibration.cycle.park import park
+from controller.calibration.cycle.park import STOWED_BESIDE, park, stay_or_stow
 from controller.calibration.cycle.search import cycle_search
 from controller.calibration.cycle.shared_machine import shared_machine
 from controller.calibration.records import CorrectionRecord, RunRecord, measurement_record
@@ -60,7 +59,7 @@ STATES: tuple[tuple[str, float, str], ...] = (
     ("searching", 30.0, "no spot in view: the next beam-safe look of the search pattern"),
     ("verifying", 60.0, "within tolerance or out of iterations? fit the tracking-error model"),
     ("correcting", 10.0, "coarse (library) or fine (centroid Jacobian) correction"),
-    ("fault", 180.0, "record the cause, clear faults, park at standby or stow"),
+    ("fault", 180.0, "record the cause, clear faults, park at standby, else stay or stow"),
     ("done", 1.0, "final: beam parked off the target, run recorded"),
     ("stowed", 1.0, "final: standby failed, heliostat stowed"),
     ("aborted", 1.0, "final: could not make the heliostat safe (or aborted by the operator)"),
@@ -344,33 +343,34 @@ class CalibrationCycle:
         return "corrected"
 
     def do_fault(self) -> str:
-        """Make the heliostat safe: clear latched faults, park at standby, else stow."""
+        """Make the heliostat safe: clear latched faults, park at standby, else :func:`stay_or_stow`."""
         d = self.ctx.drive
         self.status, first = "failed", None  # first: the first exception (Exception | None)
-        # A link that dropped may come back (reconnect): a few attempts, a second apart.
-        for attempt in range(FAULT_ATTEMPTS):
+        for attempt in range(FAULT_ATTEMPTS):  # a dropped link may come back (reconnect): a second apart
             try:
                 d.clear_fault()
                 if self.standby == (0, 0):
                     self.standby = self.ctx.pointing.standby_steps(self.ctx.model)
                 self._park("fault")
-                self.beam_on_target = False
-                self.run_rec.off_target_s = self.ctx.time.now() if self.holds_target else None
-                return "recovered"
+                first = None  # parked after all
+                break
             except Cancelled:
                 raise
             except LinkError as exc:
                 first = exc
                 if attempt + 1 < FAULT_ATTEMPTS:
                     self._wait("fault", 1.0)
-            except Exception as exc:  # not a link problem, or no safe path: retrying will not help, stow
+            except Exception as exc:  # not a link problem, or no safe path: retrying will not help
                 first = exc
                 break
-        try:
-            d.stow()  # the firmware's move, not a beam-safe path: hand on the target once it is off
-            st = d.wait_in_position(self.ctx.move_timeout_s, time=self.ctx.time)
-            self.beam_on_target = self.ctx.pointing.beam_on_target(st.az_steps, st.el_steps)
-            self.cause = f"{self.cause}; standby failed ({first}), stowed"
+        try:  # the firmware's stow is not a beam-safe path: only where the beam is not safe already
+            done = "parked" if first is None else stay_or_stow(d, self.ctx.pointing, self.ctx.move_timeout_s,
+                                                                self.ctx.time)
+            self.cause = self.cause if first is None else f"{self.cause}; standby failed ({first}), {done}"
+            self.beam_on_target = done == STOWED_BESIDE  # then it keeps everyone off the target
+            if done in ("parked", "stayed"):
+                self.run_rec.off_target_s = self.ctx.time.now() if self.holds_target else None
+                return "recovered"
             self._release_target()
             return "stow"
         except Exception as second:

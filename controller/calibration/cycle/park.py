@@ -17,6 +17,10 @@ from typing import Any, Protocol
 class _Pointing(Protocol):
     def path_to(self, start: tuple[int, int], end: tuple[int, int]) -> list[tuple[int, int]]: ...
 
+    def off_targets(self, az_steps: float, el_steps: float, margin_m=2.0) -> bool: ...
+
+    def view_margin_m(self): ...
+
 
 def park(drive: Any, pointing: _Pointing, standby: tuple[int, int],
          move: Callable[[int, int], Any], status: Any = None,
@@ -32,3 +36,27 @@ def park(drive: Any, pointing: _Pointing, standby: tuple[int, int],
     for az, el in path:
         out = move(az, el)
     return out
+
+
+def safe_where_it_stands(drive: Any, pointing: _Pointing) -> bool:
+    """Whether ``drive`` stands still with its beam off every target's view (the pointing's
+    ``view_margin_m`` beyond each target: the spot's footprint out of every camera) and out of
+    every person zone. A cycle whose park failed stays there rather than stow: the firmware's
+    stow sweeps the beam unchecked and may leave it in a view where other beams are measured
+    (issue 42)."""
+    st = drive.status()
+    return not st.moving and pointing.off_targets(st.az_steps, st.el_steps, pointing.view_margin_m())
+
+
+STOWED_BESIDE = "stowed beside a target"  # stay_or_stow: the stow's beam is not off every view
+
+
+def stay_or_stow(drive: Any, pointing: _Pointing, timeout_s: float, time: Any) -> str:
+    """After a park that failed: "stayed" when the heliostat may stay where it stands
+    (:func:`safe_where_it_stands`), else the firmware's stow, waited for, and "stowed" — or
+    :data:`STOWED_BESIDE` when the stowed beam is not off every view."""
+    if safe_where_it_stands(drive, pointing):
+        return "stayed"
+    drive.stow()
+    drive.wait_in_position(timeout_s, time=time)
+    return "stowed" if safe_where_it_stands(drive, pointing) else STOWED_BESIDE

@@ -284,6 +284,8 @@ class GeometryPointing(BeamSafety):
         return SIGMAS * (spot + position) + PARK_MARGIN_M + self._view_excess_m()
 
     def _steps(self, point: np.ndarray, model: ModelRecord | None) -> tuple[int, int]:
+        if not np.isfinite(point).all():  # park_clearance_m: no park beside the view in reach
+            raise LimitError(f"heliostat {self.heliostat.id}: no standby beside the view is in reach")
         return _AIMS.get(self._aim_key(point, model), (self.heliostat,),
                          lambda: steps_to_aim(self.kin, model, self.source_dir, point, self.source_pos))
 

@@ -18,10 +18,9 @@ model on all of them, weighted by age (``calibration.model.age_halflife_days``).
 
 from __future__ import annotations
 
-import gc
 import threading
-from collections.abc import Callable, Iterator
-from contextlib import AbstractContextManager, contextmanager, nullcontext
+from collections.abc import Callable
+from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass
 
 from controller.calibration.beams.slots import lamp_rate
@@ -117,69 +116,42 @@ def run_night(plan: list[PlanItem], night: str, run_pass: Callable[[Pass], Campa
     night with the lamp dark. Without it the caller guarantees that no heliostat of the night
     can reflect the next lamp onto a target (a single-lamp night). ``next_lamp(lamps, passes)``:
     which of the lamps not yet lit comes next (default: in order of first appearance)."""
-    with heap_frozen():
-        results: list[CampaignResult] = []
-        halted = threading.Event()
-        passes = night_passes(plan, night)
-        lamps = list(dict.fromkeys(p.lamp for p in passes))
-        while lamps:
-            lamp = next_lamp(lamps, passes) if next_lamp is not None and len(lamps) > 1 else lamps[0]
-            lamps.remove(lamp)
-            if change_lamp is not None:
-                change_lamp(lamp, lamp_standbys(plan, passes, lamp))
-            per_target: dict[str | None, list[Pass]] = {}
-            for p in passes:
-                if p.lamp == lamp:
-                    per_target.setdefault(p.target, []).append(p)
+    results: list[CampaignResult] = []
+    halted = threading.Event()
+    passes = night_passes(plan, night)
+    lamps = list(dict.fromkeys(p.lamp for p in passes))
+    while lamps:
+        lamp = next_lamp(lamps, passes) if next_lamp is not None and len(lamps) > 1 else lamps[0]
+        lamps.remove(lamp)
+        if change_lamp is not None:
+            change_lamp(lamp, lamp_standbys(plan, passes, lamp))
+        per_target: dict[str | None, list[Pass]] = {}
+        for p in passes:
+            if p.lamp == lamp:
+                per_target.setdefault(p.target, []).append(p)
 
-            def sequence(todo: list[Pass]) -> list[CampaignResult]:
-                out = []
-                for p in todo:
-                    if halted.is_set():
-                        break
-                    r = run_pass(p)
-                    out.append(r)
-                    if r.status not in ("finished", "partial"):
-                        halted.set()
-                return out
+        def sequence(todo: list[Pass]) -> list[CampaignResult]:
+            out = []
+            for p in todo:
+                if halted.is_set():
+                    break
+                r = run_pass(p)
+                out.append(r)
+                if r.status not in ("finished", "partial"):
+                    halted.set()
+            return out
 
-            def stop() -> None:  # Ctrl-C: no further pass starts, the running ones park
-                halted.set()
-                if stop_all is not None:
-                    stop_all()
+        def stop() -> None:  # Ctrl-C: no further pass starts, the running ones park
+            halted.set()
+            if stop_all is not None:
+                stop_all()
 
-            runs = {str(t): (lambda todo=todo: sequence(todo)) for t, todo in per_target.items()}
-            done = run_per_target(runs, stop)
-            results += [r for rs in done.values() for r in rs]
-            if halted.is_set():
-                break
-        return results
-
-
-@contextmanager
-def heap_frozen() -> Iterator[None]:
-    """Inside the block the objects that exist at its start (a field's configuration, models and
-    plan: millions on a 10,000-heliostat field) are left out of the garbage collector's full
-    collections (``gc.freeze``); objects made inside are collected as before, and the frozen
-    ones are handed back at the end (``gc.unfreeze``), so cycles among them are still freed. A
-    whole-plan night of that field ran 16 full collections of about 1.3 CPU s each, traversing
-    what the night never frees (issue 42). Nested blocks (nights in threads) hand back at the end
-    of the last."""
-    global _FROZEN
-    with _FROZEN_LOCK:
-        if not _FROZEN:
-            gc.freeze()
-        _FROZEN += 1
-    try:
-        yield
-    finally:
-        with _FROZEN_LOCK:
-            _FROZEN -= 1
-            if not _FROZEN:
-                gc.unfreeze()
-
-
-_FROZEN, _FROZEN_LOCK = 0, threading.Lock()  # heap_frozen's open blocks
+        done = run_per_target({str(t): (lambda todo=todo: sequence(todo)) for t, todo in per_target.items()},
+                              stop)
+        results += [r for rs in done.values() for r in rs]
+        if halted.is_set():
+            break
+    return results
 
 
 def failed_geometries(plan: list[PlanItem], p: Pass, r: CampaignResult,

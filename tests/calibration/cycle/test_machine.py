@@ -344,3 +344,25 @@ def test_a_stowed_heliostat_hands_the_target_on_only_once_its_beam_is_off_it(mak
     st = released[0]
     assert st.in_position and not st.moving and (st.az_steps, st.el_steps) == (500, 500)
     assert gate.blocked is not beam_left
+
+
+def test_a_refused_park_leaves_a_heliostat_where_its_beam_is_off_the_views(make_cycle):
+    """Issue 42: a park refused for want of a beam-safe slew (UnsafePath), from a pose whose beam
+    is off every target's view, leaves the heliostat there. The firmware's stow would sweep the
+    beam unchecked and could leave it in a view where other beams are measured."""
+    gate = TargetGate()
+    cyc, plant, drive = make_cycle(gate=gate, initial=(600, 600))  # its beam far off the target
+    pointing = cyc.ctx.pointing
+
+    def no_safe_path(start, end):
+        raise UnsafePath("no slew to standby keeps the beam off the targets")
+
+    pointing.path_to = no_safe_path  # preparing's slew to standby is refused, and the fault's park
+    before = drive.status()
+    assert pointing.off_targets(before.az_steps, before.el_steps, pointing.view_margin_m())
+    rec = cyc.run()
+    st = drive.status()
+    assert rec.status == "failed" and rec.final_state == "done"
+    assert "no slew to standby" in rec.fault_cause and rec.fault_cause.endswith("stayed")
+    assert (st.az_steps, st.el_steps) == (before.az_steps, before.el_steps) and not st.moving
+    assert not gate.blocked

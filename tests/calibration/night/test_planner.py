@@ -2,15 +2,12 @@
 
 from __future__ import annotations
 
-import gc
-import threading
-
 import numpy as np
 import pytest
 import yaml
 
 from controller.calibration.cycle.model_update import age_weights
-from controller.calibration.night.passes import heap_frozen, night_passes
+from controller.calibration.night.passes import night_passes
 from controller.calibration.night.planner import candidates, plan_heliostat, plan_night, planner_sun
 from controller.calibration.records import ModelRecord
 from controller.config import parse_config
@@ -105,30 +102,3 @@ def test_unknown_or_non_lamp_in_calibration_lamps_is_refused():
     data["calibration"]["lamps"] = ["lamp", "sun"]
     with pytest.raises(ConfigError, match=r"calibration.lamps\[1\]: 'sun' is not the id of a lamp"):
         parse_config(data, "x.yaml")
-
-
-def test_a_night_keeps_what_existed_before_it_out_of_full_collections():
-    """heap_frozen: objects made before the night are frozen while it runs (gc.freeze), objects
-    made inside are collected as usual, and everything is handed back when the last of nested
-    (threaded) nights ends."""
-    before = [object() for _ in range(1000)]
-    assert gc.get_freeze_count() == 0
-    with heap_frozen():
-        frozen = gc.get_freeze_count()
-        assert frozen >= len(before)
-        cycle: list = []
-        cycle.append(cycle)
-        ref = id(cycle)
-        del cycle
-        gc.collect()
-        assert all(id(o) != ref for o in gc.get_objects())  # a cycle made inside is still freed
-        inner_done = threading.Event()
-
-        def inner() -> None:
-            with heap_frozen():
-                pass
-            inner_done.set()
-        threading.Thread(target=inner).start()
-        assert inner_done.wait(10)
-        assert gc.get_freeze_count() == frozen  # an inner night's end hands nothing back
-    assert gc.get_freeze_count() == 0
