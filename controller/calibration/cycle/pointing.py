@@ -39,22 +39,16 @@ DEFAULT_SETTINGS = ModelSettings()  # one object: the clearances' key names the 
 
 # -- geometry of one heliostat ------------------------------------------------------------------
 class GeometryPointing(BeamSafety):
-    """:class:`controller.calibration.cycle.machine.Pointing` on controller.geometry.
-
-    The aim point is the target centre (or given); the standby point lies beside it in the target
-    plane (:meth:`side_points`), so the approach is a short horizontal slew: ``standby_offset_m``
-    from the aim at least, and far enough from the centre that the parked spot, at 3σ of its size
-    and of its position's uncertainty (``model``'s covariance), stays out of the camera's view
-    (:meth:`park_clearance_m`).
-    ``others``: the plant's other targets, which slews must never cross either (their beams
-    belong to other pipelines that run at the same time). ``zones``: the plant's person zones
-    (config ``person_zones``), which the beam must never enter — at standby, on a slew, on the
-    approach or at the aim point. ``search``: the beam search (``calibration.search``): with looks
-    to take, a heliostat without a model is as uncertain as its ``normal_sigma_mrad`` says (it
-    parks farther, :meth:`park_clearance_m`, and its search covers that, :meth:`search_pattern`)
-    until ``field_misses`` (:class:`controller.calibration.cycle.search.FieldMisses`, shared by a
-    campaign's heliostats) knows better.
-    """
+    """:class:`controller.calibration.cycle.machine.Pointing` on controller.geometry. The aim point is the
+    target centre (or given); the standby point lies beside it in the target plane (:meth:`side_points`),
+    a short horizontal slew away: ``standby_offset_m`` from the aim at least, and far enough from the centre
+    that the parked spot, at 3σ of its size and of its position (``model``'s covariance), stays out of the
+    camera's view (:meth:`park_clearance_m`). ``others``: the plant's other targets, which slews must never
+    cross either (other pipelines' beams); ``zones``: the person zones (config ``person_zones``) the beam
+    must never enter. ``search``: the beam search (``calibration.search``): a heliostat without a model is
+    as uncertain as its ``normal_sigma_mrad`` says (it parks farther, and its search covers that,
+    :meth:`search_pattern`) until ``field_misses`` (:class:`controller.calibration.cycle.search.FieldMisses`,
+    shared by a campaign's heliostats) knows better."""
 
     def __init__(self, heliostat: Heliostat, target: Target, source, frame: TargetFrame,
                  standby_offset_m: float, current_steps: tuple[int, int] | None = None,
@@ -258,20 +252,24 @@ class GeometryPointing(BeamSafety):
     def path_margin_m(self) -> np.ndarray:
         """A slew keeps its spot out of every view (another beam may be measured there): the
         central ray at least the spot's footprint beyond a view's edges (:meth:`_footprint_m`:
-        3σ of its size and position plus :data:`PARK_MARGIN_M`; a park lies 1σ farther out),
-        at least 2 m beyond the target's (u, v, m)."""
-        key, owners = self._clearance_key(self.source, self.model), (self.heliostat, self.model_settings)
-        return _SPOTS.get(key, owners, lambda: np.maximum(2.0, self._footprint_m(self.model)))
+        3σ of its size and position plus :data:`PARK_MARGIN_M`), beside the view at least where
+        it parks less 0.1 m (the spot grows aside, :meth:`park_clearance_m`; its standby lies just
+        outside), at least 2 m beyond the target's (u, v, m)."""
+        return self._margins()[0]
 
     def view_margin_m(self) -> np.ndarray:
-        """:meth:`path_margin_m` less :data:`PARK_MARGIN_M`, at least 2 m: the central ray this
-        close to a target puts the spot's 3σ footprint into a view (u, v, m)."""
-        return np.maximum(2.0, self.path_margin_m() - PARK_MARGIN_M)
+        """:meth:`path_margin_m` less :data:`PARK_MARGIN_M` (≥ 2 m): this close the spot is in a view."""
+        return self._margins()[1]
 
-    def _view_excess_m(self) -> np.ndarray:
-        """How far (u, v, m) the camera's view reaches beyond the target on each side."""
-        f, t = self.frame, self.target
-        return np.maximum(np.array([f.width_m - t.width_m, f.height_m - t.height_m]) / 2.0, 0.0)
+    def _margins(self) -> np.ndarray:
+        def margins() -> np.ndarray:  # with a model: without one the search explores, _footprint_m
+            foot, m = self._footprint_m(self.model), self.model
+            park = self.park_clearance_m(self.source, m) - self.target.width_m / 2 if m else 0
+            aside = max(foot[0], park if np.isfinite(park) else 0)  # (+∞: no park beside this view)
+            path, view = [max(foot[0], aside - 0.1), foot[1]], np.array([aside, foot[1]]) - PARK_MARGIN_M
+            return np.maximum(2.0, [path, view])
+        key, owners = self._clearance_key(self.source, self.model), (self.heliostat, self.model_settings)
+        return _SPOTS.get(key, owners, margins)
 
     def _footprint_m(self, model: ModelRecord | None) -> np.ndarray:
         """How far (u, v, m) beyond another target's edges its camera may see this heliostat's
@@ -281,7 +279,9 @@ class GeometryPointing(BeamSafety):
         search explores (first-light σ of metres would refuse every look near another target)."""
         sigmas = self.spot_sigmas_m(self.source, model) if model is not None else None
         spot, position = sigmas or (0.0, 0.0)
-        return SIGMAS * (spot + position) + PARK_MARGIN_M + self._view_excess_m()
+        f, t = self.frame, self.target  # the view beyond its target on each side
+        excess = np.maximum([f.width_m - t.width_m, f.height_m - t.height_m], 0.0) / 2.0
+        return SIGMAS * (spot + position) + PARK_MARGIN_M + excess
 
     def _steps(self, point: np.ndarray, model: ModelRecord | None) -> tuple[int, int]:
         if not np.isfinite(point).all():  # park_clearance_m: no park beside the view in reach
