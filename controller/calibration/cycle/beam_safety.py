@@ -200,8 +200,8 @@ class BeamSafety:
     def view_margin_m(self) -> float | np.ndarray:
         """How far (m; or (u, v) m) beyond each target's edges the central ray puts the spot's
         footprint into a camera's view: :meth:`path_margin_m` here; a pointing that knows its
-        spot leaves out the slack a park keeps beyond it. A slew that starts between the two
-        (parked beside a view) must not come this close (:meth:`path_to`)."""
+        spot leaves out the slack a park keeps beyond it: a heliostat whose park failed may stay
+        where its ray is off every target grown by this (:func:`park.safe_where_it_stands`)."""
         return self.path_margin_m()
 
     def path_to(self, start: tuple[int, int], end: tuple[int, int]) -> list[tuple[int, int]]:
@@ -209,39 +209,29 @@ class BeamSafety:
         never crosses the target nor any of the ``others`` grown by :meth:`path_margin_m`: both
         axes together, else elevation first, else azimuth first.
         The motion model moves each axis at its configured speed (acceleration ignored).
-        Nor does it enter a person zone (a beam that starts in one may leave it). A beam that
-        starts inside that margin but off :meth:`view_margin_m` (a heliostat parked beside a
-        view) may move within the margin but must not come that close: before 2026-11-29 it
-        could slide along a view's side from one standby to the next with its spot's tails in
-        the view.
+        Nor does it enter a person zone (a beam that starts in one may leave it).
         Raises :class:`UnsafePath` when no such path exists; no waypoint when it stands there."""
         if tuple(start) == tuple(end):
             return []
-        margin, view = self.path_margin_m(), self.view_margin_m()
+        margin = self.path_margin_m()
         # A slot's checks ask for the slews its cycle takes again (from where it stands, from
         # its aim): each answer traces three sweeps of 120 poses.
-        key = ("path", *map(float, start), *map(float, end), np.asarray(margin, float).tobytes(),
-               np.asarray(view, float).tobytes())
-        return list(self._kept(key, lambda: tuple(self._path(start, end, margin, view))))
+        key = ("path", *map(float, start), *map(float, end), np.asarray(margin, float).tobytes())
+        return list(self._kept(key, lambda: tuple(self._path(start, end, margin))))
 
-    def _path(self, start: tuple[int, int], end: tuple[int, int], margin, view) -> list[tuple[int, int]]:
-        """:meth:`path_to`'s waypoints, traced with the targets grown by ``margin`` and by ``view``."""
+    def _path(self, start: tuple[int, int], end: tuple[int, int], margin) -> list[tuple[int, int]]:
+        """:meth:`path_to`'s waypoints, traced with the target grown by ``margin``."""
 
         def never_back(flags: np.ndarray) -> bool:
             # A beam that starts on a target (in a zone) may leave it; once off it must never enter.
             off = np.flatnonzero(~flags)
             return not len(off) or not flags[off[0]:].any()
 
-        def kept_off(reach: np.ndarray) -> bool:
-            # Off the margin once it is off, and never into a view it did not start in.
-            return never_back(self._within(reach, margin)) and never_back(self._within(reach, view))
-
         def clear(plan: list[tuple[int, int]]) -> bool:
             poses = np.vstack([self._sweep(a, b) for a, b in zip([start] + plan[:-1], plan, strict=True)])
             c, b = self.rays(np.vstack([np.asarray(start, float)[None], poses]))  # traced once for all three
-            return (kept_off(self._reach(c, b, self.frame.center, self.frame, self.target))
-                    and all(kept_off(self._reach(c, b, centre, f, t)) for centre, f, t in self.others)
-                    and never_back(self._in_zone(c, b)))
+            return (never_back(self._lands_on(c, b, self.frame.center, self.frame, self.target, margin))
+                    and never_back(self._on_others(c, b, margin)) and never_back(self._in_zone(c, b)))
 
         plans = ([end], [(start[0], end[1]), end], [(end[0], start[1]), end])
         for plan in plans:

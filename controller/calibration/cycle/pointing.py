@@ -108,9 +108,10 @@ class GeometryPointing(BeamSafety):
         the park clearance (:meth:`park_clearance_m`), a the aim point's u and d the configured
         offset — a slot's beam parks beside its own side of the view, not the aim's offset
         beyond it (before 2026-11-29: c + |a| from the aim on both sides)."""
-        f = self.frame
-        a = float((self.aim_point - f.center) @ f.u)
+        f, a = self.frame, float((self.aim_point - self.frame.center) @ self.frame.u)
         c = self.standby_offset_m - abs(a)  # the clearance, or less where d sets the offset
+        if not np.isfinite(c):  # no park beside this view in reach: _steps refuses these points
+            return np.full(3, np.inf), np.full(3, np.inf)
         own = float(f.side(self.heliostat_pos) @ f.u)
         return tuple(self.aim_point + (s * max(c, s * a + self._least_offset_m) - a) * f.u
                      for s in (own, -own))
@@ -250,11 +251,10 @@ class GeometryPointing(BeamSafety):
         return pose
 
     def path_margin_m(self) -> np.ndarray:
-        """A slew keeps its spot out of every view (another beam may be measured there): the
-        central ray at least the spot's footprint beyond a view's edges (:meth:`_footprint_m`:
-        3σ of its size and position plus :data:`PARK_MARGIN_M`), beside the view at least where
-        it parks less 0.1 m (the spot grows aside, :meth:`park_clearance_m`; its standby lies just
-        outside), at least 2 m beyond the target's (u, v, m)."""
+        """A slew keeps its spot out of every view (another beam may be measured there): the central
+        ray at least the spot's footprint beyond a view's edges (:meth:`_footprint_m`: 3σ of its size
+        and position plus :data:`PARK_MARGIN_M`), beside the view at least where it parks less 0.1 m
+        (:meth:`park_clearance_m`: its standby lies just outside), ≥ 2 m beyond the target's (u, v, m)."""
         return self._margins()[0]
 
     def view_margin_m(self) -> np.ndarray:
