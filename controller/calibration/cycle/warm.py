@@ -47,6 +47,8 @@ def warm_aims(pointings: Iterable[GeometryPointing]) -> None:
     todo: dict[tuple, list] = {}
     for p in pointings:
         points = [p.aim_point, *p.side_points()]
+        if not np.isfinite(points).all():  # no park beside the view in reach: the scalar solve says so
+            continue
         keys = [p._aim_key(x, p.model) for x in points]
         if any(_AIMS.peek(k, (p.heliostat,)) is None for k in keys):
             # A lamp's direction is taken from each mirror centre: one batch per lamp (keyed by
@@ -61,7 +63,7 @@ def warm_aims(pointings: Iterable[GeometryPointing]) -> None:
         lamp = None if p0.source_pos is None else np.asarray(p0.source_pos, float)
         dirs = None if lamp is not None else np.broadcast_to(p0.source_dir, points.shape)
         steps, ok = aim_steps(kin.shaped(2), values[:, None, :], points, lamp=lamp, source_dirs=dirs)
-        for (p, pts, keys), st, fine in zip(items, steps, ok, strict=True):
-            for key, x, s, f in zip(keys, pts, st, fine, strict=True):
-                if f and np.isfinite(x).all():  # out of reach (or no park): the scalar solve says why
+        for (p, _, keys), st, fine in zip(items, steps, ok, strict=True):
+            for key, s, f in zip(keys, st, fine, strict=True):
+                if f:  # out of reach: the scalar solve says so, naming the axis
                     _AIMS.put(key, (p.heliostat,), (int(s[0]), int(s[1])))
