@@ -151,27 +151,13 @@ class BeamSafety:
                   margin_m) -> np.ndarray:
         """Whether the rays from ``c`` along ``b`` (N, 3) land on ``target`` grown by ``margin_m``
         (m; or (u, v) m per axis; a ray pointing away from its plane does not)."""
-        return BeamSafety._within(BeamSafety._reach(c, b, center, frame, target), margin_m)
-
-    @staticmethod
-    def _reach(c: np.ndarray, b: np.ndarray, center: np.ndarray, frame: TargetFrame,
-               target: Target) -> np.ndarray:
-        """How far (m, (N, 2)) beyond ``target``'s edges, along its width and height, the rays
-        from ``c`` along ``b`` (N, 3) land: |u| − w/2, |v| − h/2 at the hit (u, v); +∞ for a ray
-        pointing away from its plane."""
         with np.errstate(divide="ignore", invalid="ignore"):
             t = ((center - c) @ frame.normal) / (b @ frame.normal)
         hit = c + t[:, None] * b - center
-        out = np.column_stack([np.abs(hit @ frame.u) - target.width_m / 2,
-                               np.abs(hit @ frame.v) - target.height_m / 2])
-        out[~(np.isfinite(t) & (t >= 0.0))] = np.inf
-        return out
-
-    @staticmethod
-    def _within(reach: np.ndarray, margin_m) -> np.ndarray:
-        """Whether each :meth:`_reach` (N, 2) lies on the target grown by ``margin_m`` (m; or
-        (u, v) m): (N,) bool."""
-        return (reach <= np.broadcast_to(np.asarray(margin_m, float), (2,))).all(axis=1)
+        ok = np.isfinite(t) & (t >= 0.0)
+        mu, mv = np.broadcast_to(np.asarray(margin_m, float), (2,))
+        return (ok & (np.abs(hit @ frame.u) <= target.width_m / 2 + mu)
+                & (np.abs(hit @ frame.v) <= target.height_m / 2 + mv))
 
     def may_wait_at(self, pose, standby, aim, margin_m: float) -> bool:
         """Whether a heliostat about to take its turn may wait at ``pose`` (motor steps, where it
