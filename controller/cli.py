@@ -22,6 +22,7 @@ import threading
 
 from controller import __version__, commands
 from controller.commands._groups import command_modules
+from controller.commands._heap import keep_freed_memory
 from controller.commands._numbers import Number
 from controller.commands.common import resolve_config
 from controller.errors import HeliocalError
@@ -111,6 +112,7 @@ def _main(argv: list[str] | None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
+    keep_freed_memory()
     resolve_config(args)
     try:
         return int(args.func(args) or 0)
