@@ -159,21 +159,19 @@ class BeamSafety:
         return (ok & (np.abs(hit @ frame.u) <= target.width_m / 2 + mu)
                 & (np.abs(hit @ frame.v) <= target.height_m / 2 + mv))
 
-    def may_wait_at(self, pose, standby, aim, margin_m: float) -> bool:
+    def may_wait_at(self, pose, aim, margin_m: float) -> bool:
         """Whether a heliostat about to take its turn may wait at ``pose`` (motor steps, where it
-        stands still) rather than slew to ``standby`` first: its beam there lands off every
+        stands still) rather than slew to its standby first: its beam there lands off every
         target grown by ``margin_m`` (the margin a lamp change lets a heliostat stay with) and in
-        no person zone, the slew to ``standby`` would bring it within that margin of a target,
-        and the approach from ``pose`` to ``aim`` keeps it off the other targets and out of the
-        person zones. The two axes of a slew between two parks beside a target move at their
-        own speeds: the beam may bow towards the target on the way, the spot's tails into the
-        camera while it measures other beams (issue 42)."""
-        if tuple(pose) == tuple(standby):
-            return False
-        c, b = self.rays(np.vstack([np.asarray(pose, float)[None], self._sweep(pose, standby)]))
-        near = (self._lands_on(c, b, self.frame.center, self.frame, self.target, margin_m)
-                | self._on_others(c, b, margin_m))
-        if near[0] or not near.any() or self._in_zone(c[:1], b[:1])[0]:
+        no person zone, and the approach from ``pose`` to ``aim`` keeps it off the other targets
+        and out of the person zones. A slew between two parks beside a target slides the spot
+        along the view's edge while other beams are measured there: the model's ray keeps the
+        path's margin, the true spot need not. Whole-plan nights had such slews from a lamp
+        change's standby put a spot's tails into a capture (issue 42; before 2026-11-30 the
+        heliostat waited only when the slew would come within ``margin_m``)."""
+        c, b = self.rays([pose])
+        if (self._lands_on(c, b, self.frame.center, self.frame, self.target, margin_m)[0]
+                or self._on_others(c, b, margin_m)[0] or self._in_zone(c, b)[0]):
             return False
         c, b = self.rays(self._sweep(pose, aim))
         return not (self._on_others(c, b, 2.0).any() or self._in_zone(c, b).any())
