@@ -162,13 +162,15 @@ class BeamSafety:
     def may_wait_at(self, pose, aim, margin_m: float) -> bool:
         """Whether a heliostat about to take its turn may wait at ``pose`` (motor steps, where it
         stands still) rather than slew to its standby first: its beam there lands off every
-        target grown by ``margin_m`` (the margin a lamp change lets a heliostat stay with) and in
-        no person zone, and the approach from ``pose`` to ``aim`` keeps it off the other targets
-        and out of the person zones. A slew between two parks beside a target slides the spot
-        along the view's edge while other beams are measured there: the model's ray keeps the
-        path's margin, the true spot need not. Whole-plan nights had such slews from a lamp
-        change's standby put a spot's tails into a capture (issue 42; before 2026-11-30 the
-        heliostat waited only when the slew would come within ``margin_m``)."""
+        target grown by ``margin_m`` (m, or (u, v) m: the cycle gives :meth:`view_margin_m`,
+        where the spot's footprint leaves the views) and in no person zone, and the approach from
+        ``pose`` to ``aim`` keeps it off the other targets and out of the person zones. A slew
+        between two parks beside a target slides the spot along the view's edge while other
+        beams are measured there: the model's ray keeps the path's margin, the true spot need
+        not. Whole-plan nights had such slews from a lamp change's standby put a spot's tails
+        into a capture (issue 42; before 2026-11-30 the heliostat waited only when the slew
+        would come within the stay margin of a lamp change, which grows with the aim point's
+        offset: a lamp change's standby beside another aim point was inside it)."""
         c, b = self.rays([pose])
         if (self._lands_on(c, b, self.frame.center, self.frame, self.target, margin_m)[0]
                 or self._on_others(c, b, margin_m)[0] or self._in_zone(c, b)[0]):

@@ -126,7 +126,7 @@ def once_moving_onto_target(cyc, plant, action):
 
 
 def test_preparing_waits_where_the_drive_stands_when_the_pointing_says_it_may(make_cycle):
-    """``Pointing.may_wait_at`` true (parked beside the target already, off it by the stay margin):
+    """``Pointing.may_wait_at`` true (parked beside the target already, its spot out of the view):
     *preparing* commands no move and the approach starts from where the drive
     stands; after the measurement the beam parks at standby as always."""
     cyc, plant, drive = make_cycle(match=MATCH)
@@ -137,7 +137,7 @@ def test_preparing_waits_where_the_drive_stands_when_the_pointing_says_it_may(ma
     real_move = drive._send_move_abs
     drive._send_move_abs = lambda az, el: (visited.append((cyc.state, (az, el))), real_move(az, el))[1]
     rec = cyc.run()
-    assert asked == [(here, cyc.aim, cyc.ctx.pointing.stay_margin_m())] and here != plant.standby
+    assert asked == [(here, cyc.aim, cyc.ctx.pointing.view_margin_m())] and here != plant.standby
     assert visited[0][0] == "slewing" and not [v for s, v in visited if s == "preparing"]
     assert rec.status == "calibrated" and rec.final_state == "done"
     assert (drive.status().az_steps, drive.status().el_steps) == plant.standby

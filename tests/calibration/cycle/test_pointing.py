@@ -82,20 +82,23 @@ def test_path_from_stow_never_crosses_the_target(cfg, hid):
 def test_a_heliostat_parked_beside_the_target_waits_there_instead_of_sliding_along_the_view(cfg):
     """Parked beside the target (a lamp change's standby, higher or lower than its own) and about
     to be measured: it waits there (``may_wait_at``) whenever its beam there is off the target by
-    the stay margin, wherever its standby is: a slew between the two would slide the spot along
-    the view's edge while other beams are measured. A beam inside the margin moves."""
+    the view margin (its spot out of the view), wherever its standby is: a slew between the two
+    would slide the spot along the view's edge while other beams are measured. A beam inside the
+    margin moves."""
     waits = 0
     for h in cfg.heliostats:
         p = _pointing(cfg, h.id, None)
-        f, m, aim = p.frame, p.stay_margin_m(), p.aim_steps(None)
-        out = max(p.park_clearance_m(p.source, None), p.target.width_m / 2 + m) + 1.0
+        f, aim = p.frame, p.aim_steps(None)
+        m = p.view_margin_m()
+        mu = float(np.broadcast_to(m, (2,))[0])
+        out = max(p.park_clearance_m(p.source, None), p.target.width_m / 2 + mu) + 1.0
         for side in (1.0, -1.0):
             for dv in (-6.0, -3.0, 3.0, 6.0):
                 a = p.kin.aim(p.source_dir, f.center + side * out * f.u + dv * f.v)
                 assert not p.on_target([a], margin_m=m).any()
                 assert p.may_wait_at(a, aim, m), (h.id, side, dv)
                 waits += 1
-            inside = p.kin.aim(p.source_dir, f.center + side * (p.target.width_m / 2 + m - 1.0) * f.u)
+            inside = p.kin.aim(p.source_dir, f.center + side * (p.target.width_m / 2 + mu - 1.0) * f.u)
             assert p.on_target([inside], margin_m=m).any()
             assert not p.may_wait_at(inside, aim, m)
     assert waits
