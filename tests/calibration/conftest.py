@@ -182,7 +182,7 @@ class LinearPointing:
     def stay_margin_m(self) -> float:
         return 2.0
 
-    def may_wait_at(self, pose, aim, margin_m) -> bool:
+    def may_wait_at(self, pose, standby, aim, margin_m) -> bool:
         return False  # the fake plant's heliostat always parks at standby first
 
     def beam_on_target(self, az, el, margin_m: float = 2.0) -> bool:

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from controller.calibration.campaign.queue_order import order_queue, slew_time_s
-from controller.calibration.cycle.beam_safety import UnsafePath
+from controller.calibration.cycle.beam_safety import WAIT_SLOWER_S, UnsafePath
 from controller.calibration.cycle.pointing import GeometryPointing
 from controller.calibration.records import ModelRecord
 from controller.config import load_config
@@ -79,13 +79,21 @@ def test_path_from_stow_never_crosses_the_target(cfg, hid):
     assert not any(p.beam_on_target(*q, margin_m=0.0) for q in pts)
 
 
+def _slew_s(p, start, end) -> float:
+    """Seconds of a slew, each axis at its configured speed (independent of ``BeamSafety._slew_s``)."""
+    ax = p.heliostat.axes
+    return max(abs(end[0] - start[0]) / ax.azimuth.speed_steps_per_s,
+               abs(end[1] - start[1]) / ax.elevation.speed_steps_per_s)
+
+
 def test_a_heliostat_parked_beside_the_target_waits_there_instead_of_sliding_along_the_view(cfg):
     """Parked beside the target (a lamp change's standby, higher or lower than its own) and about
-    to be measured: it waits there (``may_wait_at``) whenever its beam there is off the target by
-    the view margin (its spot out of the view), wherever its standby is: a slew between the two
-    would slide the spot along the view's edge while other beams are measured. A beam inside the
-    margin moves."""
-    waits = 0
+    to be measured: it waits there (``may_wait_at``) when its beam there is off the target by the
+    view margin (its spot out of the view) and its approach from there is at most
+    ``WAIT_SLOWER_S`` slower than from its standby: a slew between the two would slide the spot
+    along the view's edge while other beams are measured. A beam inside the margin moves; so does
+    one parked so far off that its approach would keep the target waiting."""
+    waits = slower = 0
     for h in cfg.heliostats:
         p = _pointing(cfg, h.id, None)
         f, aim = p.frame, p.aim_steps(None)
@@ -93,15 +101,21 @@ def test_a_heliostat_parked_beside_the_target_waits_there_instead_of_sliding_alo
         mu = float(np.broadcast_to(m, (2,))[0])
         out = max(p.park_clearance_m(p.source, None), p.target.width_m / 2 + mu) + 1.0
         for side in (1.0, -1.0):
-            for dv in (-6.0, -3.0, 3.0, 6.0):
+            standby = p.kin.aim(p.source_dir, f.center + side * out * f.u)
+            for dv in (-6.0, -3.0, 3.0, 6.0, 40.0):
                 a = p.kin.aim(p.source_dir, f.center + side * out * f.u + dv * f.v)
                 assert not p.on_target([a], margin_m=m).any()
-                assert p.may_wait_at(a, aim, m), (h.id, side, dv)
-                waits += 1
+                if _slew_s(p, a, aim) <= _slew_s(p, standby, aim) + WAIT_SLOWER_S - 0.05:
+                    assert p.may_wait_at(a, standby, aim, m), (h.id, side, dv)
+                    waits += 1
+                elif _slew_s(p, a, aim) > _slew_s(p, standby, aim) + WAIT_SLOWER_S + 0.05:
+                    assert not p.may_wait_at(a, standby, aim, m), (h.id, side, dv)
+                    slower += 1
             inside = p.kin.aim(p.source_dir, f.center + side * (p.target.width_m / 2 + mu - 1.0) * f.u)
             assert p.on_target([inside], margin_m=m).any()
-            assert not p.may_wait_at(inside, aim, m)
-    assert waits
+            assert not p.may_wait_at(inside, standby, aim, m)
+            assert not p.may_wait_at(standby, standby, aim, m)  # nothing to wait for
+    assert waits and slower  # both arise on the demo field
 
 
 def test_path_across_the_target_is_refused(cfg):
