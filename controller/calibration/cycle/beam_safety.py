@@ -23,10 +23,6 @@ from controller.geometry.pose_batch import normal_and_center
 from controller.geometry.target_frame import TargetFrame
 from controller.geometry.zones import rays_enter_any, zone_boxes, zone_entered
 
-# A heliostat parked beside its target waits there rather than slide along the view to its own
-# standby when its approach from there is at most this much slower (s): the target waits for it.
-WAIT_SLOWER_S = 1.0
-
 
 class UnsafePath(HeliocalError):
     """No slew keeps the beam off the target (beam safety); nothing was sent."""
@@ -166,34 +162,21 @@ class BeamSafety:
     def may_wait_at(self, pose, standby, aim, margin_m: float) -> bool:
         """Whether a heliostat about to take its turn may wait at ``pose`` (motor steps, where it
         stands still) rather than slew to ``standby`` first: its beam there lands off every
-        target grown by ``margin_m`` (m, or (u, v) m: the cycle gives :meth:`view_margin_m`,
-        where the spot's footprint leaves the views) and in no person zone, its approach from
-        ``pose`` to ``aim`` takes no more than :data:`WAIT_SLOWER_S` longer than from
-        ``standby`` (it is parked beside the target: the approach is made while the target
-        waits for it) and keeps it off the other targets and out of the person zones. A slew
-        between two parks beside a target slides the spot along the view's edge while other
-        beams are measured there: the model's ray keeps the path's margin, the true spot need
-        not. Whole-plan nights had such slews from a lamp change's standby put a spot's tails
-        into a capture (issue 42; before 2026-11-30 the heliostat waited only when the slew
-        would come within the stay margin of a lamp change, which grows with the aim point's
-        offset: a lamp change's standby beside another aim point was inside it)."""
+        target grown by ``margin_m`` (the margin a lamp change lets a heliostat stay with) and in
+        no person zone, the slew to ``standby`` would bring it within that margin of a target,
+        and the approach from ``pose`` to ``aim`` keeps it off the other targets and out of the
+        person zones. The two axes of a slew between two parks beside a target move at their
+        own speeds: the beam may bow towards the target on the way, the spot's tails into the
+        camera while it measures other beams (issue 42)."""
         if tuple(pose) == tuple(standby):
             return False
-        if self._slew_s(pose, aim) > self._slew_s(standby, aim) + WAIT_SLOWER_S:
-            return False
-        c, b = self.rays([pose])
-        if (self._lands_on(c, b, self.frame.center, self.frame, self.target, margin_m)[0]
-                or self._on_others(c, b, margin_m)[0] or self._in_zone(c, b)[0]):
+        c, b = self.rays(np.vstack([np.asarray(pose, float)[None], self._sweep(pose, standby)]))
+        near = (self._lands_on(c, b, self.frame.center, self.frame, self.target, margin_m)
+                | self._on_others(c, b, margin_m))
+        if near[0] or not near.any() or self._in_zone(c[:1], b[:1])[0]:
             return False
         c, b = self.rays(self._sweep(pose, aim))
         return not (self._on_others(c, b, 2.0).any() or self._in_zone(c, b).any())
-
-    def _slew_s(self, a, b) -> float:
-        """Seconds a slew from ``a`` to ``b`` (motor steps) takes, each axis at its configured
-        speed (acceleration ignored, as in :meth:`_sweep`)."""
-        ax = self.heliostat.axes
-        return max(abs(float(b[0]) - float(a[0])) / ax.azimuth.speed_steps_per_s,
-                   abs(float(b[1]) - float(a[1])) / ax.elevation.speed_steps_per_s)
 
     def path_margin_m(self) -> float | np.ndarray:
         """How far (m; or (u, v) m) beyond each target's edges a slew keeps the central ray: 2 m
