@@ -25,8 +25,9 @@ MMAP_THRESHOLD_B = 32 << 20
 
 
 def keep_freed_memory() -> bool:
-    """Set the thresholds (module docstring). False, and nothing changed, where the C library
-    has no ``mallopt`` (not glibc) or refuses a value."""
+    """Set the thresholds (module docstring). False, and nothing changed, where the C library has
+    no ``mallopt`` (not glibc) or refuses the mmap threshold (a 32-bit glibc caps it at 512 kB);
+    the trim threshold, set second, glibc takes at any value."""
     name = ctypes.util.find_library("c")
     try:
         mallopt = ctypes.CDLL(name).mallopt
