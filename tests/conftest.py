@@ -48,3 +48,24 @@ def run_cli(argv: list[str]) -> tuple[int, str, str]:
         except SystemExit as exc:
             code = exc.code
     return code, out.getvalue(), err.getvalue()
+
+
+# The slowest tests (`pytest --durations`, 2-core machine, 2026-11-30), in that order, are collected
+# first: xdist deals them out first, to both workers at once, instead of one worker finishing a
+# minute-long test alone while the other has run out of work.
+SLOW_FIRST = (
+    "tests/test_docs_commands.py::test_every_shown_command_runs[results.md]",
+    "tests/calibration/night/test_night_cli.py::test_planned_nights_in_separate_processes_resume_and_improve_the_day",
+    "tests/calibration/campaign/test_campaign_sim.py::"
+    "test_demo_uncalibrated_field_compares_the_coarse_correction_with_centroid_only",
+    "tests/test_rehearsal.py::test_the_plant_writes_the_demo_field_with_the_devices_addresses",
+    "tests/test_docs_commands.py::test_every_shown_command_runs[getting-started.md]",
+    "tests/calibration/night/test_nights_resume.py::test_kill_9_mid_planned_night_then_resume",
+    "tests/calibration/campaign/test_campaign_sim.py::test_planned_night_measures_other_geometries_and_explains_them",
+    "tests/test_new_user.py::test_readme_session_outside_the_repository",
+)
+
+
+def pytest_collection_modifyitems(config, items):
+    first = {nodeid: i for i, nodeid in enumerate(SLOW_FIRST)}
+    items.sort(key=lambda item: first.get(item.nodeid, len(first)))  # stable: the rest keep their order
