@@ -266,6 +266,8 @@ def _as_mask(mask: np.ndarray | None, shape: tuple[int, int]) -> np.ndarray | No
 
 
 def _background(img: np.ndarray, background, mask: np.ndarray | None) -> Background:
+    if isinstance(background, Background):
+        return background
     if isinstance(background, str):
         if background == "none":
             return Background(level=0.0)
@@ -308,7 +310,8 @@ def analyze(image: np.ndarray, threshold: float = 0.5, background="auto", mask: 
         plane, a quadratic background and an elliptical super-Gaussian fitted jointly by robust
         least squares over the same neighbourhood, :func:`controller.imaging.spot_fit.fit_spot`;
         the centroid is the model's centre, the rest is measured above the fitted surface),
-        "none", or a null image ndarray of the same shape.
+        "none", a null image ndarray of the same shape, or a :class:`Background` estimated
+        already (the same plane for several thresholds of one image: "auto"'s, computed once).
     mask : optional (rows, cols) target mask, non-zero = on target.
     keep_steps : keep intermediate images in ``result.steps`` for plotting.
     centroid : "energy" (default; with ``background="auto"``: the spot's full energy centroid

@@ -18,7 +18,8 @@ from collections.abc import Sequence
 import numpy as np
 
 from controller.errors import InputError
-from controller.imaging.beam import analyze
+from controller.imaging.background import Background, estimate_background
+from controller.imaging.beam import analyze, check_image
 from controller.imaging.blur_moments import WINDOW_THRESHOLD, blur_invariant_hu
 from controller.recognition.blur_features import blur_features
 from controller.recognition.lobes import lobes_hu
@@ -47,19 +48,25 @@ def library_width(kind: str) -> int:
 _LOG_FLOOR = 1e-30
 
 
-def hu_stack(image: np.ndarray, thresholds: Sequence[float]) -> np.ndarray:
-    """Hu moments (len(thresholds), 7) of the beam segmented at each threshold (background auto)."""
-    return np.array([analyze(image, threshold=t, background="auto", centroid="segment", presence=False).hu
+def hu_stack(image: np.ndarray, thresholds: Sequence[float],
+             background: Background | None = None) -> np.ndarray:
+    """Hu moments (len(thresholds), 7) of the beam segmented at each threshold, above
+    ``background`` (default: the σ-clipped plane, :func:`estimate_background`, estimated once
+    for all thresholds: it does not depend on them)."""
+    bg = estimate_background(check_image(image)) if background is None else background
+    return np.array([analyze(image, threshold=t, background=bg, centroid="segment", presence=False).hu
                      for t in thresholds], dtype=np.float64)
 
 
 def describe(image: np.ndarray, kind: str, threshold: float = 0.5) -> np.ndarray:
     """The descriptor stack (len(kind_thresholds), 7) of a beam image for a feature kind: Hu
     moments of the spot segmented at each threshold, and for a blur kind, as its last row, the
-    blur-invariant Hu of the whole spot signal; for ``multi-lobe-hu`` the Hu of all its lobes."""
+    blur-invariant Hu of the whole spot signal; for ``multi-lobe-hu`` the Hu of all its lobes
+    (above the same plane)."""
     ts = kind_thresholds(kind, threshold)
     if kind == "multi-lobe-hu":
-        return np.vstack([hu_stack(image, ts[:-1]), lobes_hu(image, ts[-1])[None, :]])
+        bg = estimate_background(check_image(image))
+        return np.vstack([hu_stack(image, ts[:-1], bg), lobes_hu(image, ts[-1], bg)[None, :]])
     if kind in ("blur-hu", "multi-blur-hu"):
         return np.vstack([hu_stack(image, ts[:-1]).reshape(-1, 7), blur_invariant_hu(image)[None, :]])
     return hu_stack(image, ts)

@@ -25,18 +25,20 @@ import cv2
 import numpy as np
 
 from controller.errors import InputError
-from controller.imaging.background import estimate_background, subtract_background
+from controller.imaging.background import Background, estimate_background, subtract_background
 from controller.imaging.beam import SMOOTH_PX, check_image
 from controller.imaging.moments import central_moments, hu_from_eta, normalised_central_moments
 
 LOBE_SHARE = 0.01  # a region holding less of the energy above the threshold is noise, not a lobe
 
 
-def lobes_hu(image: np.ndarray, threshold: float) -> np.ndarray:
+def lobes_hu(image: np.ndarray, threshold: float, background: Background | None = None) -> np.ndarray:
     """Hu moments (7,) of all lobes of the beam above ``threshold`` × its smoothed peak (see the
-    module docstring). InputError when there is no beam."""
+    module docstring); ``background``: step 1's plane when estimated already. InputError when
+    there is no beam."""
     img = check_image(image)
-    signal = subtract_background(img, estimate_background(img)).astype(np.float32)
+    bg = estimate_background(img) if background is None else background
+    signal = subtract_background(img, bg).astype(np.float32)
     smooth = cv2.GaussianBlur(signal, (5, 5), SMOOTH_PX, borderType=cv2.BORDER_REPLICATE)
     peak = float(smooth.max())
     if not peak > 0.0:
