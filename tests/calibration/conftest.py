@@ -193,6 +193,9 @@ class LinearPointing:
     def view_margin_m(self) -> float:
         return 2.0
 
+    def path_margin_m(self) -> float:
+        return 2.5
+
     def off_targets(self, az, el, margin_m: float = 2.0) -> bool:
         """The one target of the fake plant; no person zone."""
         return not self.beam_on_target(az, el, margin_m)

@@ -23,6 +23,10 @@ from controller.geometry.pose_batch import normal_and_center
 from controller.geometry.target_frame import TargetFrame
 from controller.geometry.zones import rays_enter_any, zone_boxes, zone_entered
 
+# A heliostat parked beside its target waits there rather than slide along the view to its own
+# standby when its approach from there is at most this much slower (s): the target waits for it.
+WAIT_SLOWER_S = 1.0
+
 
 class UnsafePath(HeliocalError):
     """No slew keeps the beam off the target (beam safety); nothing was sent."""
@@ -33,14 +37,16 @@ class BeamSafety:
     (unit ENU, towards the source) with its ``target`` (its ``frame``); ``others``: the plant's
     other targets, which slews must never cross either (their beams belong to other pipelines
     that run at the same time); ``zones``: the person zones the beam must never enter;
-    ``model``: the heliostat's tracking model (None: the nominal kinematics)."""
+    ``model``: the heliostat's tracking model (None: the nominal kinematics); ``lamp``: the
+    lamp's position (m ENU; None for the sun), from which each pose's ray takes its light."""
 
     def __init__(self, heliostat: Heliostat, source_dir: np.ndarray, target: Target, frame: TargetFrame,
                  others: tuple[Target, ...] = (), zones: tuple[PersonZone, ...] = (),
-                 model: TrackingModel | None = None) -> None:
+                 model: TrackingModel | None = None, lamp=None) -> None:
         self.heliostat = heliostat
         self.kin = HeliostatKinematics.from_config(heliostat)
         self.source_dir = source_dir
+        self.lamp = None if lamp is None else np.asarray(lamp, float)
         self.target = target
         self.frame = frame
         self.others = _other_frames(tuple(others), target.id)
@@ -66,10 +72,19 @@ class BeamSafety:
         return kept
 
     def rays(self, poses) -> tuple[np.ndarray, np.ndarray]:
-        """Mirror centres and unit reflected beams (N, 3) at ``poses`` (N, 2) motor steps."""
+        """Mirror centres and unit reflected beams (N, 3) at ``poses`` (N, 2) motor steps. A
+        lamp's light comes from the lamp to each pose's mirror centre, as the poses were solved
+        (:func:`controller.geometry.model.tracking.model_aim`): the centre moves with the pose
+        and the model's position terms, and a lamp tens of metres away sees that parallax
+        (before 2026-11-30 the ray took the direction from the heliostat's nominal position, and
+        a standby solved to land just outside a path's margin was traced inside it; issue 42)."""
         n, c = normal_and_center(self.kin, self.ray_model, np.asarray(poses, float).reshape(-1, 2))
-        s = np.asarray(self.source_dir, float)
-        return c, 2.0 * (n @ s)[:, None] * n - s
+        if self.lamp is None:
+            s = np.broadcast_to(np.asarray(self.source_dir, float), n.shape)
+        else:
+            s = self.lamp - c
+            s = s / np.linalg.norm(s, axis=1, keepdims=True)
+        return c, 2.0 * np.sum(n * s, axis=1, keepdims=True) * n - s
 
     def beam_on_target(self, az_steps: float, el_steps: float, margin_m: float = 2.0) -> bool:
         """Whether the reflected central ray lands on the target grown by ``margin_m``
@@ -162,21 +177,33 @@ class BeamSafety:
     def may_wait_at(self, pose, standby, aim, margin_m: float) -> bool:
         """Whether a heliostat about to take its turn may wait at ``pose`` (motor steps, where it
         stands still) rather than slew to ``standby`` first: its beam there lands off every
-        target grown by ``margin_m`` (the margin a lamp change lets a heliostat stay with) and in
-        no person zone, the slew to ``standby`` would bring it within that margin of a target,
-        and the approach from ``pose`` to ``aim`` keeps it off the other targets and out of the
-        person zones. The two axes of a slew between two parks beside a target move at their
-        own speeds: the beam may bow towards the target on the way, the spot's tails into the
-        camera while it measures other beams (issue 42)."""
+        target grown by ``margin_m`` (m, or (u, v) m: the cycle gives :meth:`path_margin_m`, as
+        far out as a park less its 0.1 m tolerance) and in no person zone, its approach from
+        ``pose`` to ``aim`` takes no more than :data:`WAIT_SLOWER_S` longer than from
+        ``standby`` (it is parked beside the target: the approach is made while the target
+        waits for it) and keeps it off the other targets (grown by 2 m) and out of the person
+        zones. A slew between two parks beside a target slides the spot along the
+        view's edge while other beams are measured there: the model's ray keeps the path's
+        margin, the true spot need not. Whole-plan nights had such slews from a lamp change's
+        standby put a spot's tails into a capture (issue 42). A wait within the view margin
+        (the park's 0.5 m slack left out) put more there: 152 captures in a whole plan."""
         if tuple(pose) == tuple(standby):
             return False
-        c, b = self.rays(np.vstack([np.asarray(pose, float)[None], self._sweep(pose, standby)]))
-        near = (self._lands_on(c, b, self.frame.center, self.frame, self.target, margin_m)
-                | self._on_others(c, b, margin_m))
-        if near[0] or not near.any() or self._in_zone(c[:1], b[:1])[0]:
+        if self._slew_s(pose, aim) > self._slew_s(standby, aim) + WAIT_SLOWER_S:
+            return False
+        c, b = self.rays([pose])
+        if (self._lands_on(c, b, self.frame.center, self.frame, self.target, margin_m)[0]
+                or self._on_others(c, b, margin_m)[0] or self._in_zone(c, b)[0]):
             return False
         c, b = self.rays(self._sweep(pose, aim))
         return not (self._on_others(c, b, 2.0).any() or self._in_zone(c, b).any())
+
+    def _slew_s(self, a, b) -> float:
+        """Seconds a slew from ``a`` to ``b`` (motor steps) takes, each axis at its configured
+        speed (acceleration ignored, as in :meth:`_sweep`)."""
+        ax = self.heliostat.axes
+        return max(abs(float(b[0]) - float(a[0])) / ax.azimuth.speed_steps_per_s,
+                   abs(float(b[1]) - float(a[1])) / ax.elevation.speed_steps_per_s)
 
     def path_margin_m(self) -> float | np.ndarray:
         """How far (m; or (u, v) m) beyond each target's edges a slew keeps the central ray: 2 m

@@ -224,7 +224,7 @@ class CalibrationCycle:
             self.aim, self.standby = p.aim_steps(self.ctx.model), p.standby_steps(self.ctx.model)
             # Parked beside the target (a lamp change's standby), it may wait there (may_wait_at).
             here = (st.az_steps, st.el_steps)
-            wait = not st.moving and p.may_wait_at(here, self.standby, self.aim, p.stay_margin_m())
+            wait = not st.moving and p.may_wait_at(here, self.standby, self.aim, p.path_margin_m())
         if wait:
             self.az, self.el = self.at = here
         else:

@@ -64,13 +64,13 @@ class GeometryPointing(BeamSafety):
         model_prior(self.model_settings)  # an unknown term is refused before anything moves
         self.model = model  # the model the standby and the beam-safety checks were computed with
         pos = np.asarray(heliostat.position_enu_m, float)
+        self.source_pos = (tuple(float(v) for v in source.position_enu_m) if isinstance(source, LampSource)
+                           else None)
         super().__init__(heliostat, np.asarray(source_direction(source, pos), float), target, frame, others,
-                         zones, None if model is None else TrackingModel.from_dict(model.params))
+                         zones, model and TrackingModel.from_dict(model.params), self.source_pos)
         self.heliostat_pos = pos
         # The target centre, or a point of the aim grid on a planned night.
         self.aim_point = np.asarray(target.center_enu_m if aim_point is None else aim_point, float)
-        self.source_pos = (tuple(float(v) for v in source.position_enu_m) if isinstance(source, LampSource)
-                           else None)
         self._least_offset_m, self._offset_m = standby_offset_m, None
         self._current, self._standby_point = current_steps, None
 

@@ -126,18 +126,19 @@ def once_moving_onto_target(cyc, plant, action):
 
 
 def test_preparing_waits_where_the_drive_stands_when_the_pointing_says_it_may(make_cycle):
-    """``Pointing.may_wait_at`` true (parked beside the target already, the slew to standby would
-    bow towards it): *preparing* commands no move and the approach starts from where the drive
+    """``Pointing.may_wait_at`` true (parked beside the target already, its spot out of the view):
+    *preparing* commands no move and the approach starts from where the drive
     stands; after the measurement the beam parks at standby as always."""
     cyc, plant, drive = make_cycle(match=MATCH)
     away = (plant.standby[0] - 3000, plant.standby[1] + 500)
     st = drive.move_and_wait(*away, timeout_s=60.0, time=cyc.ctx.time)
     here, asked, visited = (st.az_steps, st.el_steps), [], []
-    cyc.ctx.pointing.may_wait_at = lambda pose, standby, aim, m: asked.append((pose, standby, m)) or True
+    cyc.ctx.pointing.may_wait_at = lambda pose, standby, aim, m: asked.append((pose, standby, aim, m)) or True
     real_move = drive._send_move_abs
     drive._send_move_abs = lambda az, el: (visited.append((cyc.state, (az, el))), real_move(az, el))[1]
     rec = cyc.run()
-    assert asked == [(here, plant.standby, cyc.ctx.pointing.stay_margin_m())] and here != plant.standby
+    assert here != plant.standby
+    assert asked == [(here, plant.standby, cyc.aim, cyc.ctx.pointing.path_margin_m())]
     assert visited[0][0] == "slewing" and not [v for s, v in visited if s == "preparing"]
     assert rec.status == "calibrated" and rec.final_state == "done"
     assert (drive.status().az_steps, drive.status().el_steps) == plant.standby
