@@ -30,7 +30,6 @@ import numpy as np
 from controller.calibration.cycle.pointing import PARK_MARGIN_M, model_covariance
 from controller.calibration.records import ModelRecord
 from controller.config import PlantConfig
-from controller.geometry.aiming import source_direction
 from controller.geometry.kinematics import HeliostatKinematics
 from controller.geometry.model.tracking import TrackingModel
 from controller.geometry.pose_batch import KinStack, aim_steps, normal_and_center
@@ -55,12 +54,14 @@ def certainly_safe(cfg: PlantConfig, lamp: str, poses: dict[str, tuple[int, int]
     hs = [cfg.heliostat(h) for h in ids]
     kin = KinStack.of([HeliostatKinematics.from_config(h) for h in hs])
     lamp_pos = np.asarray(source.position_enu_m, float)
-    to_lamp = np.array([source_direction(source, np.asarray(h.position_enu_m, float)) for h in hs])
     ray_values = np.array([(TrackingModel.zero() if models[h] is None
                             else TrackingModel.from_dict(models[h].params)).values for h in ids])
     n, c = normal_and_center(kin.shaped(2), ray_values[:, None, :], np.array([poses[h] for h in ids],
                                                                             float)[:, None, :])
     n, c = n[:, 0], c[:, 0]
+    # The lamp's light at each pose's mirror centre, as BeamSafety.rays traces it.
+    to_lamp = lamp_pos - c
+    to_lamp /= np.linalg.norm(to_lamp, axis=-1, keepdims=True)
     beam = 2.0 * np.sum(n * to_lamp, axis=-1, keepdims=True) * n - to_lamp
     free = np.full(len(ids), np.inf)
     for t in cfg.targets:
