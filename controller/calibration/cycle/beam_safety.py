@@ -26,6 +26,9 @@ from controller.geometry.zones import rays_enter_any, zone_boxes, zone_entered
 # A heliostat parked beside its target waits there rather than slide along the view to its own
 # standby when its approach from there is at most this much slower (s): the target waits for it.
 WAIT_SLOWER_S = 1.0
+# ... and when it stands no deeper inside the path's margin than its standby lies, plus this (m):
+# a step of the solved standby moves its ray by about a centimetre.
+WAIT_DEPTH_SLACK_M = 0.05
 
 
 class UnsafePath(HeliocalError):
@@ -166,34 +169,56 @@ class BeamSafety:
                   margin_m) -> np.ndarray:
         """Whether the rays from ``c`` along ``b`` (N, 3) land on ``target`` grown by ``margin_m``
         (m; or (u, v) m per axis; a ray pointing away from its plane does not)."""
+        return BeamSafety._depth(c, b, center, frame, target, margin_m) >= 0.0
+
+    @staticmethod
+    def _depth(c: np.ndarray, b: np.ndarray, center: np.ndarray, frame: TargetFrame, target: Target,
+               margin_m) -> np.ndarray:
+        """How far (m) inside ``target`` grown by ``margin_m`` each ray lands: min(w/2 + m_u − |u|,
+        h/2 + m_v − |v|) at its hit (u, v) in the target's plane, negative outside, −∞ for a ray
+        pointing away from the plane."""
         with np.errstate(divide="ignore", invalid="ignore"):
             t = ((center - c) @ frame.normal) / (b @ frame.normal)
-        hit = c + t[:, None] * b - center
-        ok = np.isfinite(t) & (t >= 0.0)
+            hit = c + t[:, None] * b - center
         mu, mv = np.broadcast_to(np.asarray(margin_m, float), (2,))
-        return (ok & (np.abs(hit @ frame.u) <= target.width_m / 2 + mu)
-                & (np.abs(hit @ frame.v) <= target.height_m / 2 + mv))
+        d = np.minimum(target.width_m / 2 + mu - np.abs(hit @ frame.u),
+                       target.height_m / 2 + mv - np.abs(hit @ frame.v))
+        return np.where(np.isfinite(t) & (t >= 0.0), d, -np.inf)
+
+    def _depths(self, c: np.ndarray, b: np.ndarray, margin_m) -> np.ndarray:
+        """:meth:`_depth` in the target and, the deepest, in the ``others``: (N, 2)."""
+        own = self._depth(c, b, self.frame.center, self.frame, self.target, margin_m)
+        other = np.full(len(c), -np.inf)
+        for centre, f, t in self.others:
+            other = np.maximum(other, self._depth(c, b, centre, f, t, margin_m))
+        return np.stack([own, other], axis=1)
 
     def may_wait_at(self, pose, standby, aim, margin_m: float) -> bool:
         """Whether a heliostat about to take its turn may wait at ``pose`` (motor steps, where it
-        stands still) rather than slew to ``standby`` first: its beam there lands off every
-        target grown by ``margin_m`` (m, or (u, v) m: the cycle gives :meth:`path_margin_m`, as
-        far out as a park less its 0.1 m tolerance) and in no person zone, its approach from
-        ``pose`` to ``aim`` takes no more than :data:`WAIT_SLOWER_S` longer than from
-        ``standby`` (it is parked beside the target: the approach is made while the target
-        waits for it) and keeps it off the other targets (grown by 2 m) and out of the person
-        zones. A slew between two parks beside a target slides the spot along the
-        view's edge while other beams are measured there: the model's ray keeps the path's
-        margin, the true spot need not. Whole-plan nights had such slews from a lamp change's
-        standby put a spot's tails into a capture (issue 42). A wait within the view margin
-        (the park's 0.5 m slack left out) put more there: 152 captures in a whole plan."""
+        stands still) rather than slew to ``standby`` first. Its beam there lands off every
+        target grown by ``margin_m`` (m, or (u, v) m: the cycle gives :meth:`path_margin_m`), or
+        no deeper inside one than its standby's beam (:data:`WAIT_DEPTH_SLACK_M`: a far
+        heliostat's footprint at the aim can reach beyond its park clearance, its standby then
+        inside the margin, and a slew that starts inside may slide along it, :meth:`path_to`),
+        and in no person zone. Its approach from ``pose`` to ``aim`` takes no more than
+        :data:`WAIT_SLOWER_S` longer than from ``standby`` (it is parked beside the target: the
+        approach is made while the target waits for it) and keeps it off the other targets
+        (grown by 2 m) and out of the person zones. A slew between two parks beside a target
+        slides the spot along the view's edge while other beams are measured there: the model's
+        ray keeps the path's margin, the true spot need not. Whole-plan nights had such slews
+        from a lamp change's standby put a spot's tails into a capture (issue 42). A wait
+        within the view margin (the park's 0.5 m slack left out) put more there: 152 captures
+        in a whole plan."""
         if tuple(pose) == tuple(standby):
             return False
         if self._slew_s(pose, aim) > self._slew_s(standby, aim) + WAIT_SLOWER_S:
             return False
-        c, b = self.rays([pose])
-        if (self._lands_on(c, b, self.frame.center, self.frame, self.target, margin_m)[0]
-                or self._on_others(c, b, margin_m)[0] or self._in_zone(c, b)[0]):
+        c, b = self.rays([pose, standby])
+        # As far out as its standby: off the targets grown by the margin, or no deeper inside than
+        # the standby (a park whose footprint at the aim reaches beyond its clearance lies inside).
+        depth = self._depths(c, b, margin_m)
+        deepest = np.where(depth[1] >= 0.0, depth[1] + WAIT_DEPTH_SLACK_M, 0.0)
+        if (depth[0] >= deepest).any() or self._in_zone(c[:1], b[:1])[0]:
             return False
         c, b = self.rays(self._sweep(pose, aim))
         return not (self._on_others(c, b, 2.0).any() or self._in_zone(c, b).any())

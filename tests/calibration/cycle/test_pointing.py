@@ -326,3 +326,26 @@ def test_the_ray_checked_under_a_lamp_lands_where_the_pose_was_solved_to(cfg, la
         t = ((frame.center - c[0]) @ frame.normal) / (b[0] @ frame.normal)
         worst = max(worst, float(np.linalg.norm(c[0] + t * b[0] - p.standby_point)))
     assert worst < 0.05  # m: steps are whole (a step moves the spot about a centimetre)
+
+
+def test_a_heliostat_whose_standby_lies_inside_the_margin_waits_no_deeper_than_its_standby(cfg):
+    """A standby inside the path's margin (a far heliostat's footprint at the aim reaches beyond
+    its park clearance): a pose beside it, higher or lower at the same distance from the view,
+    may be waited at (a slew from there would start inside the margin and slide along it); a pose
+    half a metre closer to the view may not."""
+    frame = TargetFrame.from_config(cfg.target(), (768, 1024))
+    waits = 0
+    for h in cfg.heliostats:
+        p = GeometryPointing(h, cfg.target(), cfg.light_source(), frame, 8.0, None)
+        aim, standby, sp = p.aim_steps(None), p.standby_steps(None), p.standby_point
+        side = np.sign(float((sp - frame.center) @ frame.u))
+        u_in = float((sp - frame.center) @ frame.u) * side - p.target.width_m / 2  # m beyond the edge
+        m = np.array([u_in + 1.0, 2.0])  # the standby 1 m inside the margin
+        for dv in (-1.0, 1.0):
+            beside = p.kin.aim(p.source_dir, sp + dv * frame.v)
+            closer = p.kin.aim(p.source_dir, sp + dv * frame.v - 0.5 * side * frame.u)
+            if _slew_s(p, beside, aim) <= _slew_s(p, standby, aim) + WAIT_SLOWER_S - 0.05:
+                assert p.may_wait_at(beside, standby, aim, m), (h.id, dv)
+                waits += 1
+            assert not p.may_wait_at(closer, standby, aim, m), (h.id, dv)
+    assert waits
