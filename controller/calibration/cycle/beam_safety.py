@@ -108,9 +108,13 @@ class BeamSafety:
         return self._on_others(*self.rays(poses), margin_m)
 
     def _on_others(self, c: np.ndarray, b: np.ndarray, margin_m: float) -> np.ndarray:
-        out = np.zeros(len(c), bool)
+        return self._others_depth(c, b, margin_m) >= 0.0
+
+    def _others_depth(self, c: np.ndarray, b: np.ndarray, margin_m) -> np.ndarray:
+        """The deepest :meth:`_depth` of the rays in any of the ``others``: (N,)."""
+        out = np.full(len(c), -np.inf)
         for centre, f, t in self.others:
-            out |= self._lands_on(c, b, centre, f, t, margin_m)
+            out = np.maximum(out, self._depth(c, b, centre, f, t, margin_m))
         return out
 
     def off_targets(self, az_steps: float, el_steps: float, margin_m: float = 2.0) -> bool:
@@ -188,10 +192,7 @@ class BeamSafety:
     def _depths(self, c: np.ndarray, b: np.ndarray, margin_m) -> np.ndarray:
         """:meth:`_depth` in the target and, the deepest, in the ``others``: (N, 2)."""
         own = self._depth(c, b, self.frame.center, self.frame, self.target, margin_m)
-        other = np.full(len(c), -np.inf)
-        for centre, f, t in self.others:
-            other = np.maximum(other, self._depth(c, b, centre, f, t, margin_m))
-        return np.stack([own, other], axis=1)
+        return np.stack([own, self._others_depth(c, b, margin_m)], axis=1)
 
     def may_wait_at(self, pose, standby, aim, margin_m: float) -> bool:
         """Whether a heliostat about to take its turn may wait at ``pose`` (motor steps, where it
