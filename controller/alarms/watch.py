@@ -44,20 +44,20 @@ def fault_kind(run: RunRecord) -> str:
 
 
 class FieldWatch(CampaignObserver):
-    """Alarms and model audit of one campaign on ``target`` (module docstring). ``models_of``:
-    the latest models of some heliostats (who had one before: drift is measured against it)."""
+    """Alarms and model audit of one campaign on ``target`` (module docstring). ``with_models``:
+    which of some heliostats have a fitted model (who had one before: drift is measured against it)."""
 
     def __init__(self, alarms: AlarmSink, audit: AuditSink, limits: AlarmLimits, target: str, campaign: str,
-                 models_of: Callable[[list[str]], Mapping[str, object]]) -> None:
+                 with_models: Callable[[list[str]], set[str]]) -> None:
         self.alarms, self.audit, self.limits = alarms, audit, limits
         self.target, self.campaign = target, campaign
-        self.models_of = models_of
+        self.with_models = with_models
         self.had_model: set[str] = set()
         self._no_beams = 0
         self._lock = threading.Lock()
 
     def campaign_started(self, campaign_id: int, queue: list[str], done: set[str]) -> None:
-        self.had_model = {hid for hid, m in self.models_of(list(queue)).items() if m is not None}
+        self.had_model = set(self.with_models(list(queue)))
 
     def run_recorded(self, campaign_id: int, run: RunRecord) -> None:
         hid, kind, seen = run.heliostat_id, fault_kind(run), bool(run.measurements)

@@ -78,7 +78,8 @@ def joint_steps(act: LinearActuator, angle, d_stroke0=0.0, d_radius=0.0) -> np.n
 
 def turn(values: np.ndarray, alpha, eps, body: np.ndarray) -> np.ndarray:
     """R* ``body`` (module equation) for model ``values`` (..., 14) SI at nominal joint angles
-    α, ε (rad; broadcast against values[..., 0]); ``body`` (3,) a body-frame vector."""
+    α, ε (rad; broadcast against values[..., 0]); ``body`` (3,) a body-frame vector, or several
+    along leading axes that broadcast against the rest."""
     v = np.asarray(values, float)
 
     def p(name):
@@ -89,8 +90,8 @@ def turn(values: np.ndarray, alpha, eps, body: np.ndarray) -> np.ndarray:
                p("mirror_offset"), 0)
     out = _rot(out, np.asarray(alpha, float) + p("az_offset"), 2)
     out = _rot(out, p("non_orthogonality"), 1)
-    out = _rot(out, np.asarray(eps, float) + p("el_offset") - np.pi / 2.0, 0)
-    out = _rot(out, -p("tilt_north"), 0)
+    # R_e(−τ_N) R_e(ε + Δε − π/2): two turns about East are one
+    out = _rot(out, np.asarray(eps, float) + p("el_offset") - np.pi / 2.0 - p("tilt_north"), 0)
     out = _rot(out, p("tilt_east"), 1)
     return _rot(out, p("base_yaw"), 2)
 
@@ -114,11 +115,13 @@ def normal_and_center(kin: HeliostatKinematics, values: np.ndarray,
     if v.ndim == 1 and np.shape(steps) == (1, 2):  # one pose of one model: a beam-safety check
         return _one_pose(kin, v, *np.asarray(steps, float)[0])
     a, e = angles(kin, v, steps)
-    n = turn(v, a, e, BODY_NORMAL)
     pos = v[..., [_I["position_e"], _I["position_n"], _I["position_u"]]]
-    if kin.concentrator_translation.any():
-        c = turn(v, a, e, kin.concentrator_translation)
+    if kin.concentrator_translation.any():  # both body vectors turned at once: half the array calls
+        body = np.stack(np.broadcast_arrays(BODY_NORMAL, np.asarray(kin.concentrator_translation, float)))
+        lead = max(v.ndim - 1, np.ndim(a), body.ndim - 2)  # the result's axes: (2, *lead, 3)
+        n, c = turn(v, a, e, body.reshape(2, *(1,) * (lead - body.ndim + 2), *body.shape[1:]))
     else:
+        n = turn(v, a, e, BODY_NORMAL)
         c = np.zeros_like(n)
     return n, kin.position + pos + c
 

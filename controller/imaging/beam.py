@@ -333,8 +333,8 @@ def analyze(image: np.ndarray, threshold: float = 0.5, background="auto", mask: 
     img = check_image(image)
     m = _as_mask(mask, img.shape)
     fit = None
-    energy = centroid == "energy" and isinstance(background, str) and background == "auto"
-    pres = None
+    auto = isinstance(background, str) and background == "auto"
+    energy, pres = centroid == "energy" and auto, None
     if presence or energy:
         null = not isinstance(background, str)
         pres = detect_beam(subtract_background(img, _background(img, background, m)) if null else img, m)
@@ -349,6 +349,8 @@ def analyze(image: np.ndarray, threshold: float = 0.5, background="auto", mask: 
         if background == "fit":
             fit = fit_spot(img, m, _guess(img, bg, float(threshold), m), bg)
             bg = fit.background
+    elif auto and pres is not None and pres.level == 1 and img.dtype == np.float32:
+        bg = pres.background  # the presence decision fitted this plane to these very pixels
     else:
         bg = _background(img, background, m)
     region, _, level, bbox = segment(img, bg, float(threshold), m)

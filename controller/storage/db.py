@@ -345,26 +345,27 @@ class CampaignStore:
         return [measurement_from_row(r, self.path) for r in rows]
 
     def corrections(self, run_id: int) -> list[CorrectionRecord]:
-        with self._lock:
-            rows = self._db.execute("SELECT * FROM corrections WHERE run_id=? ORDER BY id",
-                                    (run_id,)).fetchall()
+        rows = self.query("SELECT * FROM corrections WHERE run_id=? ORDER BY id", (run_id,))
         return [CorrectionRecord(r["iteration"],
                                  enum_column(self.path, "corrections", r, "kind", ("coarse", "fine")),
                                  r["daz_deg"], r["del_deg"], r["daz_steps"],
                                  r["del_steps"]) for r in rows]
 
     def images(self, measurement_id: int) -> list[ImageRecord]:
-        with self._lock:
-            rows = self._db.execute("SELECT * FROM images WHERE measurement_id=? ORDER BY id",
-                                    (measurement_id,)).fetchall()
+        rows = self.query("SELECT * FROM images WHERE measurement_id=? ORDER BY id", (measurement_id,))
         return [ImageRecord(enum_column(self.path, "images", r, "kind", ("low", "high")),
                             resolved_image_path(self.path, r["path"]), r["sha256"],
                             (r["exposure_low_s"], r["exposure_high_s"])) for r in rows]
 
     def latest_model(self, heliostat_id: str) -> ModelRecord | None:
         """The most recent fitted tracking-error parameters of a heliostat, or None."""
-        with self._lock:
-            return self._models.latest(self._db, [heliostat_id]).get(heliostat_id)
+        return self.latest_models([heliostat_id]).get(heliostat_id)
+
+    def with_models(self, heliostat_ids) -> set[str]:
+        """Those of ``heliostat_ids`` that have a fitted model, nothing decoded (a campaign's alarm
+        watch asks at its start: thousands of models are written since the last decode)."""
+        wanted = set(heliostat_ids)
+        return {h for (h,) in self.query("SELECT DISTINCT heliostat_id FROM model_params") if h in wanted}
 
     def latest_models(self, heliostat_ids=None) -> dict[str, ModelRecord]:
         """The latest model of each heliostat that has one (of ``heliostat_ids``, or all); rows
@@ -387,8 +388,7 @@ class CampaignStore:
         if table not in ("campaigns", "heliostat_runs", "measurements", "corrections", "model_params",
                          "images"):
             raise ValueError(table)
-        with self._lock:
-            return int(self._db.execute(f"SELECT COUNT(*) FROM {table}").fetchone()[0])
+        return int(self.query(f"SELECT COUNT(*) FROM {table}")[0][0])
 
 
 def open_existing(path: str | Path) -> CampaignStore:

@@ -10,6 +10,7 @@ import pytest
 from beamkit import cli, gaussian, heliocal
 
 from controller.errors import InputError
+from controller.imaging.background import estimate_background
 from controller.imaging.beam import analyze, enclosed_energy_diameter
 
 
@@ -41,6 +42,21 @@ def test_analyze_leaves_its_input_alone(dtype):
     again = analyze(img, background="auto")
     assert again.centroid_px == first.centroid_px and again.total == first.total
     np.testing.assert_array_equal(again.hu, first.hu)
+
+
+@pytest.mark.parametrize("shape", [(96, 128), (480, 640)])
+def test_the_auto_plane_is_the_one_estimated_on_the_image_whether_or_not_presence_fitted_it(shape):
+    # A small float32 image is its own presence level: the plane fitted there is the one
+    # estimate_background gives the image; a larger one is reduced first and fits its own.
+    rng = np.random.default_rng(5)
+    rows, cols = shape
+    img = (gaussian(shape, 0.45 * cols, 0.55 * rows, rows / 16, amp=800.0) + 60.0 + 0.05 * np.arange(cols)
+           + rng.normal(0.0, 2.0, shape)).astype(np.float32)
+    auto = analyze(img, background="auto", centroid="segment")
+    given = analyze(img, background=estimate_background(img), centroid="segment")
+    assert auto.background == given.background
+    assert auto.centroid_px == given.centroid_px and auto.total == given.total
+    np.testing.assert_array_equal(auto.hu, given.hu)
 
 
 def test_uniform_disc_ellipse_and_d90():

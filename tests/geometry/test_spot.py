@@ -84,6 +84,26 @@ def test_one_pose_of_one_model_equals_the_scalar_model_and_the_batch(cfg):
         assert np.isnan(pose_batch.normal_and_center(kin, model.values, np.vstack([far, far]))[0]).all()
 
 
+def test_a_stack_of_heliostats_with_concentrator_translations_poses_as_each_alone(cfg):
+    """normal_and_center over a KinStack (the planner's and the lamp change's batches) with a
+    concentrator translation per heliostat: each row is that heliostat's own pose."""
+    rng = np.random.default_rng(12)
+    kins = []
+    for h in cfg.heliostats[:5]:
+        k = HeliostatKinematics.from_config(h)
+        kins.append(type(k)(k.heliostat_id, k.position, k.azimuth, k.elevation, rng.normal(0.0, 0.3, 3)))
+    values = rng.normal(0.0, PRIOR_SIGMA_SI, (len(kins), 14))
+    steps = np.array([[rng.uniform(k.azimuth.min_steps, k.azimuth.max_steps),
+                       rng.uniform(k.elevation.min_steps, k.elevation.max_steps)] for k in kins])
+    stack = pose_batch.KinStack.of(kins)
+    n, c = pose_batch.normal_and_center(stack.shaped(2), values[:, None, :], steps[:, None, :])
+    assert n.shape == c.shape == (len(kins), 1, 3)
+    for i, k in enumerate(kins):
+        model = TrackingModel(values[i])
+        assert n[i, 0] == pytest.approx(model_normal(k, model, *steps[i]), abs=1e-12)
+        assert c[i, 0] == pytest.approx(model_mirror_center(k, model, *steps[i]), abs=1e-12)
+
+
 def test_spot_size_terms_and_their_limits():
     beam = np.array([0.0, -1.0, 0.0])  # head-on to a north-facing... plane whose normal is N
     # A mirror focused on the target, without slope error: only the lamp's disc, σ = αL/4.

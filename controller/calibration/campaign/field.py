@@ -138,6 +138,10 @@ class Field:
         got = self.store.latest_models(ids)
         return {hid: got.get(hid) for hid in ids}
 
+    def with_models(self, ids: list[str]) -> set[str]:
+        """Those of ``ids`` that have a fitted model."""
+        return self.store.with_models(ids)
+
     def light(self, lamp: str, ask_operator: Callable[[str], None]) -> LampLit:
         """Light ``lamp`` for measuring: through the lamp panel (every other lamp off, the lamp
         confirmed lit, else LampError naming it) or, without one, by asking the operator

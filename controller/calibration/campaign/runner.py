@@ -139,7 +139,7 @@ class Campaign:
         for hid in self.ids:
             cfg.heliostat(hid)  # ConfigError naming an unknown id
         self.meta = {**plant.meta, **(meta or {})}
-        watch = FieldWatch(plant.alarms, plant.audit, plant.cfg.alarms, opt.target, opt.name, plant.models)
+        watch = FieldWatch(plant.alarms, plant.audit, cfg.alarms, opt.target, opt.name, plant.with_models)
         self.observer = Observers([_StateTable(self), watch, *observers])
         self.chain = BeamChain(cfg, plant.library)
         self._camera_lock = threading.Lock()

@@ -13,7 +13,7 @@ import numpy as np
 from controller.calibration.cycle.beam_safety import BeamSafety, UnsafePath
 from controller.calibration.cycle.model_update import fit_measurements, model_prior
 from controller.calibration.cycle.observations import Step
-from controller.calibration.cycle.solved import Solved
+from controller.calibration.cycle.solved import Solved, source_key
 from controller.calibration.records import MeasurementRecord, ModelRecord
 from controller.config import BeamSearch, Heliostat, LampSource, ModelSettings, PersonZone, Target
 from controller.errors import LimitError
@@ -171,7 +171,7 @@ class GeometryPointing(BeamSafety):
 
     def _clearance_key(self, source, model: ModelRecord | None) -> tuple:
         f, terms = self.frame, None if model is None else tuple(model.params.items())
-        return (id(self.heliostat), id(self.model_settings), terms, repr(source), f.center.tobytes(),
+        return (id(self.heliostat), id(self.model_settings), terms, source_key(source), f.center.tobytes(),
                 f.u.tobytes(), f.width_m, self.first_light_sigma_m() if model is None else 0.0)
 
     def spot_sigmas_m(self, source, model: ModelRecord | None) -> tuple[float, float] | None:

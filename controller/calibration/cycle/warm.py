@@ -19,6 +19,7 @@ from collections.abc import Iterable
 import numpy as np
 
 from controller.calibration.cycle.pointing import _AIMS, _CLEARANCES, GeometryPointing, clearances
+from controller.calibration.cycle.solved import source_key
 from controller.geometry.model.tracking import TrackingModel
 from controller.geometry.pose_batch import KinStack, aim_steps
 
@@ -31,7 +32,7 @@ def warm_clearances(pointings: Iterable[GeometryPointing]) -> None:
         key = p._clearance_key(p.source, p.model)
         if _CLEARANCES.peek(key, (p.heliostat, p.model_settings)) is None:
             f = p.frame
-            group = (repr(p.source), f.center.tobytes(), f.u.tobytes(), f.width_m, id(p.model_settings))
+            group = (source_key(p.source), f.center.tobytes(), f.u.tobytes(), f.width_m, id(p.model_settings))
             todo.setdefault(group, []).append((key, p))
     for items in todo.values():
         for (key, p), c in zip(items, clearances([(p, p.source, p.model) for _, p in items]), strict=True):

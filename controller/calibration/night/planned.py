@@ -229,7 +229,8 @@ class PlannedNight:
 
     def _calibrate_new(self) -> tuple[list[str], list[CampaignResult]]:
         """Heliostats without a model: one closed-loop campaign at the calibration lamp first."""
-        new = [hid for hid in self.ids if self.field.model(hid) is None]
+        have = self.field.with_models(self.ids)
+        new = [hid for hid in self.ids if hid not in have]
         if not new:
             return [], []
         lamp = self.field.cfg.calibration.light_source
