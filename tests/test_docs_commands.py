@@ -12,6 +12,7 @@ every relative link and anchor of the docs.
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import re
 import shutil
 import sqlite3
@@ -96,15 +97,28 @@ def check_synopsis(cmd: str) -> list[str]:
 
 
 @pytest.fixture(scope="session")
-def demo_run(tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("docs-demo") / "demo"
-    r = subprocess.run([sys.executable, "-m", "controller.cli", "demo", "--heliostats", "2", "--nights", "1",
-                        "--out", str(out)], capture_output=True, text=True, timeout=600, cwd=out.parent)
-    # closed here: left to the garbage collector, its close (which removes the -wal file) could
-    # fall inside a copytree of the folder below
-    with contextlib.closing(sqlite3.connect(out / "campaign.db")) as c:  # the demo exits with its worst night
-        partial = c.execute("SELECT COUNT(*) FROM nights WHERE status='partial'").fetchone()[0] > 0
-    assert r.returncode == (3 if partial else 0), r.stderr[-2000:]
+def demo_run(tmp_path_factory, worker_id) -> Path:
+    """The demo run, made once for the whole session: under xdist in the folder both workers'
+    temporary folders share, the first to get there makes it (20 s) while the other waits on the
+    lock; the pages only copy it."""
+    root = tmp_path_factory.getbasetemp()
+    root = root.parent if worker_id != "master" else root
+    out, done = root / "docs-demo" / "demo", root / "docs-demo" / "made"
+    with open(root / "docs-demo.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if done.is_file():
+            return out
+        shutil.rmtree(out.parent, ignore_errors=True)  # a worker's run that failed before it was made
+        out.parent.mkdir()
+        cmd = [sys.executable, "-m", "controller.cli", "demo", "--heliostats", "2", "--nights", "1",
+               "--out", str(out)]
+        r = subprocess.run(cmd, capture_output=True, text=True, timeout=600, cwd=out.parent)
+        # closed here: left to the garbage collector, its close (which removes the -wal file) could
+        # fall inside a copytree of the folder below
+        with contextlib.closing(sqlite3.connect(out / "campaign.db")) as c:  # exits with its worst night
+            partial = c.execute("SELECT COUNT(*) FROM nights WHERE status='partial'").fetchone()[0] > 0
+        assert r.returncode == (3 if partial else 0), r.stderr[-2000:]
+        done.touch()
     return out
 
 

@@ -95,6 +95,11 @@ def _interrupt(proc: subprocess.Popen) -> tuple[int, str]:
         raise
 
 
+# The walk-through's tests run on one worker, one after the other: the module fixture is made
+# once (35 s) instead of once per worker and again when another module's test came between.
+WALK_THROUGH = pytest.mark.xdist_group("rehearsal")
+
+
 @pytest.fixture(scope="module")
 def rehearsal(tmp_path_factory):
     """Run the whole walk-through once; the tests check what each step gave."""
@@ -124,6 +129,7 @@ def test_getting_started_shows_the_walk_through_this_test_runs():
     assert all(f"\n{command}\n" in text for command in REHEARSAL.values())
 
 
+@WALK_THROUGH
 def test_the_plant_writes_the_demo_field_with_the_devices_addresses(rehearsal):
     ready, written = rehearsal["ready"], rehearsal["written"]
     demo = yaml.safe_load(DEMO.read_text())
@@ -145,6 +151,7 @@ def test_the_plant_writes_the_demo_field_with_the_devices_addresses(rehearsal):
     assert ready["cameras"] == {"tower-target": addresses[:2], "tower-lower": addresses[2:]}
 
 
+@WALK_THROUGH
 def test_campaign_run_measures_the_heliostats_on_real_transports(rehearsal):
     code, summary, err = rehearsal["run"]
     assert code == 0, err
@@ -153,6 +160,7 @@ def test_campaign_run_measures_the_heliostats_on_real_transports(rehearsal):
     assert summary["error_after_mrad"]["mean"] < summary["error_before_mrad"]["mean"] / 4
 
 
+@WALK_THROUGH
 def test_campaign_night_measures_the_heliostats_on_real_transports(rehearsal):
     code, summary, err = rehearsal["night"]
     assert code in (0, 3), err  # 3: partial (a geometry not measured), still a night
@@ -161,18 +169,21 @@ def test_campaign_night_measures_the_heliostats_on_real_transports(rehearsal):
     assert all(lamp["confirmed"] and lamp["by"] == "panel" for lamp in summary["lamps"])
 
 
+@WALK_THROUGH
 def test_every_lamp_reads_dark_after_each_normal_end(rehearsal):
     for step in ("run", "night"):
         lamps = rehearsal[f"lamps_after_{step}"]
         assert all(not lit and bit in (0, None) for lit, bit in lamps.values()), (step, lamps)
 
 
+@WALK_THROUGH
 def test_the_product_and_mbpoll_read_the_same_lamps(rehearsal):
     for step in ("run", "night"):
         lamps = rehearsal[f"lamps_after_{step}"]
         assert all(bit is None or bool(bit) == lit for lit, bit in lamps.values()), (step, lamps)
 
 
+@WALK_THROUGH
 def test_sigint_stops_the_plant_and_removes_what_it_created(rehearsal):
     assert rehearsal["plant_exit"] == 0, rehearsal["plant_stderr"]
     assert "Traceback" not in rehearsal["plant_stderr"]

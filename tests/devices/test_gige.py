@@ -14,6 +14,10 @@ from controller.devices.gige_device import GigeImager, ImagerSettings, Incomplet
 from tests.conftest import scaled_s
 from tests.devices.conftest import FAKE_SKEW_MS
 
+# The fake GigE camera owns 127.0.0.1:3956: its tests run on one worker, one after the other,
+# instead of one worker waiting on the port's lock for the other's (fake_gv).
+pytestmark = pytest.mark.xdist_group("gige")
+
 
 def _settings(**kw) -> ImagerSettings:
     base = dict(pixel_format="Mono8", exposure_s=0.01, gain=None, roi=(0, 0, 64, 48), trigger="software",

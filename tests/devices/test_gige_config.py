@@ -18,6 +18,10 @@ from controller.devices.gige import GigeCamera
 from controller.errors import ConfigError, InputError
 from tests.devices.conftest import FAKE_SKEW_MS
 
+# The fake GigE camera owns 127.0.0.1:3956: its tests run on one worker, one after the other,
+# instead of one worker waiting on the port's lock for the other's (fake_gv).
+pytestmark = pytest.mark.xdist_group("gige")
+
 
 def _plant(tmp_path: Path, camera: dict) -> Path:
     """The packaged demo plant with its camera section updated by ``camera``."""

@@ -19,6 +19,10 @@ from tests.conftest import run_cli, scaled_s
 from tests.console.conftest import ConsoleProcess
 from tests.devices.conftest import FAKE_SKEW_MS, make_camera_config
 
+# The fake GigE camera owns 127.0.0.1:3956: its tests run on one worker, one after the other,
+# instead of one worker waiting on the port's lock for the other's (fake_gv).
+pytestmark = pytest.mark.xdist_group("gige")
+
 HID = "H02"  # serial bus 1 of the demo plant
 
 
