@@ -57,7 +57,7 @@ class FieldWatch(CampaignObserver):
         self._lock = threading.Lock()
 
     def campaign_started(self, campaign_id: int, queue: list[str], done: set[str]) -> None:
-        self.had_model = set(self.with_models(list(queue)))
+        self.had_model = self.with_models(list(queue))
 
     def run_recorded(self, campaign_id: int, run: RunRecord) -> None:
         hid, kind, seen = run.heliostat_id, fault_kind(run), bool(run.measurements)

@@ -20,7 +20,7 @@ by millimetres, far inside the band.
 Free distance of a ray from a target of width w and height h (m), hit at (u, v) in its plane:
 max(|u| − w/2, |v| − h/2), infinite when the ray points away from the plane; the beam is off
 the target grown by a margin m exactly when that distance exceeds m
-(:meth:`BeamSafety._lands_on`).
+(:meth:`BeamSafety._depths`).
 """
 
 from __future__ import annotations

@@ -102,7 +102,7 @@ class BeamSafety:
 
     def on_target(self, poses, margin_m: float = 2.0) -> np.ndarray:
         """:meth:`beam_on_target` at each of ``poses`` (N, 2): (N,) bool."""
-        return self._lands_on(*self.rays(poses), self.frame.center, self.frame, self.target, margin_m)
+        return self._depths(*self.rays(poses), margin_m)[:, 0] >= 0.0
 
     def on_other_target(self, poses, margin_m: float = 2.0) -> np.ndarray:
         """:meth:`beam_on_other_target` at each of ``poses`` (N, 2): (N,) bool."""
@@ -112,7 +112,7 @@ class BeamSafety:
         return self._others_depth(c, b, margin_m) >= 0.0
 
     def _others_depth(self, c: np.ndarray, b: np.ndarray, margin_m) -> np.ndarray:
-        """The deepest :meth:`_depth` of the rays in any of the ``others``: (N,)."""
+        """The deepest :meth:`_depths` of the rays in any of the ``others``: (N,)."""
         return self._depths(c, b, margin_m)[:, 1]
 
     def off_targets(self, az_steps: float, el_steps: float, margin_m: float = 2.0) -> bool:
@@ -120,9 +120,7 @@ class BeamSafety:
         grown by ``margin_m``) and enters no person zone: :meth:`beam_on_target`,
         :meth:`beam_on_other_target` and :meth:`beam_in_zone` on one trace of the ray."""
         c, b = self.rays([(az_steps, el_steps)])
-        if self._lands_on(c, b, self.frame.center, self.frame, self.target, margin_m)[0]:
-            return False
-        if any(self._lands_on(c, b, centre, f, t, margin_m)[0] for centre, f, t in self.others):
+        if (self._depths(c, b, margin_m) >= 0.0).any():
             return False
         return not self.zone_ids or zone_entered(c[0], b[0], self.zones, self._stop(c, b)[0]) is None
 
@@ -149,7 +147,7 @@ class BeamSafety:
 
     def _stop(self, c: np.ndarray, b: np.ndarray) -> np.ndarray:
         """Where each ray ends: on the target (distance along the ray), else never."""
-        on = self._lands_on(c, b, self.frame.center, self.frame, self.target, 0.0)
+        on = self._depths(c, b, 0.0)[:, 0] >= 0.0
         with np.errstate(divide="ignore", invalid="ignore"):
             t = ((self.frame.center - c) @ self.frame.normal) / (b @ self.frame.normal)
         return np.where(on, t, np.inf)
@@ -166,30 +164,12 @@ class BeamSafety:
         frac = np.where(dur > 0, np.minimum(1.0, t / np.where(dur > 0, dur, 1.0)), 1.0)
         return a_ + frac * (b_ - a_)
 
-    @staticmethod
-    def _lands_on(c: np.ndarray, b: np.ndarray, center: np.ndarray, frame: TargetFrame, target: Target,
-                  margin_m) -> np.ndarray:
-        """Whether the rays from ``c`` along ``b`` (N, 3) land on ``target`` grown by ``margin_m``
-        (m; or (u, v) m per axis; a ray pointing away from its plane does not)."""
-        return BeamSafety._depth(c, b, center, frame, target, margin_m) >= 0.0
-
-    @staticmethod
-    def _depth(c: np.ndarray, b: np.ndarray, center: np.ndarray, frame: TargetFrame, target: Target,
-               margin_m) -> np.ndarray:
-        """How far (m) inside ``target`` grown by ``margin_m`` each ray lands: min(w/2 + m_u − |u|,
-        h/2 + m_v − |v|) at its hit (u, v) in the target's plane, negative outside, −∞ for a ray
-        pointing away from the plane."""
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t = ((center - c) @ frame.normal) / (b @ frame.normal)
-            hit = c + t[:, None] * b - center
-        mu, mv = np.broadcast_to(np.asarray(margin_m, float), (2,))
-        d = np.minimum(target.width_m / 2 + mu - np.abs(hit @ frame.u),
-                       target.height_m / 2 + mv - np.abs(hit @ frame.v))
-        return np.where(np.isfinite(t) & (t >= 0.0), d, -np.inf)
-
     def _depths(self, c: np.ndarray, b: np.ndarray, margin_m) -> np.ndarray:
-        """:meth:`_depth` in the target and, the deepest, in the ``others``: (N, 2). Every plane
-        at once (:func:`_planes`): a slew's check traces hundreds of rays past three targets,
+        """How far (m) inside the target and, the deepest, inside the ``others``, each grown by
+        ``margin_m`` (m; or (u, v) m per axis), the rays from ``c`` along ``b`` (N, 3) land: (N, 2),
+        min(w/2 + m_u − |u|, h/2 + m_v − |v|) at the hit (u, v) in a target's plane, negative
+        outside, −∞ for a ray pointing away from the plane; ≥ 0: it lands on it. Every plane at
+        once (:func:`_planes`): a slew's check traces hundreds of rays past three targets,
         thousands of times a night."""
         centre, normal, u, v, half = self._planes
         with np.errstate(divide="ignore", invalid="ignore"):
