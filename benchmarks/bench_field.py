@@ -37,6 +37,9 @@ What runs, in order, each timed:
 simulated truth: :attr:`simplant.devices.cheap_camera.CheapCamera.beams_in_view`).
 ``controller_cpu_s``: CPU seconds of this process and its worker processes over steps 2-5 —
 the night's share includes the in-process simulated plant (its cameras and physics).
+``night_user_cpu_s``, ``night_system_cpu_s``: the night's CPU split into user and kernel time, with
+its ``night_context_switches`` (voluntary: a thread blocked — mostly on the GIL, handed to
+another thread at each release by numpy, OpenCV or SQLite — or waited; involuntary: preempted).
 ``night_gc``: the garbage collector during the night — how many collections ran at which
 ``thresholds`` (``"young/middle/old"``), ``collections`` and their ``cpu_s`` per generation
 (young, middle, full).
@@ -96,10 +99,16 @@ def say(text: str) -> None:
     print(f"bench_field: {text}", file=sys.stderr)
 
 
+def usage() -> np.ndarray:
+    """User CPU s, system CPU s, voluntary and involuntary context switches of this process and
+    its (finished) worker processes."""
+    me, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return np.array([[u.ru_utime, u.ru_stime, u.ru_nvcsw, u.ru_nivcsw] for u in (me, kids)]).sum(axis=0)
+
+
 def cpu_s() -> float:
     """CPU seconds of this process and its (finished) worker processes."""
-    me, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
-    return me.ru_utime + me.ru_stime + kids.ru_utime + kids.ru_stime
+    return float(usage()[:2].sum())
 
 
 class GcMeter:
@@ -274,11 +283,11 @@ def main() -> None:
     items, sampled = sample_plan(plan.items, ids, args.sample, args.targets)
     watch = OnTarget(cheap, items)
     since = {tid: len(cam.beams_in_view) for tid, cam in cheap.cameras.items()}
-    cpu0, sim0 = cpu_s(), clock.frozen_cpu_s
+    cpu0, sim0, use0 = cpu_s(), clock.frozen_cpu_s, usage()
     with GcMeter() as collector:
         r = run_planned_night(cheap, items, night, 3600.0 * args.night_h, heliostat_ids=ids,
                               unmeasurable=plan.unmeasurable, workers=args.workers, observers=[watch])
-    night_cpu, plant_cpu = cpu_s() - cpu0, clock.frozen_cpu_s - sim0
+    night_cpu, plant_cpu, night_use = cpu_s() - cpu0, clock.frozen_cpu_s - sim0, usage() - use0
     say(f"night: {len(r.measured)}/{r.planned} measured, {r.plant_s / 3600:.2f} plant h, "
         f"{r.wall_s:.0f} s wall, {night_cpu:.0f} s CPU ({plant_cpu:.0f} s of it the simulated plant's)")
     fit = refit_field(cfg, cheap.db_path, args.workers)
@@ -318,6 +327,8 @@ def main() -> None:
         "plant_ms_per_measurement": 1e3 * plant_cpu / max(1, measured),
         "night_cpu_s": night_cpu, "night_plant_cpu_s": plant_cpu, "night_wall_s": r.wall_s,
         "night_gc": collector.to_json(),
+        "night_user_cpu_s": night_use[0], "night_system_cpu_s": night_use[1],
+        "night_context_switches": {"voluntary": int(night_use[2]), "involuntary": int(night_use[3])},
         "night0": {"closed_loop_heliostats": z.heliostats, "calibrated": z.calibrated, "statuses": z.statuses,
                    "measurements": z.measurements, "plant_hours": z.plant_s / 3600.0, "wall_s": z.wall_s,
                    "captures_with_a_stray_beam": z_bad, "captures": z_caps,

@@ -89,6 +89,7 @@ def slot_parks(pointing, slot: int, k: int, frame, current: tuple[int, int] | No
         stepped = (aim[0] + step[0], aim[1] + step[1])
         pointing.kin.azimuth.check(stepped[0], "the identity step")
         pointing.kin.elevation.check(stepped[1], "the identity step")
+        pointing.warm_paths((current, aim, stepped), standby)
         for pose in (current, aim, stepped):
             if pose is not None:
                 pointing.path_to(pose, standby)

@@ -130,16 +130,16 @@ class GeometryPointing(BeamSafety):
             now = self._beam_side(current_steps) if current_steps is not None else 0.0
             best = None
             for side, point in zip((own, -own), points, strict=True):
+                cost = float(np.sign(float(side @ frame.u)) != now) if now else None
+                if cost is not None and best is not None and cost >= best[0]:
+                    continue  # no better than the side found: its steps are not needed
                 try:  # the steps the model will take there: far from nominal, a side's may differ
-                    az, el = self._steps(point, model) if model is not None else self.kin.aim(self.source_dir,
-                                                                                              point)
+                    az, el = self._steps(point, model) if model else self.kin.aim(self.source_dir, point)
                 except (LimitError, ValueError):  # unreachable side
                     continue
                 if self.beam_in_zone(az, el) is not None:
                     continue
-                if now:
-                    cost = float(np.sign(float(side @ frame.u)) != now)
-                else:
+                if cost is None:
                     cost = abs(az - current_steps[0]) if current_steps is not None else float(side is not own)
                 if best is None or cost < best[0]:
                     best = (cost, point)

@@ -349,3 +349,33 @@ def test_a_heliostat_whose_standby_lies_inside_the_margin_waits_no_deeper_than_i
                 waits += 1
             assert not p.may_wait_at(closer, standby, aim, m), (h.id, dv)
     assert waits
+
+
+def test_slews_traced_together_are_the_slews_traced_one_at_a_time(wide):
+    """A slot's check traces a heliostat's three slews to standby in one evaluation
+    (``warm_paths``): each answer is the one ``path_to`` gives alone — the same waypoints, or
+    the same refusal — whether its direct slew is clear, needs a detour or has none."""
+    from tests.calibration.conftest import calibrated_record
+
+    cam, t = wide.camera, wide.target()
+    f = TargetFrame.from_config(t, (cam.height_px, cam.width_px))
+    kinds = set()
+    for hid in ("F0001", "F0150", "F0300"):
+        model = calibrated_record(wide, hid)
+        h, lamp = wide.heliostat(hid), wide.light_source()
+        alone, together = (GeometryPointing(h, t, lamp, f, 12.0, None, model=model) for _ in range(2))
+        standby, aim = alone.standby_steps(model), alone.aim_steps(model)
+        far = alone._steps(f.center - 3.0 * (alone.standby_point - f.center), model)  # across the target
+        starts = [aim, far, (aim[0], far[1]), standby, None, aim]
+        together.warm_paths(starts, standby)
+        for s in (s for s in starts if s is not None):
+            try:
+                want = alone.path_to(s, standby)
+            except UnsafePath as exc:
+                with pytest.raises(UnsafePath, match=str(exc).split(":")[0]):
+                    together.path_to(s, standby)
+                kinds.add("refused")
+                continue
+            assert together.path_to(s, standby) == want
+            kinds.add("direct" if want == [standby] else "detour" if want else "there")
+    assert {"direct", "there"} <= kinds and kinds & {"detour", "refused"}
