@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import shlex
 import sys
-from pathlib import Path
 
 from controller.commands._numbers import SEED, STEPS
 from controller.commands.common import add_config_option, add_json_option, check_camera, print_json
@@ -117,14 +116,12 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _with_simulated(cfg, args, steps, library) -> int:
-    import tempfile
-
-    from controller.commands.simulated import simulated_plant
+    from controller.commands.simulated import run_directory, simulated_plant
     from controller.devices.drive import DriveLimits
     from controller.devices.factory import LinkPool
 
-    run_dir = Path(args.run_dir) if args.run_dir else Path(tempfile.mkdtemp(prefix="heliocal-commission-"))
-    with simulated_plant(args.config, run_dir, [args.heliostat], seed=args.seed) as plant:
+    with run_directory(args.run_dir, "heliocal-commission-") as run_dir, \
+            simulated_plant(args.config, run_dir, [args.heliostat], seed=args.seed) as plant:
         pcfg = plant.start()
         h = pcfg.heliostat(args.heliostat)
         with LinkPool() as pool:

@@ -141,13 +141,14 @@ def _field(cfg, args, ids, store, library):
             fs.field.library = library
             yield fs.field, PlantHooks()
         return
-    from controller.commands.simulated import simulated_field, simulation_settings
+    from controller.commands.simulated import run_directory, simulated_field, simulation_settings
     from controller.storage.nights import NightBook
 
     settings = simulation_settings(seed=args.seed, clock_speedup=args.clock_speedup)
-    run_dir = Path(args.run_dir) if args.run_dir else Path(tempfile.mkdtemp(prefix="heliocal-console-"))
-    with simulated_field(cfg, args.config, store, run_dir, ids, settings, night=NightBook(store).next_index(),
-                         library=library) as fs:  # the console builds no library: --library or none
+    night = NightBook(store).next_index()
+    with run_directory(args.run_dir, "heliocal-console-") as run_dir, \
+            simulated_field(cfg, args.config, store, run_dir, ids, settings, night=night,
+                            library=library) as fs:  # the console builds no library: --library or none
         plant = fs.plant
         yield fs.field, PlantHooks(safety=plant.safety.report, set_night=plant.set_night,
                                    label=f"simulated plant (seed {settings.seed})")

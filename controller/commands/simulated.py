@@ -49,6 +49,20 @@ def simulation_settings(**settings):
     return SimulationSettings(**settings)
 
 
+@contextmanager
+def run_directory(given: str | None, prefix: str) -> Iterator[Path]:
+    """The simulated plant's run directory (its ptys and files): ``given`` (``--run-dir``, kept),
+    else a temporary one removed when the command ends (one per run of a command, each left in
+    the temporary folder before 2026-11-30)."""
+    if given:
+        yield Path(given)
+        return
+    import tempfile
+
+    with tempfile.TemporaryDirectory(prefix=prefix) as tmp:
+        yield Path(tmp)
+
+
 def field_selection(cfg: PlantConfig, n: int) -> list[str]:
     """The ``n`` heliostats ``heliocal demo`` calibrates (:func:`simplant.plant.field_selection`)."""
     from simplant.plant import field_selection as select

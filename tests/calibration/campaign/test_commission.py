@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import re
 import signal
 import subprocess
@@ -17,14 +18,27 @@ from tests.conftest import scaled_s
 REPO = Path(__file__).resolve().parents[3]
 
 
-def _run(*args):
+def _run(*args, env=None):
     return subprocess.run(
         [sys.executable, "-m", "controller.cli", "commission", *args],
         cwd=REPO,
         capture_output=True,
         text=True,
         timeout=120,
+        env=env,
     )
+
+
+def test_a_simulated_session_without_a_run_dir_leaves_nothing_behind(small_config, tmp_path):
+    """Without ``--run-dir`` the simulated plant's ptys and files go to a temporary folder that
+    is removed at the end (each run left one in the temporary folder before 2026-11-30)."""
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    r = _run("--config", str(small_config), "--heliostat", "H02", "--simulate", "--status", "--json",
+             env={**os.environ, "TMPDIR": str(tmp)})
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["steps"]["status"]["az_steps"] == 500
+    assert list(tmp.iterdir()) == []
 
 
 def test_commission_steps(small_config, tmp_path):
