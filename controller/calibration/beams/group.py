@@ -90,9 +90,8 @@ def slot_parks(pointing, slot: int, k: int, frame, current: tuple[int, int] | No
         pointing.kin.azimuth.check(stepped[0], "the identity step")
         pointing.kin.elevation.check(stepped[1], "the identity step")
         pointing.warm_paths((current, aim, stepped), standby)
-        for pose in (current, aim, stepped):
-            if pose is not None:
-                pointing.path_to(pose, standby)
+        for pose in (p for p in (current, aim, stepped) if p is not None):
+            pointing.path_to(pose, standby)
     except (HeliocalError, ValueError):  # out of reach, or no safe slew
         return False
     return True
