@@ -63,7 +63,7 @@ class BeamSafety:
         asked for its aim and standby steps and its slews several times (a slot's checks,
         preparing, each park), and each answer traces the beam past the targets and through the
         person zones. An UnsafePath is kept as its message."""
-        key = (*key, self.ray_model.tobytes())
+        key = self._with_model(key)
         kept = self._poses.get(key)
         if kept is None:
             try:
@@ -74,6 +74,9 @@ class BeamSafety:
         if isinstance(kept, str):
             raise UnsafePath(kept)
         return kept
+
+    def _with_model(self, key: tuple) -> tuple:
+        return (*key, self.ray_model.tobytes())
 
     def rays(self, poses) -> tuple[np.ndarray, np.ndarray]:
         """Mirror centres and unit reflected beams (N, 3) at ``poses`` (N, 2) motor steps. A
@@ -253,12 +256,11 @@ class BeamSafety:
         of their 363 poses costs about what one of 121 does."""
         margin = self.path_margin_m()
         todo = [s for s in dict.fromkeys(tuple(s) for s in starts if s is not None) if s != tuple(end)
-                and self._path_key(s, end, margin) + (self.ray_model.tobytes(),) not in self._poses]
+                and self._with_model(self._path_key(s, end, margin)) not in self._poses]
         if not todo:
             return
         poses = [np.vstack([np.asarray(s, float)[None], self._sweep(s, end)]) for s in todo]
-        c, b = self.rays(np.vstack(poses))
-        inside = np.column_stack([self._depths(c, b, margin) >= 0.0, self._in_zone(c, b)])
+        inside = self._inside(*self.rays(np.vstack(poses)), margin)
         at = 0
         for s, p in zip(todo, poses, strict=True):
             if _never_back(inside[at:at + len(p)]):
@@ -269,13 +271,18 @@ class BeamSafety:
     def _path_key(start, end, margin) -> tuple:
         return ("path", *map(float, start), *map(float, end), np.asarray(margin, float).tobytes())
 
+    def _inside(self, c: np.ndarray, b: np.ndarray, margin) -> np.ndarray:
+        """(N, 3) bool: whether each ray lands on the target, on one of the ``others`` (each grown
+        by ``margin``) and in a person zone — what a slew must not enter (:func:`_never_back`)."""
+        return np.column_stack([self._depths(c, b, margin) >= 0.0, self._in_zone(c, b)])
+
     def _path(self, start: tuple[int, int], end: tuple[int, int], margin) -> list[tuple[int, int]]:
         """:meth:`path_to`'s waypoints, traced with the target grown by ``margin``."""
 
         def clear(plan: list[tuple[int, int]]) -> bool:
             poses = np.vstack([self._sweep(a, b) for a, b in zip([start] + plan[:-1], plan, strict=True)])
             c, b = self.rays(np.vstack([np.asarray(start, float)[None], poses]))  # traced once for all three
-            return _never_back(np.column_stack([self._depths(c, b, margin) >= 0.0, self._in_zone(c, b)]))
+            return _never_back(self._inside(c, b, margin))
 
         plans = ([end], [(start[0], end[1]), end], [(end[0], start[1]), end])
         for plan in plans:
