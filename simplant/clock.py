@@ -76,9 +76,12 @@ class PlantClock:
                     self._wake_slow()
 
     def _wake_slow(self) -> None:
-        """The clock may run faster now: sleeps timed at 1x (or begun while it stood still) wait
-        again for what is left at the new rate."""
-        if self._slow:
+        """The clock runs fast again (nobody computes, the simulator does not work): sleeps timed
+        at 1x (or begun while it stood still) wait again for what is left at the new rate. Only
+        then: while it still runs at 1x or stands still, a woken sleep would only wait again
+        (each end of a block woke every such sleep before 2026-11-30: 4 wake-ups per sleep in
+        a night of several beams per target, each one a hand-over of the interpreter)."""
+        if self._slow and not self._frozen and not self._realtime:
             self._faster.notify_all()
 
     def _rebase(self) -> None:

@@ -77,3 +77,21 @@ def test_a_short_sleep_at_full_speed_keeps_its_plant_seconds():
     done, out = sleeping(clock, 0.5)
     assert done.wait(scaled_s(3.0))
     assert out["slept"] >= 0.5
+
+
+def test_a_slow_sleep_is_woken_only_when_the_clock_runs_fast_again():
+    """A block that ends while another still holds the clock at 1x or still does not wake the
+    sleeps timed at 1x (they would only wait again: a hand-over of the interpreter each); the
+    end of the last block wakes them, and the sleep keeps its plant seconds."""
+    clock = PlantClock(SPEEDUP)
+    wakes = []
+    notify_all = clock._faster.notify_all
+    clock._faster.notify_all = lambda: (wakes.append(1), notify_all())
+    computing, working = Held(clock.realtime), Held(clock.frozen)
+    done, out = sleeping(clock, 20.0)
+    assert asleep_slow(clock)
+    working.end()
+    assert not wakes and not done.is_set()
+    computing.end()
+    assert done.wait(scaled_s(3.0)), "the sleep was not woken when the clock sped up"
+    assert len(wakes) == 1 and out["slept"] >= 20.0

@@ -267,29 +267,32 @@ class Drive(ABC):
                     raise LinkError(f"{exc}; {missed} status polls in a row unanswered while waiting for "
                                     "the move: its outcome is unknown") from None
                 st = None
-            if st is not None:
-                if st.faults:
-                    raise ActuatorFault(f"unit {self.unit}: actuator fault {', '.join(st.faults)} at "
-                                        f"az={st.az_steps} el={st.el_steps}", list(st.faults))
-                close = watch is not None and watch(st) is True
-                if st.in_position:
-                    if expect is not None and (st.az_steps, st.el_steps) != expect:
-                        raise DriveError(f"unit {self.unit}: stopped at ({st.az_steps}, {st.el_steps}), "
-                                         f"commanded {expect}")
-                    return st
-                if expect is not None and not st.moving and (st.az_target, st.el_target) != expect:
-                    raise DriveError(f"unit {self.unit}: target changed to ({st.az_target}, "
-                                     f"{st.el_target}) without a command (controller restarted?)")
-            now = clock()
-            if now >= deadline:
-                where = (f" (az {st.az_steps}->{st.az_target}, el {st.el_steps}->{st.el_target})"
-                         if st is not None else "")
-                raise DriveError(f"unit {self.unit}: not in position after {timeout_s:g} s{where}")
-            pause = time.poll_s
-            if st is not None:
-                if last is not None and not close:
-                    pause = poll_pause(time.poll_s, last[1], st, now - last[0])
-                last = (now, st)
+            # Judging a status is the controller's own work (plant time runs at 1x there,
+            # PlantTime.computing); the read itself waits for the plant's answer.
+            with time.computing():
+                if st is not None:
+                    if st.faults:
+                        raise ActuatorFault(f"unit {self.unit}: actuator fault {', '.join(st.faults)} at "
+                                            f"az={st.az_steps} el={st.el_steps}", list(st.faults))
+                    close = watch is not None and watch(st) is True
+                    if st.in_position:
+                        if expect is not None and (st.az_steps, st.el_steps) != expect:
+                            raise DriveError(f"unit {self.unit}: stopped at ({st.az_steps}, {st.el_steps}), "
+                                             f"commanded {expect}")
+                        return st
+                    if expect is not None and not st.moving and (st.az_target, st.el_target) != expect:
+                        raise DriveError(f"unit {self.unit}: target changed to ({st.az_target}, "
+                                         f"{st.el_target}) without a command (controller restarted?)")
+                now = clock()
+                if now >= deadline:
+                    where = (f" (az {st.az_steps}->{st.az_target}, el {st.el_steps}->{st.el_target})"
+                             if st is not None else "")
+                    raise DriveError(f"unit {self.unit}: not in position after {timeout_s:g} s{where}")
+                pause = time.poll_s
+                if st is not None:
+                    if last is not None and not close:
+                        pause = poll_pause(time.poll_s, last[1], st, now - last[0])
+                    last = (now, st)
             time.sleep(min(pause, max(time.poll_s, deadline - now)))
 
     def move_and_wait(self, az_steps: int, el_steps: int, *, timeout_s: float, time: PlantTime = DRIVE_TIME,

@@ -1,6 +1,8 @@
 """A moving drive is polled less often far from its move's end, and its end is still caught
 within one polling period (``controller.devices.drive.poll_pause``)."""
 
+import contextlib
+
 import pytest
 
 from controller.devices.drive import POLL_PAUSE_MAX, AxisLimits, DriveLimits, DriveStatus, poll_pause
@@ -28,8 +30,10 @@ def _true_end(target: tuple[int, int]) -> float:
     return own[0]
 
 
-def _wait(distance: tuple[int, int], watch=None) -> tuple[int, float, float]:
-    """Polls, the time the wait returned and the move's true end, for a move by ``distance``."""
+def _wait(distance: tuple[int, int], watch=None, computing=contextlib.nullcontext,
+          on_read=lambda: None) -> tuple[int, float, float]:
+    """Polls, the time the wait returned and the move's true end, for a move by ``distance``
+    (``computing``: the plant time's; ``on_read``: called at each status read)."""
     t = [0.0]
     drive = _drive(t)
     target = (1000 + distance[0], 1000 + distance[1])
@@ -39,9 +43,11 @@ def _wait(distance: tuple[int, int], watch=None) -> tuple[int, float, float]:
 
     def counted() -> DriveStatus:
         polls[0] += 1
+        on_read()
         return status()
     drive.status = counted
-    time = PlantTime(now=lambda: t[0], sleep=lambda s: t.__setitem__(0, t[0] + s), poll_s=POLL_S)
+    time = PlantTime(now=lambda: t[0], sleep=lambda s: t.__setitem__(0, t[0] + s), poll_s=POLL_S,
+                     computing=computing)
     st = drive.move_and_wait(*target, timeout_s=120.0, time=time, watch=watch)
     assert (st.az_steps, st.el_steps) == target
     return polls[0], t[0], end
@@ -69,6 +75,28 @@ def test_a_watch_asking_to_be_kept_posted_gets_every_period():
         return True
     polls, _, end = _wait((6000, 0), watch)
     assert polls >= end / POLL_S - 1 and len(seen) == polls
+
+
+def test_each_status_is_judged_inside_the_controllers_computing_and_read_outside_it():
+    """A simulated plant's clock runs at 1x while the controller computes (``PlantTime.computing``):
+    the judgement of every status read (faults, the watch's ray trace, the next pause) is the
+    controller's work; the read waits for the plant's answer and is not."""
+    inside, where = [0], []
+
+    @contextlib.contextmanager
+    def computing():
+        inside[0] += 1
+        try:
+            yield
+        finally:
+            inside[0] -= 1
+
+    def watch(st: DriveStatus) -> bool:
+        where.append(("watch", inside[0]))
+        return False
+    polls, _, _ = _wait((3000, 0), watch, computing, lambda: where.append(("read", inside[0])))
+    assert polls > 3 and len(where) == 2 * polls
+    assert all(depth == (kind == "watch") for kind, depth in where)
 
 
 def test_the_pause_is_polling_period_until_the_drive_is_seen_moving_and_capped():

@@ -14,9 +14,9 @@ bar, a web console, or a simulation harness that keeps its own truth.
   the first K, by their slew onto the target, longest first). The queue is stored with the
   campaign, so a resumed run keeps it.
 * **Pipeline**: up to ``pipeline_depth`` heliostats (K times as many with K beams per target)
-  run their cycle at once. Each slews to its
-  standby point in parallel; the :class:`TargetGate` then lets them onto the target one at a
-  time, in queue order. So while heliostat k is measured, k+1… are already parked at standby.
+  run their cycle at once. Each slews to its standby point in parallel; the :class:`TargetGate`
+  then lets them onto the target one at a time, in queue order. So while heliostat k is
+  measured, k+1… are already parked at standby.
 * **Resumable**: each heliostat's record is committed in one transaction when its cycle ends
   (``store.record_run``). After ``kill -9`` the rerun skips the heliostats already recorded;
   a heliostat interrupted mid-cycle has no record and is calibrated again.
@@ -302,10 +302,9 @@ class Campaign:
             if gate.blocked or stop.is_set():
                 gate.release(ticket)
                 return None
-            cyc = CalibrationCycle(self._context(hid, qi, ticket, gate, pointing[hid], observer))
-            cycles[hid] = cyc
-            # Checked once registered (not yet run): a pass that stops later holds it back
-            # (RefusalObserver); one stopped by now is seen here.
+            with self.time.computing():  # its model and history read from the store
+                cyc = CalibrationCycle(self._context(hid, qi, ticket, gate, pointing[hid], observer))
+            cycles[hid] = cyc  # registered before the check: a pass that stops later holds it back
             if watch.stopped:  # no beam for several heliostats in a row: the light source is suspect
                 cycles.pop(hid, None)
                 gate.release(ticket)
@@ -324,11 +323,11 @@ class Campaign:
             if looked_and_failed(rec) and cyc.frame is not None and self.field.images is not None:
                 # What the camera saw when it mattered most: kept with the run (run_frames).
                 rec.frames = self.field.images.save(self.opt.name, hid, cyc.iteration + 1, cyc.frame)
-            rec.id = self.store.record_run(cid, rec)
+            with self.time.computing():
+                rec.id = self.store.record_run(cid, rec)
             self.observer.run_recorded(cid, rec)
             return rec
 
-        # K beams at once need K times the heliostats waiting at standby.
         depth = self.opt.pipeline_depth * (1 if self.slots is None else self.slots.k)
         with ThreadPoolExecutor(max_workers=depth, thread_name_prefix="cycle") as pool:
             futures = [pool.submit(one, t, qi, hid) for t, (qi, hid) in enumerate(todo)]

@@ -44,8 +44,7 @@ from controller.devices.drive import POLL_PAUSE_MAX, DriveError, LinkError, Move
 from controller.recognition.library import Match
 
 # -- the tables ---------------------------------------------------------------------------------
-# (state, timeout in wall s, what it does): generous upper bounds for a real field (a full-range
-# slew at 10 mm/s takes ~50 s); tests pass smaller ones.
+# (state, timeout in wall s, what it does): bounds for a real field (a full slew at 10 mm/s: ~50 s)
 STATES: tuple[tuple[str, float, str], ...] = (
     ("idle", 5.0, "cycle created, nothing commanded"),
     ("preparing", 180.0, "compute the aim (with the fitted model) and park the beam at standby"),
@@ -233,8 +232,8 @@ class CalibrationCycle:
         return "parked"
 
     def _park(self, state: str, watch=None, status=None) -> None:
-        # The slew to standby must not sweep the beam across a target (someone else may be measured
-        # there) nor into a person zone: waypoints from wherever it stands (after a fault, anywhere).
+        # The slew to standby must not sweep the beam across a target (someone may be measured there)
+        # nor into a person zone: waypoints from wherever it stands (after a fault, anywhere).
         park(self.ctx.drive, self.ctx.pointing, self.standby, lambda az, el: self._move(state, az, el, watch),
              status, self.ctx.time.computing)
 
@@ -242,7 +241,8 @@ class CalibrationCycle:
         if self.measured or self.cause:
             if self.beam_on_target:
                 if self.ctx.group:  # several beams: off the target the short way (group.py)
-                    self.standby = self.ctx.group.leave_pose(self)
+                    with self.ctx.time.computing():
+                        self.standby = self.ctx.group.leave_pose(self)
                 self._park("standby", self.ctx.group and self.ctx.group.hand_over(self))
                 self.beam_on_target = False
                 self.run_rec.off_target_s = self.ctx.time.now()
