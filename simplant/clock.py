@@ -72,8 +72,7 @@ class PlantClock:
             with self._lock:
                 self._rebase()
                 self._realtime -= 1
-                if not self._realtime:
-                    self._wake_slow()
+                self._wake_slow()
 
     def _wake_slow(self) -> None:
         """The clock runs fast again (nobody computes, the simulator does not work): sleeps timed
