@@ -58,7 +58,8 @@ def order_queue(cfg: PlantConfig, ids: list[str], current: dict[str, tuple[int, 
     queue = sorted(ids, key=lambda h: (standby(h), h))
     if beams > 1:
         queue[beams:] = sorted(queue[beams:], key=lambda h: (-approach(h), h))
-        queue = [h for h in queue if h not in last] + [h for h in queue if h in last]
+        later = set(last)  # hundreds, late in a night: a set, not the tuple, for each of a pass's heliostats
+        queue = [h for h in queue if h not in later] + [h for h in queue if h in later]
         if tiers:
             after = max(tiers.values()) + 1
             queue.sort(key=lambda h: after if tiers.get(h, -1) < 0 else tiers[h])  # stable

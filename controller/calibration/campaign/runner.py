@@ -52,7 +52,7 @@ from controller.calibration.cycle.machine import STATES, CalibrationCycle
 from controller.calibration.cycle.pointing import GeometryPointing
 from controller.calibration.cycle.registration_step import register_chain
 from controller.calibration.cycle.search import FieldMisses
-from controller.calibration.cycle.warm import warm_aims
+from controller.calibration.cycle.warm import warm_aims, warm_slews
 from controller.calibration.records import (
     CampaignRecord,
     ImageRecord,
@@ -280,6 +280,7 @@ class Campaign:
                 at_slot = {(t, s): self._pointing_at(todo[t][1], self.slots.aim(s))
                            for t, s in enumerate(assign_slots(open_, lambda *_: True)) if s is not None}
                 warm_aims(at_slot.values())  # in batches, the steps of the slot each takes if all suit it
+                warm_slews(at_slot.values(), self._current)  # and its slews to standby, as its check asks
                 slots = assign_slots(open_, fits)
             for ticket, slot in enumerate(slots):
                 if slot is not None:  # else its planned aim, the target to itself (group.py)

@@ -86,12 +86,18 @@ class BeamSafety:
         (before 2026-11-30 the ray took the direction from the heliostat's nominal position, and
         a standby solved to land just outside a path's margin was traced inside it; issue 42)."""
         n, c = normal_and_center(self.kin, self.ray_model, np.asarray(poses, float).reshape(-1, 2))
+        return c, self.reflected(n, c)
+
+    def reflected(self, n: np.ndarray, c: np.ndarray) -> np.ndarray:
+        """Unit reflected beams (N, 3) of mirrors with unit normals ``n`` at centres ``c`` (N, 3,
+        m ENU) under this source: b = 2 (n·s) n − s, s towards the source (from each centre for a
+        lamp)."""
         if self.lamp is None:
             s = np.broadcast_to(np.asarray(self.source_dir, float), n.shape)
         else:
             s = self.lamp - c
             s = s / np.linalg.norm(s, axis=1, keepdims=True)
-        return c, 2.0 * np.sum(n * s, axis=1, keepdims=True) * n - s
+        return 2.0 * np.sum(n * s, axis=1, keepdims=True) * n - s
 
     def beam_on_target(self, az_steps: float, el_steps: float, margin_m: float = 2.0) -> bool:
         """Whether the reflected central ray lands on the target grown by ``margin_m``
@@ -169,7 +175,8 @@ class BeamSafety:
 
     def _depths(self, c: np.ndarray, b: np.ndarray, margin_m) -> np.ndarray:
         """How far (m) inside the target and, the deepest, inside the ``others``, each grown by
-        ``margin_m`` (m; or (u, v) m per axis), the rays from ``c`` along ``b`` (N, 3) land: (N, 2),
+        ``margin_m`` (m; or (u, v) m per axis; or (N, 2), one per ray), the rays from ``c`` along ``b``
+        (N, 3) land: (N, 2),
         min(w/2 + m_u − |u|, h/2 + m_v − |v|) at the hit (u, v) in a target's plane, negative
         outside, −∞ for a ray pointing away from the plane; ≥ 0: it lands on it. Every plane at
         once (:func:`_planes`): a slew's check traces hundreds of rays past three targets,
@@ -178,7 +185,8 @@ class BeamSafety:
         with np.errstate(divide="ignore", invalid="ignore"):
             t = np.einsum("ntk,tk->nt", centre - c[:, None], normal) / (b @ normal.T)
             hit = c[:, None] + t[..., None] * b[:, None] - centre
-        mu, mv = np.broadcast_to(np.asarray(margin_m, float), (2,))
+        m = np.asarray(margin_m, float)
+        mu, mv = (m[:, :1], m[:, 1:]) if m.ndim == 2 else np.broadcast_to(m, (2,))
         d = np.minimum(half[:, 0] + mu - np.abs(np.einsum("ntk,tk->nt", hit, u)),
                        half[:, 1] + mv - np.abs(np.einsum("ntk,tk->nt", hit, v)))
         d = np.where(np.isfinite(t) & (t >= 0.0), d, -np.inf)
@@ -254,13 +262,25 @@ class BeamSafety:
         answers them without tracing (the others it plans as ever). A slot's check asks for three
         slews of each heliostat (:func:`controller.calibration.beams.group.slot_parks`): one trace
         of their 363 poses costs about what one of 121 does."""
+        todo, poses = self.direct_slews(starts, end)
+        if todo:
+            inside = self._inside(*self.rays(np.vstack(poses)), self.path_margin_m())
+            self.keep_clear(todo, end, poses, inside)
+
+    def direct_slews(self, starts, end: tuple[int, int]) -> tuple[list[tuple], list[np.ndarray]]:
+        """Those of ``starts`` (poses, or None) whose direct slew to ``end`` is not kept yet, and
+        the poses of each one's slew (its start, then its sweep)."""
         margin = self.path_margin_m()
         todo = [s for s in dict.fromkeys(tuple(s) for s in starts if s is not None) if s != tuple(end)
                 and self._with_model(self._path_key(s, end, margin)) not in self._poses]
-        if not todo:
-            return
-        poses = [np.vstack([np.asarray(s, float)[None], self._sweep(s, end)]) for s in todo]
-        inside = self._inside(*self.rays(np.vstack(poses)), margin)
+        return todo, [np.vstack([np.asarray(s, float)[None], self._sweep(s, end)]) for s in todo]
+
+    def keep_clear(self, todo: list[tuple], end: tuple[int, int], poses: list[np.ndarray],
+                   inside: np.ndarray) -> None:
+        """Keep for :meth:`path_to` the direct slews of :meth:`direct_slews` (``todo``, ``poses``)
+        that are clear by ``inside``: :meth:`_inside` of their poses' rays one after the other, with
+        :meth:`path_margin_m`."""
+        margin = self.path_margin_m()
         at = 0
         for s, p in zip(todo, poses, strict=True):
             if _never_back(inside[at:at + len(p)]):

@@ -76,6 +76,10 @@ class TargetGate:
         self.held = False
         self.blocked = False
         self._vacated: set[int] = set()
+        # Vacated and not yet released: kept as it changes, not as _vacated - _done, which grows
+        # with the pass (1,300 tickets a pass in a 10,000-heliostat night) and is asked at every
+        # round member's wake-up.
+        self._leaving: set[int] = set()
         first = [t for t, b in self._before.items() if not b] if self._slots else range(beams)
         self._together = set(first) if together else set()
 
@@ -128,7 +132,7 @@ class TargetGate:
     @property
     def leaving(self) -> set[int]:
         """Tickets whose beam left the target (:meth:`vacate`) and that are not parked yet."""
-        return self._vacated - self._done
+        return set(self._leaving)
 
     def acquire(self, ticket: int, cancelled: Callable[[], bool], poll_s: float = POLL_S) -> bool:
         with self.cv:
@@ -209,6 +213,7 @@ class TargetGate:
                 if self.alone == ticket:
                     self.alone = None
                 self._vacated.add(ticket)
+                self._leaving.add(ticket)
                 self.changed()
 
     def give_back(self, ticket: int, beam_off_target: bool = True) -> None:
@@ -227,6 +232,7 @@ class TargetGate:
                 self.alone = None
             self._forget_alone(ticket)  # reserved, then stopped before its turn
             self._done.add(ticket)
+            self._leaving.discard(ticket)
             if self._next == ticket:  # skipped before its turn came
                 while self._next in self._done:
                     self._next += 1

@@ -5,6 +5,11 @@ both, :mod:`controller.calibration.cycle.solved`). One at a time each costs abou
 millisecond (an aim solve) to a few (a clearance); a batch over a
 :class:`controller.geometry.pose_batch.KinStack` a few microseconds a heliostat.
 
+The slews a slot's check asks for (:func:`warm_slews`) are traced the same way: the poses of
+H heliostats' slews through :func:`controller.geometry.pose_batch.normal_and_center` over a
+:class:`KinStack`, the same reflection and the same target and person-zone tests per ray as
+:meth:`BeamSafety.warm_paths` (the same slews kept, checked in tests/calibration/cycle/test_warm.py).
+
 The batched aim solve (:func:`controller.geometry.pose_batch.aim_steps`) is the scalar one
 (:func:`controller.geometry.model.tracking.model_aim`) over a stack: the same bisector from
 the model's mirror centre, the lamp's direction taken from it, the same three passes — the
@@ -14,14 +19,17 @@ the scalar solve."""
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 
 import numpy as np
 
 from controller.calibration.cycle.pointing import _AIMS, _CLEARANCES, GeometryPointing, clearances
 from controller.calibration.cycle.solved import source_key
+from controller.errors import HeliocalError
 from controller.geometry.model.tracking import TrackingModel
-from controller.geometry.pose_batch import KinStack, aim_steps
+from controller.geometry.pose_batch import KinStack, aim_steps, normal_and_center
+
+SLEW_BATCH = 64  # heliostats traced at once: 64 x 243 poses, a few MB per array
 
 
 def warm_clearances(pointings: Iterable[GeometryPointing]) -> None:
@@ -68,3 +76,44 @@ def warm_aims(pointings: Iterable[GeometryPointing]) -> None:
             for key, s, f in zip(keys, st, fine, strict=True):
                 if f:  # out of reach: the scalar solve says so, naming the axis
                     _AIMS.put(key, (p.heliostat,), (int(s[0]), int(s[1])))
+
+
+def warm_slews(pointings: Iterable[GeometryPointing], current: Mapping[str, tuple[int, int]]) -> None:
+    """The direct slews to standby, from where each heliostat stands (``current``, by id) and from
+    its aim, of ``pointings`` with a model: traced in batches (per source, targets and person
+    zones) and kept for :meth:`BeamSafety.path_to` as :meth:`BeamSafety.warm_paths` keeps them. A
+    pass's slot checks (:func:`controller.calibration.beams.group.slot_parks`) then trace only
+    the slew from each identity-stepped pose. A pointing out of reach is left to its check, which
+    says why."""
+    todo: dict[tuple, list] = {}
+    for p in pointings:
+        if p.model is None:
+            continue
+        try:
+            end = p.standby_steps(p.model)
+            starts, poses = p.direct_slews((current.get(p.heliostat.id), p.aim_steps(p.model)), end)
+        except (HeliocalError, ValueError):
+            continue
+        if starts:
+            group = (p.lamp.tobytes() if p.lamp is not None else p.source_dir.tobytes(),
+                     *(a.tobytes() for a in p._planes), p.zones.tobytes())
+            todo.setdefault(group, []).append((p, end, starts, poses))
+    for items in todo.values():
+        for k in range(0, len(items), SLEW_BATCH):
+            _trace_slews(items[k:k + SLEW_BATCH])
+
+
+def _trace_slews(items: list) -> None:
+    """Trace and keep the slews of ``items`` ((pointing, end, starts, poses) sharing a source,
+    targets and person zones): each heliostat's poses padded to the longest with its last pose."""
+    flat = [np.vstack(poses) for _, _, _, poses in items]
+    m = max(len(f) for f in flat)
+    steps = np.array([np.vstack([f, np.repeat(f[-1:], m - len(f), axis=0)]) for f in flat])  # (H, M, 2)
+    values = np.array([p.ray_model for p, _, _, _ in items])[:, None, :]
+    n, c = normal_and_center(KinStack.of([p.kin for p, _, _, _ in items]).shaped(2), values, steps)
+    first = items[0][0]
+    n, c = n.reshape(-1, 3), c.reshape(-1, 3)
+    margins = np.repeat([np.broadcast_to(p.path_margin_m(), (2,)) for p, _, _, _ in items], m, axis=0)
+    inside = first._inside(c, first.reflected(n, c), margins).reshape(len(items), m, -1)
+    for (p, end, starts, poses), rays in zip(items, inside, strict=True):
+        p.keep_clear(starts, end, poses, rays)

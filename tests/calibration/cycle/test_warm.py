@@ -78,3 +78,52 @@ def test_heliostats_without_a_model_are_left_to_the_scalar_solve(field, monkeypa
     warm.warm_clearances(ps)  # clearances do not need the aim solve: kept for them too
     assert all(warm._CLEARANCES.peek(p._clearance_key(p.source, None), (p.heliostat, p.model_settings))
                is not None for p in ps)
+
+
+@pytest.mark.parametrize("lamp", ["L2", "L5"])
+def test_slews_warmed_in_batches_are_those_traced_one_heliostat_at_a_time(field, lamp, monkeypatch):
+    """A pass's slot checks ask for each heliostat's slews to standby from where it stands and
+    from its aim (``slot_parks``): ``warm_slews`` traces them for all heliostats in a few
+    evaluations of the model and keeps exactly what each pointing's own ``warm_paths`` keeps —
+    the clear direct slews, not those that cross a target or pass its corner inside the path's
+    margin (each heliostat's own) — so the checks answer the same."""
+    traces = []
+    real = warm.normal_and_center
+    monkeypatch.setattr(warm, "normal_and_center", lambda *a: traces.append(1) or real(*a))
+    monkeypatch.setattr(warm, "SLEW_BATCH", 7)
+    alone, together = _pointings(field, lamp, True), _pointings(field, lamp, True)
+    reach = []
+    for p in alone:
+        try:
+            reach.append((p.heliostat.id, p.aim_steps(p.model), p.standby_steps(p.model)))
+        except LimitError:  # out of reach: left to its slot's check, which says why
+            continue
+    # Where each stands: across the target (its slew crosses it), 0.5 to 6 m below it (its slew to
+    # the side passes the target's corner inside the path's margin or not), at standby, unknown.
+    wheres = [lambda p: p.frame.center - 3.0 * (p.standby_point - p.frame.center), None]
+    wheres += [lambda p, d=d: p.frame.center - (p.target.height_m / 2 + d) * p.frame.v
+               for d in (0.5, 1.0, 2.0, 3.0, 4.5, 6.0)]
+    for n, where in enumerate(wheres):
+        current = {}
+        for p in alone:
+            try:
+                current[p.heliostat.id] = None if where is None else p._steps(where(p), p.model)
+            except LimitError:
+                continue
+        warm.warm_slews(together, current)
+        if not n:
+            assert len(traces) == -(-len(reach) // 7)  # one group: a lamp, the targets, the zones
+        for a in alone:
+            if (hit := next((r for r in reach if r[0] == a.heliostat.id), None)) is not None:
+                a.warm_paths((current.get(a.heliostat.id), hit[1]), hit[2])
+
+    def paths(p) -> dict:
+        return {k: v for k, v in p._poses.items() if k[0] == "path"}
+
+    kept = unkept = 0
+    for a, t in zip(alone, together, strict=True):
+        assert paths(t) == paths(a), a.heliostat.id
+        kept += len(paths(t))
+        unkept += sum(len(t.direct_slews((t._steps(w(t), t.model),), t.standby_steps(t.model))[0])
+                      for w in wheres[2:]) if any(r[0] == t.heliostat.id for r in reach) else 0
+    assert kept and unkept  # clear slews kept; the others left to path_to's detours
