@@ -38,7 +38,7 @@ from typing import Any
 
 import numpy as np
 
-from controller.calibration.beams.identity import kept_identity_step
+from controller.calibration.beams.identity import identity_step
 from controller.calibration.beams.slots import IDENTITY_STEP_M
 from controller.calibration.cycle.approach import approach_path
 from controller.errors import HeliocalError
@@ -85,7 +85,7 @@ def slot_parks(pointing, slot: int, k: int, frame, current: tuple[int, int] | No
     try:
         aim = pointing.aim_steps(pointing.model)
         standby = pointing.standby_steps(pointing.model)
-        step, _ = kept_identity_step(pointing, aim, slot, k, frame, step_m)
+        step, _ = identity_step(pointing, aim, slot, k, frame, step_m)
         stepped = (aim[0] + step[0], aim[1] + step[1])
         pointing.kin.azimuth.check(stepped[0], "the identity step")
         pointing.kin.elevation.check(stepped[1], "the identity step")
@@ -169,9 +169,9 @@ class SharedCapture:
         return math.ceil(2.0 * self.layout.step_m / self._pixel_m())
 
     def identity_step(self, cyc) -> tuple[tuple[int, int], np.ndarray]:
-        """:func:`kept_identity_step` of ``cyc``'s heliostat at its present pose and slot."""
+        """:func:`identity_step` of ``cyc``'s heliostat at its present pose and slot."""
         rank = self.layout.rank(self.gate.slot(cyc._ticket))  # its place in its tier
-        return kept_identity_step(cyc.ctx.pointing, (cyc.az, cyc.el), *rank, self.frame, self.layout.step_m)
+        return identity_step(cyc.ctx.pointing, (cyc.az, cyc.el), *rank, self.frame, self.layout.step_m)
 
     def leave_pose(self, cyc) -> tuple[int, int]:
         """Where ``cyc``'s heliostat parks after its measurement: the standby point on its slot's

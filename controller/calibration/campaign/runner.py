@@ -1,12 +1,13 @@
 """Nightly calibration campaign: the queue, the pipeline and resumption.
 
-A campaign calibrates a list of heliostats against one target under one light source (a lamp at
-night). Several targets work in parallel as one campaign each, each with its own camera, beam chain
-and gate (:mod:`controller.calibration.campaign.parallel`); slews never cross another target
-(:meth:`GeometryPointing.path_to`). It knows only the plant configuration, drives (``LinkPool``), a
-:class:`DoubleCcdCamera`, a record store and an image archive (both handed in by the interface
-layer); nothing here knows whether the plant is simulated. What happens is told to
-:class:`CampaignObserver` s: a progress bar, a web console, or a simulation harness with its truth.
+A campaign calibrates a list of heliostats against one target under one light source (a
+lamp at night). Several targets work in parallel as one campaign each, each with its own
+camera, beam chain and gate (:mod:`controller.calibration.campaign.parallel`); slews never cross
+another target (:meth:`GeometryPointing.path_to`). It knows only the plant configuration, drives from
+:class:`controller.devices.factory.LinkPool`, a :class:`DoubleCcdCamera`, a record store and
+an image archive (both handed in by the interface layer); nothing here knows whether the
+plant is simulated. What happens is told to :class:`CampaignObserver` s: a terminal progress
+bar, a web console, or a simulation harness that keeps its own truth.
 
 * **Queue** (:func:`controller.calibration.campaign.queue_order.order_queue`): heliostats sorted by their
   estimated slew time to their standby point, shortest first (with K beams per target, after
@@ -35,7 +36,6 @@ from typing import Any, Protocol
 
 from controller.alarms.watch import FieldWatch
 from controller.calibration.beams.group import SharedCapture, slot_parks
-from controller.calibration.beams.identity import warm_slot_checks
 from controller.calibration.beams.policy import beams_allowed
 from controller.calibration.beams.slots import assign_slots, pass_layout, spot_reaches_m
 from controller.calibration.campaign.field import Field, LampLit
@@ -52,7 +52,7 @@ from controller.calibration.cycle.machine import STATES, CalibrationCycle
 from controller.calibration.cycle.pointing import GeometryPointing
 from controller.calibration.cycle.registration_step import register_chain
 from controller.calibration.cycle.search import FieldMisses
-from controller.calibration.cycle.warm import warm_aims, warm_waits
+from controller.calibration.cycle.warm import warm_aims, warm_slews
 from controller.calibration.records import (
     CampaignRecord,
     ImageRecord,
@@ -209,7 +209,7 @@ class Campaign:
 
             self._pointing_at = pointing_at
             pointing = {hid: pointing_at(hid, aims.get(hid)) for hid in self.ids}
-            warm_aims(pointing.values(), approaches=True)  # their standby offsets and steps, in batches
+            warm_aims(pointing.values())  # their standby offsets and steps, in batches
             self.slots, self._tier = None, {}
             if beams > 1:
                 # Slots in tiers, each spaced for its spots; the largest take the target alone
@@ -279,12 +279,12 @@ class Campaign:
             with self.time.computing():
                 at_slot = {(t, s): self._pointing_at(todo[t][1], self.slots.aim(s))
                            for t, s in enumerate(assign_slots(open_, lambda *_: True)) if s is not None}
-                warm_slot_checks(at_slot, self.slots, self.chain.frame, self._current)  # in batches
+                warm_aims(at_slot.values())  # in batches, the steps of the slot each takes if all suit it
+                warm_slews(at_slot.values(), self._current)  # and its slews to standby, as its check asks
                 slots = assign_slots(open_, fits)
-                for ticket, slot in enumerate(slots):
-                    if slot is not None:  # else its planned aim, the target to itself (group.py)
-                        pointing[todo[ticket][1]] = at_slot[ticket, slot]
-                warm_waits([pointing[h] for _, h in todo], self._current)  # may each wait where it stands
+            for ticket, slot in enumerate(slots):
+                if slot is not None:  # else its planned aim, the target to itself (group.py)
+                    pointing[todo[ticket][1]] = at_slot[ticket, slot]
             gate = TargetGate(self.slots.k, together=True, slots=slots, conflicts=self.slots.conflicts())
             cal = self.cfg.calibration
             self.group = SharedCapture(gate, self._capture, self.chain.merge, self.chain.frame, self.slots,

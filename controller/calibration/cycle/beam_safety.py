@@ -57,8 +57,6 @@ class BeamSafety:
         self.zones, self.zone_ids = zone_boxes(zones), [z.id for z in zones]
         self.ray_model = (model or TrackingModel.zero()).values
         self._poses: dict[tuple, tuple | str] = {}  # _kept's
-        self._zone_at: dict[tuple, str | None] = {}  # beam_in_zone's
-        self._waits: dict[tuple, bool] = {}  # may_wait_at's
 
     def _kept(self, key: tuple, compute) -> tuple:
         """``compute()``'s pose (or path), kept by ``key`` and the ray's model: a pointing is
@@ -140,14 +138,10 @@ class BeamSafety:
         beam that lands on the target ends there."""
         if not self.zone_ids:
             return None
-        # Kept by pose and ray model: choosing a standby side asks it of the side's pose, and the
-        # standby's own check asks it again of the same pose.
-        key = self._with_model(("zone", float(az_steps), float(el_steps)))
-        if key not in self._zone_at:
-            c, b = self.rays([(az_steps, el_steps)])
-            k = zone_entered(c[0], b[0], self.zones, self._stop(c, b)[0])
-            self._zone_at[key] = None if k is None else self.zone_ids[k]
-        return self._zone_at[key]
+        c, b = self.rays([(az_steps, el_steps)])
+        stop = self._stop(c, b)[0]
+        k = zone_entered(c[0], b[0], self.zones, stop)
+        return None if k is None else self.zone_ids[k]
 
     def in_zone(self, poses) -> np.ndarray:
         """Whether the ray enters a person zone at each of ``poses`` (N, 2): (N,) bool."""
@@ -213,34 +207,19 @@ class BeamSafety:
         ray keeps the path's margin, the true spot need not. Whole-plan nights had such slews
         from a lamp change's standby put a spot's tails into a capture (issue 42). A wait
         within the view margin (the park's 0.5 m slack left out) put more there: 152 captures
-        in a whole plan. Kept by its poses, margin and ray model (a pass's are traced in batches
-        first, :func:`controller.calibration.cycle.warm.warm_waits`)."""
-        key = self.wait_key(pose, standby, aim, margin_m)
-        if key not in self._waits:
-            self._waits[key] = (self.wait_worth_checking(pose, standby, aim)
-                                and self.clear_to_wait(*self.rays([pose, standby]), margin_m)
-                                and self.clear_to_approach(*self.rays(self._sweep(pose, aim))))
-        return self._waits[key]
-
-    def wait_key(self, pose, standby, aim, margin_m) -> tuple:
-        """What :meth:`may_wait_at`'s answer is kept by."""
-        return self._with_model(("wait", *map(float, (*pose, *standby, *aim)),
-                                 np.asarray(margin_m, float).tobytes()))
-
-    def wait_worth_checking(self, pose, standby, aim) -> bool:
-        """:meth:`may_wait_at` before any ray: not at its standby already, and the approach from
-        ``pose`` at most :data:`WAIT_SLOWER_S` slower than from ``standby``."""
-        return tuple(pose) != tuple(standby) and \
-            self._slew_s(pose, aim) <= self._slew_s(standby, aim) + WAIT_SLOWER_S
-
-    def clear_to_wait(self, c: np.ndarray, b: np.ndarray, margin_m) -> bool:
-        """:meth:`may_wait_at` at the pose, from the rays (centres ``c``, beams ``b``: (2, 3)) at the
-        pose and at the standby."""
-        return wait_depths_clear(self._depths(c, b, margin_m), bool(self._in_zone(c[:1], b[:1])[0]))
-
-    def clear_to_approach(self, c: np.ndarray, b: np.ndarray) -> bool:
-        """:meth:`may_wait_at` along the approach, from its rays: off the other targets (grown by
-        2 m) and out of the person zones."""
+        in a whole plan."""
+        if tuple(pose) == tuple(standby):
+            return False
+        if self._slew_s(pose, aim) > self._slew_s(standby, aim) + WAIT_SLOWER_S:
+            return False
+        c, b = self.rays([pose, standby])
+        # As far out as its standby: off the targets grown by the margin, or no deeper inside than
+        # the standby (a park whose footprint at the aim reaches beyond its clearance lies inside).
+        depth = self._depths(c, b, margin_m)
+        deepest = np.where(depth[1] >= 0.0, depth[1] + WAIT_DEPTH_SLACK_M, 0.0)
+        if (depth[0] >= deepest).any() or self._in_zone(c[:1], b[:1])[0]:
+            return False
+        c, b = self.rays(self._sweep(pose, aim))
         return not (self._on_others(c, b, 2.0).any() or self._in_zone(c, b).any())
 
     def _slew_s(self, a, b) -> float:
@@ -331,15 +310,6 @@ class BeamSafety:
                 return [p for p in plan if p != start]
         raise UnsafePath(f"{self.heliostat.id}: no slew from {start} to standby {end} keeps the beam "
                          "off the targets")
-
-
-def wait_depths_clear(depth: np.ndarray, in_zone: bool) -> bool:
-    """:meth:`BeamSafety.clear_to_wait` from the :meth:`BeamSafety._depths` (2, 2) of the rays at the
-    pose and at the standby, and whether the pose's ray enters a person zone."""
-    # As far out as its standby: off the targets grown by the margin, or no deeper inside than
-    # the standby (a park whose footprint at the aim reaches beyond its clearance lies inside).
-    deepest = np.where(depth[1] >= 0.0, depth[1] + WAIT_DEPTH_SLACK_M, 0.0)
-    return not ((depth[0] >= deepest).any() or in_zone)
 
 
 def _never_back(inside: np.ndarray) -> bool:

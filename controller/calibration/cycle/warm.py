@@ -19,11 +19,10 @@ the scalar solve."""
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Mapping
 
 import numpy as np
 
-from controller.calibration.cycle.beam_safety import wait_depths_clear
 from controller.calibration.cycle.pointing import _AIMS, _CLEARANCES, GeometryPointing, clearances
 from controller.calibration.cycle.solved import source_key
 from controller.errors import HeliocalError
@@ -48,12 +47,10 @@ def warm_clearances(pointings: Iterable[GeometryPointing]) -> None:
             _CLEARANCES.put(key, (p.heliostat, p.model_settings), float(c))
 
 
-def warm_aims(pointings: Iterable[GeometryPointing], approaches: bool = False) -> None:
+def warm_aims(pointings: Iterable[GeometryPointing]) -> None:
     """The steps onto the aim point and the standby points on both sides of ``pointings``
     with a model (for their own source and model), batched per source; their clearances first
-    (:func:`warm_clearances`: the standby points depend on them); with ``approaches``, for a
-    pass that will ask for their aims, their approaches through the person zones too
-    (:func:`warm_approaches`)."""
+    (:func:`warm_clearances`: the standby points depend on them)."""
     pointings = [p for p in pointings if p.model is not None]
     warm_clearances(pointings)
     todo: dict[tuple, list] = {}
@@ -79,123 +76,44 @@ def warm_aims(pointings: Iterable[GeometryPointing], approaches: bool = False) -
             for key, s, f in zip(keys, st, fine, strict=True):
                 if f:  # out of reach: the scalar solve says so, naming the axis
                     _AIMS.put(key, (p.heliostat,), (int(s[0]), int(s[1])))
-    if approaches:
-        warm_approaches(pointings)
 
 
-def warm_slews(items: Iterable[tuple[GeometryPointing, Sequence]]) -> None:
-    """The direct slews to standby from each of the poses (or None) of ``items`` ((pointing,
-    poses)) with a model: traced in batches (per source, targets and person zones) and kept for
-    :meth:`BeamSafety.path_to` as :meth:`BeamSafety.warm_paths` keeps them — a pass's slot checks
-    (:func:`controller.calibration.beams.group.slot_parks`) ask for the slews from where each
-    heliostat stands, from its aim and from its identity-stepped pose. A pointing out of reach
-    is left to its check, which says why."""
-    todo = []
-    for p, starts in items:
+def warm_slews(pointings: Iterable[GeometryPointing], current: Mapping[str, tuple[int, int]]) -> None:
+    """The direct slews to standby, from where each heliostat stands (``current``, by id) and from
+    its aim, of ``pointings`` with a model: traced in batches (per source, targets and person
+    zones) and kept for :meth:`BeamSafety.path_to` as :meth:`BeamSafety.warm_paths` keeps them. A
+    pass's slot checks (:func:`controller.calibration.beams.group.slot_parks`) then trace only
+    the slew from each identity-stepped pose. A pointing out of reach is left to its check, which
+    says why."""
+    todo: dict[tuple, list] = {}
+    for p in pointings:
         if p.model is None:
             continue
         try:
             end = p.standby_steps(p.model)
+            starts, poses = p.direct_slews((current.get(p.heliostat.id), p.aim_steps(p.model)), end)
         except (HeliocalError, ValueError):
             continue
-        slews, poses = p.direct_slews(starts, end)
-        if slews:
-            todo.append((p, end, slews, poses))
-    in_batches(todo, _trace_slews)
+        if starts:
+            group = (p.lamp.tobytes() if p.lamp is not None else p.source_dir.tobytes(),
+                     *(a.tobytes() for a in p._planes), p.zones.tobytes())
+            todo.setdefault(group, []).append((p, end, starts, poses))
+    for items in todo.values():
+        for k in range(0, len(items), SLEW_BATCH):
+            _trace_slews(items[k:k + SLEW_BATCH])
 
 
 def _trace_slews(items: list) -> None:
-    ps = [p for p, _, _, _ in items]
-    c, b, m = batch_rays(ps, [np.vstack(poses) for _, _, _, poses in items])
-    margins = np.repeat([np.broadcast_to(p.path_margin_m(), (2,)) for p in ps], m, axis=0)
-    inside = ps[0]._inside(c, b, margins).reshape(len(ps), m, -1)
+    """Trace and keep the slews of ``items`` ((pointing, end, starts, poses) sharing a source,
+    targets and person zones): each heliostat's poses padded to the longest with its last pose."""
+    flat = [np.vstack(poses) for _, _, _, poses in items]
+    m = max(len(f) for f in flat)
+    steps = np.array([np.vstack([f, np.repeat(f[-1:], m - len(f), axis=0)]) for f in flat])  # (H, M, 2)
+    values = np.array([p.ray_model for p, _, _, _ in items])[:, None, :]
+    n, c = normal_and_center(KinStack.of([p.kin for p, _, _, _ in items]).shaped(2), values, steps)
+    first = items[0][0]
+    n, c = n.reshape(-1, 3), c.reshape(-1, 3)
+    margins = np.repeat([np.broadcast_to(p.path_margin_m(), (2,)) for p, _, _, _ in items], m, axis=0)
+    inside = first._inside(c, first.reflected(n, c), margins).reshape(len(items), m, -1)
     for (p, end, starts, poses), rays in zip(items, inside, strict=True):
         p.keep_clear(starts, end, poses, rays)
-
-
-def warm_approaches(pointings: Iterable[GeometryPointing]) -> None:
-    """The approaches from standby to the aim of ``pointings`` with a model, where the plant has
-    person zones: traced through the zones in batches (per source, targets and zones), and the
-    aim kept for :meth:`GeometryPointing.aim_steps` where no pose of the approach enters one —
-    what aim_steps checks before it answers. One that enters a zone, or is out of reach, is
-    left to aim_steps, which names the zone or the axis."""
-    items = []
-    for p in pointings:
-        key = ("aim", p._aim_key(p.aim_point, p.model))
-        if p.model is None or not p.zone_ids or p._with_model(key) in p._poses:
-            continue
-        try:
-            aim = p._steps(p.aim_point, p.model)
-            items.append((p, key, aim, p._sweep(p.standby_steps(p.model), aim)))
-        except (HeliocalError, ValueError):
-            continue
-    in_batches(items, _trace_approaches)
-
-
-def _trace_approaches(items: list) -> None:
-    ps = [p for p, _, _, _ in items]
-    c, b, m = batch_rays(ps, [sweep for _, _, _, sweep in items])
-    inside = ps[0]._in_zone(c, b).reshape(len(ps), m)
-    for (p, key, aim, sweep), entered in zip(items, inside, strict=True):
-        if not entered[:len(sweep)].any():
-            p._kept(key, lambda aim=aim: aim)
-
-
-def warm_waits(pointings: Iterable[GeometryPointing], current: Mapping[str, tuple[int, int]]) -> None:
-    """Whether each of ``pointings`` with a model may wait where it stands (``current``, by id)
-    rather than park first (:meth:`BeamSafety.may_wait_at`, what its cycle asks as it prepares):
-    the rays at its pose and standby and along its approach traced in batches, and the answer
-    kept as may_wait_at keeps it, from the same tests of the same rays."""
-    items = []
-    for p in pointings:
-        pose = current.get(p.heliostat.id)
-        if p.model is None or pose is None:
-            continue
-        try:
-            aim, standby = p.aim_steps(p.model), p.standby_steps(p.model)
-        except (HeliocalError, ValueError):
-            continue
-        key = p.wait_key(pose, standby, aim, p.path_margin_m())
-        if key not in p._waits and p.wait_worth_checking(pose, standby, aim):
-            items.append((p, key, np.array([pose, standby], float), p._sweep(pose, aim)))
-    in_batches(items, _trace_waits)
-
-
-def _trace_waits(items: list) -> None:
-    ps = [p for p, _, _, _ in items]
-    first = ps[0]
-    c, b, _ = batch_rays(ps, [here for _, _, here, _ in items])
-    margins = np.repeat([np.broadcast_to(p.path_margin_m(), (2,)) for p in ps], 2, axis=0)
-    depths = first._depths(c, b, margins).reshape(len(ps), 2, 2)
-    zones = first._in_zone(c, b).reshape(len(ps), 2)
-    c, b, m = batch_rays(ps, [sweep for _, _, _, sweep in items])
-    crossed = (first._on_others(c, b, 2.0) | first._in_zone(c, b)).reshape(len(ps), m)
-    for (p, key, _, sweep), depth, zone, cross in zip(items, depths, zones, crossed, strict=True):
-        p._waits[key] = wait_depths_clear(depth, bool(zone[0])) and not cross[:len(sweep)].any()
-
-
-def in_batches(items: list, trace) -> None:
-    """``trace`` the ``items`` (pointing first) in batches of :data:`SLEW_BATCH` that share what
-    a ray's tests need: the source, the targets and the person zones."""
-    groups: dict[tuple, list] = {}
-    for it in items:
-        p = it[0]
-        key = (p.lamp.tobytes() if p.lamp is not None else p.source_dir.tobytes(),
-               *(a.tobytes() for a in p._planes), p.zones.tobytes())
-        groups.setdefault(key, []).append(it)
-    for group in groups.values():
-        for k in range(0, len(group), SLEW_BATCH):
-            trace(group[k:k + SLEW_BATCH])
-
-
-def batch_rays(pointings: list[GeometryPointing],
-               poses: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, int]:
-    """Mirror centres and reflected beams (H·M, 3) of each pointing's ``poses`` (M_i, 2) through its
-    ray model (:meth:`BeamSafety.rays`, H heliostats at once), each padded to the longest (M)
-    with its last pose: (centres, beams, M)."""
-    m = max(len(x) for x in poses)
-    steps = np.array([np.vstack([x, np.repeat(x[-1:], m - len(x), axis=0)]) for x in poses])  # (H, M, 2)
-    values = np.array([p.ray_model for p in pointings])[:, None, :]
-    n, c = normal_and_center(KinStack.of([p.kin for p in pointings]).shaped(2), values, steps)
-    n, c = n.reshape(-1, 3), c.reshape(-1, 3)
-    return c, pointings[0].reflected(n, c), m

@@ -14,7 +14,7 @@ import pytest
 import yaml
 
 from controller.calibration.beams import slots
-from controller.calibration.beams.identity import identity_step, kept_identity_step
+from controller.calibration.beams.identity import identity_step
 from controller.calibration.beams.policy import beams_allowed
 from controller.calibration.beams.slots import (
     GAP_M,
@@ -25,7 +25,6 @@ from controller.calibration.beams.slots import (
     spot_reach_m,
     target_frame,
 )
-from controller.calibration.cycle.beam_safety import BeamSafety
 from controller.calibration.cycle.gate import TargetGate
 from controller.calibration.night.passes import Pass, lamps_by_rate
 from controller.config import load_config
@@ -313,42 +312,6 @@ def test_identity_steps_spread_evenly_over_the_target_whatever_each_axis_gearing
     angles = np.degrees([math.atan2(d[1], d[0]) for _, d in moves])
     assert abs(angles[0] - 1.9) < 0.5 and abs(angles[-1] - 78.7) < 0.5
     assert np.ptp(np.diff(angles)) < 5.0, angles
-
-
-class _KeptLinearPointing(_LinearPointing):
-    """A :class:`_LinearPointing` that keeps answers by its ray model, as a BeamSafety does, and
-    counts its traces."""
-
-    _kept, _with_model = BeamSafety._kept, BeamSafety._with_model
-
-    def __init__(self, jac) -> None:
-        super().__init__(jac)
-        self._poses, self.ray_model, self.traced = {}, np.zeros(14), 0
-
-    def rays(self, poses):
-        self.traced += 1
-        return super().rays(poses)
-
-
-def test_an_identity_step_asked_again_at_the_same_pose_is_not_traced_again():
-    """A slot's check asks for the identity step at the aim pose and the round's capture there asks
-    again: the same step and displacement, traced once; another pose, slot or ray model is
-    traced anew."""
-    frame = SimpleNamespace(center=np.array([0.0, 100.0, 0.0]), normal=np.array([0.0, -1.0, 0.0]),
-                            u=np.array([1.0, 0.0, 0.0]), v=np.array([0.0, 0.0, 1.0]))
-    jac = [[3e-4, 0.2e-4], [0.1e-4, 1e-4]]
-    p = _KeptLinearPointing(jac)
-    want = identity_step(_LinearPointing(jac), (1000, 2000), 2, 4, frame)
-    for _ in range(3):
-        step, disp = kept_identity_step(p, (1000, 2000), 2, 4, frame)
-        assert step == want[0] and np.array_equal(disp, want[1])
-    assert p.traced == 2  # identity_step's own two traces, once
-    kept_identity_step(p, (1000, 2001), 2, 4, frame)
-    kept_identity_step(p, (1000, 2000), 1, 4, frame)
-    assert p.traced == 6
-    p.ray_model = np.full(14, 1e-3)  # refitted under a beam search: its rays change
-    kept_identity_step(p, (1000, 2000), 2, 4, frame)
-    assert p.traced == 8
 
 
 def test_identity_by_step_confirms_each_and_catches_a_swap():
