@@ -34,7 +34,11 @@ What runs, in order, each timed:
    night, for every heliostat of the field.
 
 ``second_beam_captures``: captures in which a target's camera saw more than one beam (the
-simulated truth: :attr:`simplant.devices.cheap_camera.CheapCamera.beams_in_view`).
+simulated truth: :attr:`simplant.devices.cheap_camera.CheapCamera.beams_in_view`), or a beam
+not the capture's; ``second_beam_heliostats``: for the 20 heliostats seen most often where
+their beam was not meant to be, per target — captures, first and last plant second, the lamp,
+the targets their plan gives them under it, the states their cycle was in at those captures
+and where the beam hit first (:meth:`controller.commands.sim.field.OnTarget.note_strays`).
 ``controller_cpu_s``: CPU seconds of this process and its worker processes over steps 2-5 —
 the night's share includes the in-process simulated plant (its cameras and physics).
 ``night_user_cpu_s``, ``night_system_cpu_s``: the night's CPU split into user and kernel time, with
@@ -319,6 +323,7 @@ def main() -> None:
         "plan_total": len(plan.items), "unmeasurable": len(plan.unmeasurable),
         "sample": {"heliostats": len(sampled), "of": len(ids), "limit_geometries": args.sample},
         "second_beam_captures": bad, "captures": captures, "second_beam_examples": examples,
+        "second_beam_heliostats": watch.strays_by_heliostat(),
         "runs_not_measured": failed, "night_status": r.summary.status, "night_cause": r.summary.cause,
         "plant_hours": r.plant_s / 3600.0, "plant_hours_whole_plan": whole_h,
         "nights_needed": math.ceil(whole_h / args.night_h - 1e-9),

@@ -161,6 +161,9 @@ class CheapCamera(PlantClockCamera):
         # are not (several beams per target: a beam that is not the capture's).
         self.expected: Callable[[], Collection[str]] | None = None
         self.strays: list[tuple[str, ...]] = []
+        # Told of every capture with a stray: its strays and every drawn beam's true hit (ENU m),
+        # so that the watcher can say where each stray was and what its cycle was doing.
+        self.stray_seen: Callable[[tuple[str, ...], dict[str, tuple]], None] | None = None
 
     def _scene(self) -> np.ndarray:
         g = self.grid
@@ -216,5 +219,8 @@ class CheapCamera(PlantClockCamera):
         self.plant.spot_truth.record(hits)
         if self.expected is not None:
             meant = self.expected()
-            self.strays.append(tuple(h for h in seen if h not in meant))
+            stray = tuple(h for h in seen if h not in meant)
+            self.strays.append(stray)
+            if stray and self.stray_seen is not None:
+                self.stray_seen(stray, hits)
         return img

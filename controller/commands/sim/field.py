@@ -127,14 +127,47 @@ class OnTarget(CampaignObserver):
             key = (it.heliostat_id, it.geometry.lamp)
             self.where.setdefault(key, set()).add(it.geometry.target or self.default)
         self.on: set[str] = set()
+        self.state: dict[str, str] = {}  # each heliostat's last state
+        self.seen: dict[tuple[str, str], dict] = {}  # (stray heliostat, target): what is known of it
+        self._lock = threading.Lock()  # the targets' cameras capture in their own threads
         for tid, cam in cheap.cameras.items():
             cam.expected = (lambda t=tid: self.meant(t))
+            cam.stray_seen = (lambda stray, hits, t=tid: self.note_strays(t, stray, hits))
 
     def meant(self, target: str) -> set[str]:
         lamp = self.plant.lit
         return {h for h in list(self.on) if target in self.where.get((h, lamp), {self.default})}
 
+    def note_strays(self, target: str, stray, hits: dict) -> None:
+        """A capture of ``target`` saw the beams ``stray`` where they were not meant to be (true
+        hits ``hits``, m ENU): kept per heliostat and target — how many captures, from and until
+        which plant second, under which lamp, the targets its plan gives it under that lamp, the
+        states its cycle was in at those captures, and where its beam hit first — so that a
+        record with strays says which heliostat, doing what, and where."""
+        lamp, now = self.plant.lit, round(float(self.plant.clock()), 1)
+        with self._lock:
+            for h in stray:
+                s = self.seen.get((h, target))
+                if s is None:
+                    s = self.seen[(h, target)] = {
+                        "heliostat": h, "target": target, "lamp": lamp, "captures": 0,
+                        "first_plant_s": now, "last_plant_s": now,
+                        "meant_targets": sorted(self.where.get((h, lamp), {self.default})), "states": {},
+                        "first_hit_enu_m": [round(v, 3) for v in hits[h]]}
+                s["captures"] += 1
+                s["last_plant_s"] = now
+                state = self.state.get(h, "not started")
+                s["states"][state] = s["states"].get(state, 0) + 1
+
+    def strays_by_heliostat(self, most: int = 20) -> list[dict]:
+        """The ``most`` stray heliostats (per target) seen in the most captures, with what
+        :meth:`note_strays` kept of each."""
+        with self._lock:
+            seen = sorted(self.seen.values(), key=lambda s: (-s["captures"], s["heliostat"], s["target"]))
+        return seen[:most]
+
     def state_changed(self, heliostat_id: str, state: str) -> None:
+        self.state[heliostat_id] = state
         if state in self.STATES:
             self.on.add(heliostat_id)
         elif state in self.OFF:

@@ -100,13 +100,37 @@ def test_several_beams_on_the_cheap_field_and_a_beam_not_the_captures_is_counted
     # Two start stowed where no safe slew leaves the targets' plane (UnsafePath): parked, not measured.
     assert len(night.measured) >= 8 and sum(rounds) >= 2
     assert max(len(b) for b in field.cameras["T1"].beams_in_view) == 2  # two beams shared a capture
-    assert strays(field, 2, {})[0] == 0
+    assert strays(field, 2, {})[0] == 0 and watch.strays_by_heliostat() == []
     watch.on.clear()
+    last = dict(watch.state)
     watch.state_changed = lambda *_: None  # a watcher that expects no beam anywhere
     for cam in field.cameras.values():
         cam.beams_in_view, cam.strays = [], []
     field.cameras["T1"].capture()  # the beams parked off the target: nothing in view, nothing stray
     assert strays(field, 2, {}) == (0, 1, [])
+
+    # One heliostat back at its last measured pose under that measurement's lamp: a stray the
+    # watcher explains — which heliostat, on which target, under which lamp, in which state.
+    store = CampaignStore(field.db_path, readonly=True)
+    try:
+        m = store.measurements()[-1]
+    finally:
+        store.close()
+    lamp = next(s.id for s in field.cfg.light_sources
+                if s.kind == "lamp" and np.allclose(s.position_enu_m, m.source_pos_enu))
+    h = field.cfg.heliostat(m.heliostat_id)
+    drive = InProcPool.for_plant(field.plant).drive(h.link, DriveLimits.from_axes(h.axes))
+    field.plant.switch_lamp(lamp, True)
+    drive.move_and_wait(m.az_steps, m.el_steps, timeout_s=600.0, time=field.time)
+    field.cameras["T1"].capture()
+    field.cameras["T1"].capture()
+    assert m.heliostat_id in field.cameras["T1"].strays[-1]
+    got = [s for s in watch.strays_by_heliostat() if s["heliostat"] == m.heliostat_id]
+    assert got == [{"heliostat": m.heliostat_id, "target": "T1", "lamp": lamp, "captures": 2,
+                    "first_plant_s": got[0]["first_plant_s"], "last_plant_s": got[0]["last_plant_s"],
+                    "meant_targets": ["T1"], "states": {last[m.heliostat_id]: 2},
+                    "first_hit_enu_m": [round(v, 3) for v in field.cameras["T1"].hits[-2][m.heliostat_id]]}]
+    assert got[0]["last_plant_s"] >= got[0]["first_plant_s"] > 0
 
 
 class _FreezeSecond(CampaignObserver):
