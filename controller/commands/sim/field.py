@@ -128,6 +128,7 @@ class OnTarget(CampaignObserver):
             self.where.setdefault(key, set()).add(it.geometry.target or self.default)
         self.on: set[str] = set()
         self.state: dict[str, str] = {}  # each heliostat's last state
+        self.last_run: dict[str, dict] = {}  # each heliostat's last recorded run, in brief
         self.seen: dict[tuple[str, str], dict] = {}  # (stray heliostat, target): what is known of it
         self._lock = threading.Lock()  # the targets' cameras capture in their own threads
         for tid, cam in cheap.cameras.items():
@@ -142,8 +143,9 @@ class OnTarget(CampaignObserver):
         """A capture of ``target`` saw the beams ``stray`` where they were not meant to be (true
         hits ``hits``, m ENU): kept per heliostat and target — how many captures, from and until
         which plant second, under which lamp, the targets its plan gives it under that lamp, the
-        states its cycle was in at those captures, and where its beam hit first — so that a
-        record with strays says which heliostat, doing what, and where."""
+        states its cycle was in at those captures, where its beam hit first, the steps its rods
+        stood at then (the plant's truth) and its last recorded run — so that a record with
+        strays says which heliostat, doing what, and where."""
         lamp, now = self.plant.lit, round(float(self.plant.clock()), 1)
         with self._lock:
             for h in stray:
@@ -153,7 +155,9 @@ class OnTarget(CampaignObserver):
                         "heliostat": h, "target": target, "lamp": lamp, "captures": 0,
                         "first_plant_s": now, "last_plant_s": now,
                         "meant_targets": sorted(self.where.get((h, lamp), {self.default})), "states": {},
-                        "first_hit_enu_m": [round(v, 3) for v in hits[h]]}
+                        "first_hit_enu_m": [round(v, 3) for v in hits[h]],
+                        "steps": [int(v) for v in self.plant.hidden[h].controller.output_steps()],
+                        "last_run": self.last_run.get(h)}
                 s["captures"] += 1
                 s["last_plant_s"] = now
                 state = self.state.get(h, "not started")
@@ -165,6 +169,12 @@ class OnTarget(CampaignObserver):
         with self._lock:
             seen = sorted(self.seen.values(), key=lambda s: (-s["captures"], s["heliostat"], s["target"]))
         return seen[:most]
+
+    def run_recorded(self, campaign_id: int, run) -> None:
+        self.last_run[run.heliostat_id] = {
+            "status": run.status, "cause": (run.fault_cause or "")[:200] or None,
+            "fault_state": run.fault_state, "iterations": run.iterations,
+            "error_after_mrad": run.error_after_mrad, "end_plant_s": run.end_s}
 
     def state_changed(self, heliostat_id: str, state: str) -> None:
         self.state[heliostat_id] = state

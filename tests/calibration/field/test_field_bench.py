@@ -126,10 +126,16 @@ def test_several_beams_on_the_cheap_field_and_a_beam_not_the_captures_is_counted
     field.cameras["T1"].capture()
     assert m.heliostat_id in field.cameras["T1"].strays[-1]
     got = [s for s in watch.strays_by_heliostat() if s["heliostat"] == m.heliostat_id]
+    runs = [run for res in night.results for run in res.runs if run.heliostat_id == m.heliostat_id]
     assert got == [{"heliostat": m.heliostat_id, "target": "T1", "lamp": lamp, "captures": 2,
                     "first_plant_s": got[0]["first_plant_s"], "last_plant_s": got[0]["last_plant_s"],
                     "meant_targets": ["T1"], "states": {last[m.heliostat_id]: 2},
-                    "first_hit_enu_m": [round(v, 3) for v in field.cameras["T1"].hits[-2][m.heliostat_id]]}]
+                    "first_hit_enu_m": [round(v, 3) for v in field.cameras["T1"].hits[-2][m.heliostat_id]],
+                    "steps": got[0]["steps"], "last_run": got[0]["last_run"]}]
+    brief = got[0]["last_run"]
+    assert (brief["status"], brief["end_plant_s"]) == (runs[-1].status, runs[-1].end_s)
+    st, slack = drive.status(), max(h.axes.azimuth.backlash_steps, h.axes.elevation.backlash_steps)
+    assert np.abs(np.subtract(got[0]["steps"], (st.az_steps, st.el_steps))).max() <= slack
     assert got[0]["last_plant_s"] >= got[0]["first_plant_s"] > 0
 
 
