@@ -39,6 +39,10 @@ not the capture's; ``second_beam_heliostats``: for the 20 heliostats seen most o
 their beam was not meant to be, per target — captures, first and last plant second, the lamp,
 the targets their plan gives them under it, the states their cycle was in at those captures
 and where the beam hit first (:meth:`controller.commands.sim.field.OnTarget.note_strays`).
+``measured_elsewhere``: measurements whose centroid lies more than 1 m from every true hit of
+their own heliostat's beam in the recent captures — a spot credited to another beam, or none
+(:meth:`controller.commands.sim.field.OnTarget.measured`); ``measured_elsewhere_examples`` the
+first ten, each with the heliostat whose beam hit nearest the centroid.
 ``controller_cpu_s``: CPU seconds of this process and its worker processes over steps 2-5 —
 the night's share includes the in-process simulated plant (its cameras and physics).
 ``night_user_cpu_s``, ``night_system_cpu_s``: the night's CPU split into user and kernel time, with
@@ -324,6 +328,7 @@ def main() -> None:
         "sample": {"heliostats": len(sampled), "of": len(ids), "limit_geometries": args.sample},
         "second_beam_captures": bad, "captures": captures, "second_beam_examples": examples,
         "second_beam_heliostats": watch.strays_by_heliostat(),
+        "measured_elsewhere": len(watch.elsewhere), "measured_elsewhere_examples": watch.elsewhere[:10],
         "runs_not_measured": failed, "night_status": r.summary.status, "night_cause": r.summary.cause,
         "plant_hours": r.plant_s / 3600.0, "plant_hours_whole_plan": whole_h,
         "nights_needed": math.ceil(whole_h / args.night_h - 1e-9),

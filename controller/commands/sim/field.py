@@ -23,6 +23,7 @@ truth), and the truth of "no beam in view but the capture's": :class:`OnTarget`,
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 from dataclasses import dataclass
@@ -105,6 +106,10 @@ def night_zero(cheap, ids: list[str], name: str, budget_s: float, observers=()) 
                      over.is_set())
 
 
+RECENT_CAPTURES = 12  # a measurement's frames are among its target's last few (a round, its identity step)
+ELSEWHERE_M = 1.0  # m: a centroid this far from its own beam's true hit is another's spot, or none
+
+
 class OnTarget(CampaignObserver):
     """Which heliostats the controller means to have on each target now: those whose cycle is
     between its approach and its park (the states from *slewing* to *correcting*, and *fault*
@@ -130,6 +135,8 @@ class OnTarget(CampaignObserver):
         self.state: dict[str, str] = {}  # each heliostat's last state
         self.last_run: dict[str, dict] = {}  # each heliostat's last recorded run, in brief
         self.seen: dict[tuple[str, str], dict] = {}  # (stray heliostat, target): what is known of it
+        self.elsewhere: list[dict] = []  # measurements not where their own beam hit (measured())
+        self.cameras = cheap.cameras
         self._lock = threading.Lock()  # the targets' cameras capture in their own threads
         for tid, cam in cheap.cameras.items():
             cam.expected = (lambda t=tid: self.meant(t))
@@ -169,6 +176,30 @@ class OnTarget(CampaignObserver):
         with self._lock:
             seen = sorted(self.seen.values(), key=lambda s: (-s["captures"], s["heliostat"], s["target"]))
         return seen[:most]
+
+    def measured(self, heliostat_id: str, measurement) -> None:
+        """A measurement whose centroid lies more than :data:`ELSEWHERE_M` from every true hit of
+        its heliostat's beam in the cameras' last :data:`RECENT_CAPTURES` captures is kept in
+        :attr:`elsewhere`, with the heliostat whose true hit in them lies nearest the centroid:
+        a spot credited to the wrong beam, whose refit model then solves the park."""
+        if measurement.centroid_enu is None:
+            return
+        c = tuple(map(float, measurement.centroid_enu))
+        own, nearest = math.inf, (math.inf, None)
+        for cam in self.cameras.values():
+            for hits in cam.hits[-RECENT_CAPTURES:]:
+                for hid, p in hits.items():
+                    d = math.dist(c, p)  # plain floats: the benchmark's watcher runs in the cycles' threads
+                    if hid == heliostat_id:
+                        own = min(own, d)
+                    elif d < nearest[0]:
+                        nearest = (d, hid)
+        if own > ELSEWHERE_M:
+            with self._lock:
+                self.elsewhere.append({
+                    "heliostat": heliostat_id, "plant_s": round(float(measurement.plant_time_s), 1),
+                    "own_hit_m": None if math.isinf(own) else round(own, 3), "nearest": nearest[1],
+                    "nearest_hit_m": None if math.isinf(nearest[0]) else round(nearest[0], 3)})
 
     def run_recorded(self, campaign_id: int, run) -> None:
         self.last_run[run.heliostat_id] = {

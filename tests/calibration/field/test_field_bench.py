@@ -4,6 +4,7 @@ truth."""
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -101,6 +102,7 @@ def test_several_beams_on_the_cheap_field_and_a_beam_not_the_captures_is_counted
     assert len(night.measured) >= 8 and sum(rounds) >= 2
     assert max(len(b) for b in field.cameras["T1"].beams_in_view) == 2  # two beams shared a capture
     assert strays(field, 2, {})[0] == 0 and watch.strays_by_heliostat() == []
+    assert watch.elsewhere == []  # every spot was credited to its own beam (the plant's truth)
     watch.on.clear()
     last = dict(watch.state)
     watch.state_changed = lambda *_: None  # a watcher that expects no beam anywhere
@@ -137,6 +139,17 @@ def test_several_beams_on_the_cheap_field_and_a_beam_not_the_captures_is_counted
     st, slack = drive.status(), max(h.axes.azimuth.backlash_steps, h.axes.elevation.backlash_steps)
     assert np.abs(np.subtract(got[0]["steps"], (st.az_steps, st.el_steps))).max() <= slack
     assert got[0]["last_plant_s"] >= got[0]["first_plant_s"] > 0
+
+    # A spot credited to the wrong beam: a measurement of another heliostat at this one's true hit.
+    other = next(h.id for h in field.cfg.heliostats if h.id != m.heliostat_id)
+    hit = field.cameras["T1"].hits[-1][m.heliostat_id]
+    watch.measured(other, dataclasses.replace(m, centroid_enu=hit))
+    watch.measured(m.heliostat_id, dataclasses.replace(m, centroid_enu=hit))  # its own: not counted
+    (got,) = watch.elsewhere
+    assert got["own_hit_m"] is None or got["own_hit_m"] > 1.0  # its own beam nowhere near, if in view
+    assert {k: got[k] for k in ("heliostat", "plant_s", "nearest", "nearest_hit_m")} == {
+        "heliostat": other, "plant_s": round(m.plant_time_s, 1), "nearest": m.heliostat_id,
+        "nearest_hit_m": 0.0}
 
 
 class _FreezeSecond(CampaignObserver):
