@@ -37,8 +37,9 @@ What runs, in order, each timed:
 simulated truth: :attr:`simplant.devices.cheap_camera.CheapCamera.beams_in_view`), or a beam
 not the capture's; ``second_beam_heliostats``: for the 20 heliostats seen most often where
 their beam was not meant to be, per target — captures, first and last plant second, the lamp,
-the targets their plan gives them under it, the states their cycle was in at those captures
-and where the beam hit first (:meth:`controller.commands.sim.field.OnTarget.note_strays`).
+the targets their plan gives them under it, the states their cycle was in at those captures,
+where the beam hit first, the rods' true steps then and the heliostat's last recorded run
+(:meth:`controller.commands.sim.field.OnTarget.note_strays`).
 ``measured_elsewhere``: measurements whose centroid lies more than 1 m from every true hit of
 their own heliostat's beam in the recent captures — a spot credited to another beam, or none
 (:meth:`controller.commands.sim.field.OnTarget.measured`); ``measured_elsewhere_examples`` the
