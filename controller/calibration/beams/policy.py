@@ -10,6 +10,10 @@ on one target at once do not endanger it. The mode is therefore refused
 * for any campaign or pass whose light source is the sun, or which starts in daylight: the sun
   above :data:`DAYLIGHT_ELEVATION_DEG` at the site, at the plant's time (:func:`beams_allowed`).
 
+A planned night with K > 1 therefore ends at sunrise (:func:`night_over`): no further lamp is
+lit and no further pass starts, the passes running go on to their end (they started at night),
+and the night ends ``partial``; its passes not started are planned again by the next night.
+
 Person zones, path safety and the lamp change are unchanged by it.
 """
 
@@ -49,3 +53,16 @@ def beams_allowed(cfg: PlantConfig, source_id: str, utc: str) -> int:
         raise InputError(f"calibration.beams_per_target: {k} beams on one target are for lamps at night; "
                          f"the sun is up ({elev:.1f}° at {utc}): one beam per target in daylight")
     return k
+
+
+def night_over(cfg: PlantConfig, utc: str) -> str | None:
+    """Why a planned night with K > 1 beams per target may start no further pass at ``utc``
+    (ISO 8601): the sun is up (:func:`beams_allowed` would refuse it); None while it is night,
+    and always with one beam per target."""
+    if cfg.calibration.beams_per_target == 1:
+        return None
+    elev = sun_elevation_deg(cfg, utc)
+    if elev <= DAYLIGHT_ELEVATION_DEG:
+        return None
+    return (f"daylight: the sun is up ({elev:.1f}° at {utc}), {cfg.calibration.beams_per_target} beams "
+            "per target are for the night")

@@ -104,7 +104,8 @@ def lamps_by_rate(cfg: PlantConfig, models_of: Callable[[list[str]], dict[str, M
 def run_night(plan: list[PlanItem], night: str, run_pass: Callable[[Pass], CampaignResult],
               stop_all: Callable[[], None] | None = None,
               change_lamp: Callable[[str, dict[str, Standby]], LampChange] | None = None,
-              next_lamp: Callable[[list[str], list[Pass]], str] | None = None) -> list[CampaignResult]:
+              next_lamp: Callable[[list[str], list[Pass]], str] | None = None,
+              over: Callable[[], str | None] | None = None) -> list[CampaignResult]:
     """Run every pass of the night with ``run_pass`` (which builds and runs one observing
     campaign: ``CampaignOptions(name=p.name, light_source=p.lamp, aims=p.aims, observe=True,
     target=p.target)``), the targets of a lamp in parallel. A target stops at its first pass
@@ -115,12 +116,20 @@ def run_night(plan: list[PlanItem], night: str, run_pass: Callable[[Pass], Campa
     (a :class:`controller.calibration.campaign.lamp_change.LampChanger`); its LampChangeError ends the
     night with the lamp dark. Without it the caller guarantees that no heliostat of the night
     can reflect the next lamp onto a target (a single-lamp night). ``next_lamp(lamps, passes)``:
-    which of the lamps not yet lit comes next (default: in order of first appearance)."""
+    which of the lamps not yet lit comes next (default: in order of first appearance).
+    ``over()``: asked before each lamp is lit and each pass starts; a reason (the night's time
+    is over: daylight) ends the night there, as a stop would, but the running passes go on to
+    their end (they started in time)."""
     results: list[CampaignResult] = []
     halted = threading.Event()
     passes = night_passes(plan, night)
     lamps = list(dict.fromkeys(p.lamp for p in passes))
-    while lamps:
+    def ended() -> bool:
+        if not halted.is_set() and over is not None and over() is not None:
+            halted.set()
+        return halted.is_set()
+
+    while lamps and not ended():
         lamp = next_lamp(lamps, passes) if next_lamp is not None and len(lamps) > 1 else lamps[0]
         lamps.remove(lamp)
         if change_lamp is not None:
@@ -133,7 +142,7 @@ def run_night(plan: list[PlanItem], night: str, run_pass: Callable[[Pass], Campa
         def sequence(todo: list[Pass]) -> list[CampaignResult]:
             out = []
             for p in todo:
-                if halted.is_set():
+                if ended():
                     break
                 r = run_pass(p)
                 out.append(r)

@@ -27,6 +27,7 @@ from collections.abc import Callable, Sequence
 from typing import Protocol
 
 from controller.alarms.watch import night_ended
+from controller.calibration.beams.policy import night_over
 from controller.calibration.campaign.field import Field, LampEnd
 from controller.calibration.campaign.lamp_change import LampChange, LampChangeError, LampChanger, Standby
 from controller.calibration.campaign.lights_out import lights_out_at_end, not_dark_message, require_dark
@@ -41,7 +42,7 @@ from controller.calibration.night.passes import (
     run_night,
 )
 from controller.calibration.night.planner import PlanItem, check_plan, plan_field
-from controller.calibration.night.summary import NightSummary
+from controller.calibration.night.summary import NightSummary, night_status
 from controller.calibration.records import NightRecord
 from controller.config import PlantConfig
 from controller.errors import HeliocalError
@@ -177,6 +178,7 @@ class PlannedNight:
         self.measured: set[str] = set()  # "<pass>/<heliostat>" measured tonight
         self.alone: set[str] = set()  # heliostats whose spot had to be measured alone tonight (K > 1)
         self.state: dict = {"pass": None, "lamp": None, "daytime_error_predicted_rms": None}
+        self.daylight: str | None = None  # why the night's time ended before its plan (night_over)
 
     # -- control from another thread (Ctrl-C's path, the console) -----------------------------------
     def request_stop(self) -> None:
@@ -218,13 +220,14 @@ class PlannedNight:
                 self.progress(f"{self.name}: {len(self.plan)} geometries planned for "
                               f"{len({i.heliostat_id for i in self.plan})} heliostats")
                 results += run_night(self.plan, self.name, self._run_pass, self.request_stop,
-                                     self._change_lamp, lamps_by_rate(f.cfg, f.models, f.time.computing))
+                                     self._change_lamp, lamps_by_rate(f.cfg, f.models, f.time.computing),
+                                     self._over)
         except LampChangeError as exc:
             return self._end(rec, results, first, "aborted", str(exc))
         except BaseException as exc:  # Ctrl-C, or whatever else stopped it: recorded, lights out
             self._end(rec, results, first, *_ended_by(exc), exc)
             raise
-        status, cause = _status(results, self._stopped.is_set())
+        status, cause = night_status(results, self._stopped.is_set(), self.daylight)
         return self._end(rec, results, first, status, cause)
 
     def _calibrate_new(self) -> tuple[list[str], list[CampaignResult]]:
@@ -261,6 +264,11 @@ class PlannedNight:
                 self.progress(f"{self.name}: {len(self.unmeasurable)} heliostat(s) with no measurable "
                               f"geometry tonight, e.g. {first['heliostat']}: {first['why']}")
         return plan
+
+    def _over(self) -> str | None:
+        """Why no further lamp is lit and no further pass starts (the sun is up: :func:`night_over`)."""
+        self.daylight = self.daylight or night_over(self.field.cfg, self.field.time.utc())
+        return self.daylight
 
     def _change_lamp(self, lamp: str, standbys: dict[str, Standby]) -> LampChange:
         self.state["lamp"] = lamp
@@ -377,17 +385,3 @@ class PlannedNight:
                         "planned": planned.get(hid, 0), "measured": measured.get(hid, 0),
                         "predicted_rms_mrad": predicted.get(hid), "unmeasurable": why.get(hid)})
         return out
-
-def _status(results: list[CampaignResult], stopped: bool) -> tuple[str, str | None]:
-    """The night's status from its campaigns': the first that did not run to its end decides."""
-    for r in results:
-        if r.status == "interrupted" or (stopped and r.status not in ("finished", "partial")):
-            return "interrupted", "stopped by the operator; rerun to resume"
-        if r.status == "aborted":
-            return "aborted", f"{r.name}: {r.cause}"
-    if stopped:
-        return "interrupted", "stopped by the operator; rerun to resume"
-    partial = [r for r in results if r.status == "partial"]
-    if partial:
-        return "partial", "; ".join(f"{r.name}: {r.cause}" for r in partial[:3])
-    return "finished", None

@@ -44,3 +44,21 @@ class NightSummary:
                 "cause": self.cause, "first_calibrated": self.first_calibrated, "passes": self.passes,
                 "lamp_changes": self.lamp_changes, "unmeasurable": self.unmeasurable,
                 "lights_out": self.lights_out, "flagged": self.flagged}
+
+
+def night_status(results: list, stopped: bool, daylight: str | None = None) -> tuple[str, str | None]:
+    """The night's status from its campaigns' (:class:`CampaignResult` s): the first that did not
+    run to its end decides; else ``partial`` when ``daylight`` (why the night's time ended:
+    :func:`controller.calibration.beams.policy.night_over`) left passes not started, or a pass
+    ended partial; else ``finished``."""
+    for r in results:
+        if r.status == "interrupted" or (stopped and r.status not in ("finished", "partial")):
+            return "interrupted", "stopped by the operator; rerun to resume"
+        if r.status == "aborted":
+            return "aborted", f"{r.name}: {r.cause}"
+    if stopped:
+        return "interrupted", "stopped by the operator; rerun to resume"
+    causes = [f"{r.name}: {r.cause}" for r in results if r.status == "partial"][:3]
+    if daylight:
+        causes.insert(0, f"{daylight}: the passes not started are planned again by the next night")
+    return ("partial", "; ".join(causes)) if causes else ("finished", None)
