@@ -43,7 +43,9 @@ where the beam hit first, the rods' true steps then and the heliostat's last rec
 ``measured_elsewhere``: measurements whose centroid lies more than 1 m from every true hit of
 their own heliostat's beam in the recent captures — a spot credited to another beam, or none
 (:meth:`controller.commands.sim.field.OnTarget.measured`); ``measured_elsewhere_examples`` the
-first ten, each with the heliostat whose beam hit nearest the centroid.
+first ten, each with the heliostat whose beam hit nearest the centroid. ``centroid_error_m``:
+how far the measurements' centroids lay from their own beam's true hit — ``measurements``,
+``p50``, ``p99``, ``p999``, ``max`` (m; :meth:`controller.commands.sim.field.OnTarget.centroid_errors`).
 ``controller_cpu_s``: CPU seconds of this process and its worker processes over steps 2-5 —
 the night's share includes the in-process simulated plant (its cameras and physics).
 ``night_user_cpu_s``, ``night_system_cpu_s``: the night's CPU split into user and kernel time, with
@@ -330,6 +332,7 @@ def main() -> None:
         "second_beam_captures": bad, "captures": captures, "second_beam_examples": examples,
         "second_beam_heliostats": watch.strays_by_heliostat(),
         "measured_elsewhere": len(watch.elsewhere), "measured_elsewhere_examples": watch.elsewhere[:10],
+        "centroid_error_m": watch.centroid_errors(),
         "runs_not_measured": failed, "night_status": r.summary.status, "night_cause": r.summary.cause,
         "plant_hours": r.plant_s / 3600.0, "plant_hours_whole_plan": whole_h,
         "nights_needed": math.ceil(whole_h / args.night_h - 1e-9),

@@ -136,6 +136,7 @@ class OnTarget(CampaignObserver):
         self.last_run: dict[str, dict] = {}  # each heliostat's last recorded run, in brief
         self.seen: dict[tuple[str, str], dict] = {}  # (stray heliostat, target): what is known of it
         self.elsewhere: list[dict] = []  # measurements not where their own beam hit (measured())
+        self.errors_m: list[float] = []  # each measurement: centroid to its own beam's nearest true hit
         self.cameras = cheap.cameras
         self._lock = threading.Lock()  # the targets' cameras capture in their own threads
         for tid, cam in cheap.cameras.items():
@@ -194,12 +195,26 @@ class OnTarget(CampaignObserver):
                         own = min(own, d)
                     elif d < nearest[0]:
                         nearest = (d, hid)
+        with self._lock:
+            if not math.isinf(own):
+                self.errors_m.append(own)
         if own > ELSEWHERE_M:
             with self._lock:
                 self.elsewhere.append({
                     "heliostat": heliostat_id, "plant_s": round(float(measurement.plant_time_s), 1),
                     "own_hit_m": None if math.isinf(own) else round(own, 3), "nearest": nearest[1],
                     "nearest_hit_m": None if math.isinf(nearest[0]) else round(nearest[0], 3)})
+
+    def centroid_errors(self) -> dict:
+        """How far each measurement's centroid lay from its own beam's nearest true hit (m, the
+        plant's truth; :meth:`measured`): the number of measurements with their beam in view,
+        the median, 99th and 99.9th percentiles and the largest (None without any)."""
+        with self._lock:
+            e = sorted(self.errors_m)
+        if not e:
+            return {"measurements": 0, "p50": None, "p99": None, "p999": None, "max": None}
+        at = lambda q: round(e[min(len(e) - 1, int(q * len(e)))], 4)  # noqa: E731
+        return {"measurements": len(e), "p50": at(0.5), "p99": at(0.99), "p999": at(0.999), "max": round(e[-1], 4)}
 
     def run_recorded(self, campaign_id: int, run) -> None:
         self.last_run[run.heliostat_id] = {
