@@ -214,7 +214,8 @@ class OnTarget(CampaignObserver):
         if not e:
             return {"measurements": 0, "p50": None, "p99": None, "p999": None, "max": None}
         at = lambda q: round(e[min(len(e) - 1, int(q * len(e)))], 4)  # noqa: E731
-        return {"measurements": len(e), "p50": at(0.5), "p99": at(0.99), "p999": at(0.999), "max": round(e[-1], 4)}
+        return {"measurements": len(e), "p50": at(0.5), "p99": at(0.99), "p999": at(0.999),
+                "max": round(e[-1], 4)}
 
     def run_recorded(self, campaign_id: int, run) -> None:
         self.last_run[run.heliostat_id] = {
