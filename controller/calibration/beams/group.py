@@ -11,10 +11,10 @@ meet at a *round* (:meth:`SharedCapture.capture`, called by each one's cycle in 
    as the approach ended, so backlash stays taken up), settles, and a second capture (frame 2)
    is taken once all have;
 3. each slot's window must hold a spot in both frames, and the slot's cell (slots.py, Eq. 2)
-   must have moved by its own heliostat's predicted displacement
-   (:func:`controller.imaging.spots.window_shifts`,
-   :func:`controller.imaging.spots.confirm_by_step`). Its measurement is frame 1 with
-   everything outside its cell replaced by the background, at the pose of frame 1;
+   must have moved by its own heliostat's predicted displacement (:func:`spots.window_shifts`,
+   :func:`spots.confirm_by_step`). Its measurement is frame 1 at the pose of frame 1: its
+   shape with everything outside its cell flattened, its centroid its cell's weighed energy
+   (:class:`spots.Isolated`);
 4. a heliostat whose spot is missing or ambiguous (every one, if a spot of the round is missing
    in frame 1), or reaches so far towards another slot that isolating it would cut it (its
    window's centroid moves more than ``SPILL_M`` without its border band there, ``spills``), is
@@ -45,12 +45,10 @@ from controller.errors import HeliocalError
 from controller.imaging import spots
 
 # A spot whose window's energy centroid moves more than this when the window loses its border
-# band on the sides facing another slot (:func:`controller.imaging.spots.spills`) reaches so
-# far towards another spot that isolating it could bias its centroid by as much — ≈ 1 mrad at
-# 100 m, the size of the errors a night measures: it is measured alone. Only what the
-# measurement's centroid weighs counts (above its threshold); smaller spills (a streaked spot's
-# tail) are kept: measuring them alone cost a quarter of the shared captures' gain without a
-# better daytime error (docs/campaigns.md).
+# band on the sides facing another slot (:func:`controller.imaging.spots.spills`) reaches so far
+# towards another spot that isolating it could bias its centroid by as much (≈ 1 mrad at 100 m):
+# it is measured alone. Only what the centroid weighs counts; smaller spills (a streaked spot's
+# tail) are kept: measuring them alone cost a quarter of the rounds' gain (docs/campaigns.md).
 SPILL_M = 0.1
 # The energy a cell's measurement weighs must move with its heliostat's step: a spot cut by its
 # cell moves less than the step, not across it (≤ 0.04 m of a 0.3 m step on the simulated plant's
@@ -73,6 +71,7 @@ class _Round:
     level: float | None = None  # frame 1's background b (imaging.spots.Excess)
     windows: list[tuple[int, int, int, int]] | None = None  # where each spot is looked for
     cells: list[tuple[int, int, int, int]] | None = None  # where each is measured (slots.py, Eq. 2)
+    centres: list[np.ndarray] | None = None  # each cell's weighed energy centroid, px, in frames 1 and 2
 
 
 def slot_parks(pointing, slot: int, k: int, frame, current: tuple[int, int] | None,
@@ -100,10 +99,9 @@ def slot_parks(pointing, slot: int, k: int, frame, current: tuple[int, int] | No
 class SharedCapture:
     """The rounds of one target's campaign (module docstring). ``capture()`` takes one frame
     pair from the target's camera (serialised by the campaign), ``merge`` makes its HDR image,
-    ``frame`` maps pixels to the target (:class:`controller.geometry.target_frame.TargetFrame`),
-    ``layout`` the slots (:class:`controller.calibration.beams.slots.SlotLayout`); ``step_settle_s``:
-    the settling time after the identity step (``calibration.identity_settle_s``); ``floor``:
-    the measurement's centroid threshold (``calibration.centroid_threshold``, :data:`SPILL_M`)."""
+    ``frame`` maps pixels to the target (a ``TargetFrame``), ``layout`` the slots (``SlotLayout``);
+    ``step_settle_s``: the settling after the identity step (``calibration.identity_settle_s``);
+    ``floor``: the centroid threshold (``calibration.centroid_threshold``, :data:`SPILL_M`)."""
 
     def __init__(self, gate, capture, merge, frame, layout, step_settle_s: float, floor: float) -> None:
         self.gate = gate
@@ -288,8 +286,9 @@ class SharedCapture:
             self._leave(rnd, ticket)
         if label is not None:
             cyc.az, cyc.el = pose  # the measurement is frame 1's, at frame 1's pose
-            cell = rnd.cells[label]
-            return rnd.frame1, partial(spots.isolate, windows=rnd.windows, cell=cell, level=rnd.level)
+            x, y = rnd.centres[0][label]  # measured where its cell's energy lies (spots.Isolated)
+            return rnd.frame1, spots.Isolated(rnd.windows, rnd.cells[label], rnd.level, (x, y),
+                                              tuple(self.frame.pixel_to_enu(x, y)))
         if rnd.stays == ticket:
             return self._alone_here(cyc, pose), None
         cyc.az, cyc.el = pose
@@ -336,7 +335,8 @@ class SharedCapture:
                 steps = np.array([rnd.members[t][1] for t in tickets])
                 facing, floor = [self._facing(t) for t in tickets], self.floor
                 spill = spots.spills(hdr[0], win, facing, floor) * self._pixel_m()
-                weighed = [self._uvs(spots.cell_centroids(h, rnd.cells, win, floor)) for h in hdr]
+                rnd.centres = [spots.cell_centroids(h, rnd.cells, win, floor) for h in hdr]
+                weighed = [self._uvs(c) for c in rnd.centres]
                 across = spots.moved_across(*weighed, steps)
                 # A spot missing from its window in frame 1 is elsewhere, maybe in another's cell.
                 whole = bool(np.isfinite(here).all())

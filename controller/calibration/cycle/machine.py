@@ -114,8 +114,7 @@ class CalibrationCycle:
         self.beam_on_target = self.holds_target = self.measured = False
         self.status = "running"
         self.cause = self.fault_state = None  # str | None
-        self.frame = self.hdr = None  # the frame pair, its HDR image
-        self.isolate = None  # HDR -> the HDR with only this heliostat's spot (several beams)
+        self.frame = self.hdr = self.isolate = None  # the frame pair, its HDR image, its own spot (K > 1)
         self.obs: Observation | None = None
         self.match: Match | None = None
         self.coarse_done = False
@@ -280,9 +279,10 @@ class CalibrationCycle:
         return "merged"
 
     def do_analysing(self) -> str:
-        hdr = self.hdr if self.isolate is None else self.isolate(self.hdr)  # its own spot only
+        iso = self.isolate  # several beams: its own spot only, centred where its cell's energy lies
         try:
-            self.obs = self.ctx.analyze(hdr)  # raises BeamNotFound with the reason
+            self.obs = self.ctx.analyze(self.hdr if iso is None else iso(self.hdr))  # BeamNotFound: why
+            self.obs = self.obs if iso is None else iso.measured(self.obs)
         except BeamNotFound as exc:
             if self.search is None or self.search.record.found:
                 raise

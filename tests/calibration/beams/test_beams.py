@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 import sys
 import threading
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -26,14 +27,28 @@ from controller.calibration.beams.slots import (
     target_frame,
 )
 from controller.calibration.cycle.gate import TargetGate
+from controller.calibration.cycle.observations import Observation
 from controller.calibration.night.passes import Pass, lamps_by_rate
 from controller.config import load_config
 from controller.errors import ConfigError, InputError
 from controller.geometry.target_frame import TargetFrame
-from controller.imaging.spots import confirm_by_step, isolate, spills, window_shifts, window_spots
+from controller.imaging.background import subtract_background
+from controller.imaging.beam import analyze
+from controller.imaging.centroid import energy_centroid
+from controller.imaging.spots import (
+    Isolated,
+    cell_centroids,
+    confirm_by_step,
+    excess,
+    isolate,
+    spills,
+    window_shifts,
+    window_spots,
+)
 from simplant.far_lamps import far_lamp_config
 from tests.calibration.conftest import calibrated_record
 
+ROOT = Path(__file__).resolve().parents[3]
 NIGHT = "2026-03-01T22:00:00+00:00"
 NOON = "2026-03-01T12:00:00+00:00"
 
@@ -258,6 +273,34 @@ def test_each_window_finds_its_own_spot_and_isolation_keeps_only_one():
     one = isolate(img, WINDOWS, WINDOWS[1])
     left = window_spots(one, WINDOWS)
     assert np.all(np.isnan(left[0])) and np.allclose(left[1], (120.0, 40.0), atol=0.2)
+
+
+def test_a_rounds_spots_are_measured_where_their_cells_energy_lies_not_where_the_flattened_view_puts_them(
+        small_config):
+    """Frame 1 of a round on the 10,000-heliostat simulated field (tests/data/beams): small
+    spots (σ ≈ 1.5 px) over an 8-bit ambient. The flattened image's analysis fits its
+    background to the fill (the spot-free pixels between windows, raised by the spots' tails)
+    and puts one centroid a pixel (0.42 m) from its true hit; the cell's weighed energy
+    (``spots.Isolated``, what a round's measurement now takes) is within 0.1 px of every one."""
+    d = np.load(ROOT / "tests" / "data" / "beams" / "round_of_four.npz")
+    hdr, truth = d["hdr"].astype(float), d["truth_px"]
+    wins, cells = [tuple(map(int, w)) for w in d["windows"]], [tuple(map(int, c)) for c in d["cells"]]
+    cal = load_config(small_config).calibration
+    ex = excess(hdr, wins)
+    centres = cell_centroids(ex, cells, wins, cal.centroid_threshold)
+    flat, cell = [], []
+    for k, c in enumerate(cells):
+        spot = Isolated(wins, c, ex.b, tuple(centres[k]), (float(k), 0.0, 0.0))
+        img = spot(hdr)
+        assert np.array_equal(img, isolate(hdr, wins, c, ex.b))  # the shape: the flattened image
+        r = analyze(img, threshold=cal.threshold, background="auto", centroid="segment")
+        e = energy_centroid(subtract_background(img, r.background), cal.centroid_threshold)
+        obs = spot.measured(Observation((e.x, e.y), (0.0, 0.0, 0.0), np.zeros(7), 1.0))
+        flat.append(np.hypot(e.x - truth[k][0], e.y - truth[k][1]))
+        cell.append(np.hypot(obs.centroid_px[0] - truth[k][0], obs.centroid_px[1] - truth[k][1]))
+        assert obs.centroid_enu == (float(k), 0.0, 0.0)
+    assert max(flat) > 1.0  # the defect, as recorded
+    assert max(cell) < 0.1, cell
 
 
 def test_a_window_registers_its_spots_shift_even_when_the_spot_is_larger_than_the_window():
