@@ -124,6 +124,7 @@ def run_night(plan: list[PlanItem], night: str, run_pass: Callable[[Pass], Campa
     halted = threading.Event()
     passes = night_passes(plan, night)
     lamps = list(dict.fromkeys(p.lamp for p in passes))
+
     def ended() -> bool:
         if not halted.is_set() and over is not None and over() is not None:
             halted.set()

@@ -198,8 +198,7 @@ class OnTarget(CampaignObserver):
         with self._lock:
             if not math.isinf(own):
                 self.errors_m.append(own)
-        if own > ELSEWHERE_M:
-            with self._lock:
+            if own > ELSEWHERE_M:
                 self.elsewhere.append({
                     "heliostat": heliostat_id, "plant_s": round(float(measurement.plant_time_s), 1),
                     "own_hit_m": None if math.isinf(own) else round(own, 3), "nearest": nearest[1],
