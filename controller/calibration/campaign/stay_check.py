@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from controller.calibration.cycle.model_update import unexplained_sigma_m
 from controller.calibration.cycle.pointing import PARK_MARGIN_M, model_covariance
 from controller.calibration.records import ModelRecord
 from controller.config import PlantConfig
@@ -98,9 +99,12 @@ def _stay_margin(cfg: PlantConfig, ids: list[str], hs: list, kin: KinStack,
     aim = np.broadcast_to(np.asarray(cfg.target().center_enu_m, float), (len(ids), 1, 3))
     _, ok = aim_steps(kin.shaped(2), values[:, None, :], aim, lamp=lamp_pos)
     # GeometryPointing.park_clearance_m for each heliostat
+    unexplained = np.array([unexplained_sigma_m(models[i], settings.noise_mrad,
+                                                frame.center - h.position_enu_m)
+                            for i, h in zip(ids, hs, strict=True)])
     clearance = park_clearances_m(kin, MirrorOptics.stack([h.mirror for h in hs]), values, covs, frame,
                                   PARK_MARGIN_M, lamp=lamp_pos, lamp_diameter_m=lamp_diameter_m,
-                                  floor_rad=2e-3 * settings.noise_mrad)
+                                  floor_rad=2e-3 * settings.noise_mrad, position_floor_m=unexplained)
     offset = np.maximum(cfg.calibration.standby_offset_m, clearance)
     half = max(max(t.width_m, t.height_m) for t in cfg.targets) / 2
     return np.where(ok[:, 0], np.maximum(2.0, offset - half), np.nan)

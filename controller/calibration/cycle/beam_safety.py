@@ -20,6 +20,7 @@ from controller.errors import HeliocalError
 from controller.geometry.kinematics import HeliostatKinematics
 from controller.geometry.model.tracking import TrackingModel
 from controller.geometry.pose_batch import normal_and_center
+from controller.geometry.spot import hit_uv
 from controller.geometry.target_frame import TargetFrame
 from controller.geometry.zones import rays_enter_any, zone_boxes, zone_entered
 
@@ -78,15 +79,23 @@ class BeamSafety:
     def _with_model(self, key: tuple) -> tuple:
         return (*key, self.ray_model.tobytes())
 
-    def rays(self, poses) -> tuple[np.ndarray, np.ndarray]:
-        """Mirror centres and unit reflected beams (N, 3) at ``poses`` (N, 2) motor steps. A
+    def rays(self, poses, values=None) -> tuple[np.ndarray, np.ndarray]:
+        """Mirror centres and unit reflected beams (N, 3) at ``poses`` (N, 2) motor steps, traced
+        with the ray model (or the model terms ``values``: :class:`TrackingModel`'s). A
         lamp's light comes from the lamp to each pose's mirror centre, as the poses were solved
         (:func:`controller.geometry.model.tracking.model_aim`): the centre moves with the pose
         and the model's position terms, and a lamp tens of metres away sees that parallax
         (before 2026-11-30 the ray took the direction from the heliostat's nominal position, and
         a standby solved to land just outside a path's margin was traced inside it; issue 42)."""
-        n, c = normal_and_center(self.kin, self.ray_model, np.asarray(poses, float).reshape(-1, 2))
+        n, c = normal_and_center(self.kin, self.ray_model if values is None else values,
+                                 np.asarray(poses, float).reshape(-1, 2))
         return c, self.reflected(n, c)
+
+    def plane_uv(self, poses, values=None) -> np.ndarray:
+        """(u, v) m from the view's centre where the beams at ``poses`` (:meth:`rays`) meet the
+        target's plane (N, 2); NaN where one does not."""
+        f = self.frame
+        return hit_uv(*self.rays(poses, values), f.center, f.normal, f.u, f.v)
 
     def reflected(self, n: np.ndarray, c: np.ndarray) -> np.ndarray:
         """Unit reflected beams (N, 3) of mirrors with unit normals ``n`` at centres ``c`` (N, 3,

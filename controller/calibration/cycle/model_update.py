@@ -5,6 +5,7 @@ to night as a random walk (:mod:`controller.geometry.model.drift`)."""
 from __future__ import annotations
 
 import functools
+import math
 from datetime import datetime
 
 import numpy as np
@@ -62,6 +63,18 @@ def model_prior(settings: ModelSettings, source: str = "") -> FieldPrior:
 @functools.lru_cache(maxsize=8)
 def _field_prior(path: str) -> FieldPrior:
     return read_prior(path)
+
+
+def unexplained_sigma_m(model: ModelRecord | None, noise_mrad: float, throw_m) -> float:
+    """1-σ (m) of a beam's position that ``model``'s covariance does not hold, ``throw_m`` (m, a
+    distance or the vector from the heliostat) away: its fit's residual RMS r beyond the stated
+    noise n (effects the model lacks, or a measurement it could not follow), doubled by the
+    reflection: 2·10⁻³ √max(0, r² − n²) · throw. A fit within its noise (nearly every one) adds
+    nothing; 0 without a model or a residual."""
+    r = None if model is None else model.residual_mrad
+    if r is None or not math.isfinite(r):
+        return 0.0
+    return 2e-3 * math.sqrt(max(0.0, r * r - noise_mrad * noise_mrad)) * float(np.linalg.norm(throw_m))
 
 
 NIGHT_GAP_S = 6 * 3600.0  # measurements further apart than this were taken on different nights

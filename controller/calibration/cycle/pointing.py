@@ -11,7 +11,7 @@ import math
 import numpy as np
 
 from controller.calibration.cycle.beam_safety import BeamSafety, UnsafePath
-from controller.calibration.cycle.model_update import fit_measurements, model_prior
+from controller.calibration.cycle.model_update import fit_measurements, model_prior, unexplained_sigma_m
 from controller.calibration.cycle.observations import Step
 from controller.calibration.cycle.solved import Solved, source_key
 from controller.calibration.records import MeasurementRecord, ModelRecord
@@ -96,8 +96,7 @@ class GeometryPointing(BeamSafety):
 
     @property
     def standby_point(self) -> np.ndarray:
-        """The standby point (m ENU), chosen when first asked for: a lamp change asks only
-        whether a heliostat may stay where it is, which needs no standby point."""
+        """The standby point (m ENU), chosen when first asked for (a lamp change may need none)."""
         if self._standby_point is None:
             self._standby_point = self._choose_standby()
         return self._standby_point
@@ -150,27 +149,21 @@ class GeometryPointing(BeamSafety):
     def _beam_side(self, steps: tuple[int, int]) -> float:
         """+1 or −1: the side (along the view's u axis) of the target where the ray at ``steps``
         lands beside it; 0 when it lands on it (grown by its margin) or misses its plane."""
-        c, b = self.rays([steps])
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t = float((self.frame.center - c[0]) @ self.frame.normal) / float(b[0] @ self.frame.normal)
-        if not np.isfinite(t) or t < 0:
-            return 0.0
-        u = float((c[0] + t * b[0] - self.frame.center) @ self.frame.u)
+        u = float(self.plane_uv([steps])[0, 0])  # NaN (no hit): 0
         return float(np.sign(u)) if abs(u) > self.target.width_m / 2 + 2.0 else 0.0
 
     def park_clearance_m(self, source, model: ModelRecord | None) -> float:
-        """The least distance (m) from the target centre, along the view's width, at which the
-        spot of this heliostat stays :data:`PARK_MARGIN_M` outside the camera's view at 3σ: the
-        view's half-width plus 3σ of the spot's size and of its position (:meth:`spot_sigmas_m`)
-        where it is parked, beside the view on either side (the parked beam is longer and more
-        oblique than the aimed one: :func:`controller.geometry.spot.park_clearance_m`). It does
-        not depend on the aim point: one per heliostat, model, source and view."""
+        """The least distance (m) from the target centre, along the view's width, at which this
+        heliostat's spot stays :data:`PARK_MARGIN_M` outside the camera's view at 3σ of its size and
+        position (:meth:`spot_sigmas_m`, at least its model's unexplained σ: :func:`unexplained_sigma_m`)
+        where it is parked beside the view on either side (:func:`controller.geometry.spot.park_clearance_m`):
+        one per heliostat, model, source and view, whatever the aim point."""
         key = self._clearance_key(source, model)
         return _CLEARANCES.get(key, (self.heliostat, self.model_settings),
                                lambda: float(clearances([(self, source, model)])[0]))
 
     def _clearance_key(self, source, model: ModelRecord | None) -> tuple:
-        f, terms = self.frame, None if model is None else tuple(model.params.items())
+        f, terms = self.frame, None if model is None else (tuple(model.params.items()), model.residual_mrad)
         return (id(self.heliostat), id(self.model_settings), terms, source_key(source), f.center.tobytes(),
                 f.u.tobytes(), f.width_m, self.first_light_sigma_m() if model is None else 0.0)
 
@@ -325,16 +318,22 @@ class GeometryPointing(BeamSafety):
                              f"person zone {zone!r}")
         return standby
 
-    def leave_steps(self, model: ModelRecord | None) -> tuple[int, int]:
+    def leave_steps(self, model: ModelRecord | None, seen=None) -> tuple[int, int]:
         """Steps onto the standby point on the side of the target nearest the aim point
         (:meth:`side_points`): the standby point itself when the aim is on the target's centre
-        line. LimitError, ValueError or UnsafePath (a person zone) when it cannot be reached
-        safely."""
-        off = float((self.aim_point - self.frame.center) @ self.frame.u)
-        if off == 0.0:
-            return self.standby_steps(model)
-        near = [p for p in self.side_points() if float((p - self.frame.center) @ self.frame.u) * off > 0]
-        return self.standby_steps(model, near[0])
+        line. ``seen`` (pose, centroid m ENU): the run's last measurement. Where ``model`` puts
+        that pose's beam and where it was seen lie d apart (a fit that could not reconcile its
+        measurements, or a centroid off): the point lies d farther out, so that the spot parks
+        clear of the view whichever was right. LimitError, ValueError or UnsafePath (a person
+        zone) when it cannot be reached safely."""
+        f, off = self.frame, float((self.aim_point - self.frame.center) @ self.frame.u)
+        point = self.standby_point if off == 0.0 else \
+            [p for p in self.side_points() if float((p - f.center) @ f.u) * off > 0][0]
+        if seen is not None and seen[1] is not None and model is not None:
+            hit = self.plane_uv([seen[0]], TrackingModel.from_dict(model.params).values)[0]
+            d = float(np.hypot(*(hit - [(np.asarray(seen[1], float) - f.center) @ a for a in (f.u, f.v)])))
+            point = point + (d if np.isfinite(d) else 0.0) * np.sign(float((point - f.center) @ f.u)) * f.u
+        return self.standby_steps(model, point)
 
     def fine_correction(self, az_steps: int, el_steps: int, offset_enu: np.ndarray) -> Step:
         c = correction_from_offset(self.kin, az_steps, el_steps, self.source_dir, None, self.target,
@@ -393,7 +392,8 @@ def clearances(items: list[tuple[GeometryPointing, object, ModelRecord | None]])
     pairs = [model_covariance(m, p.model_settings) for p, _, m in items]
     values = np.array([tm.values for tm, _ in pairs])
     covs = np.array([cov for _, cov in pairs])
-    first = np.array([p.first_light_sigma_m() if m is None else 0.0 for p, _, m in items])
+    first = np.array([p.first_light_sigma_m() if m is None else unexplained_sigma_m(
+        m, p.model_settings.noise_mrad, p.frame.center - p.heliostat_pos) for p, _, m in items])
     kin = KinStack.of([p.kin for p, _, _ in items])
     optics = MirrorOptics.stack([p.heliostat.mirror for p, _, _ in items])
     return park_clearances_m(kin, optics, values, covs, p0.frame, PARK_MARGIN_M, position_floor_m=first,

@@ -278,13 +278,47 @@ def test_a_round_member_parks_with_the_model_refitted_on_its_measurement(cfg):
                          aim_point=aim, model=old)
     at = p.aim_steps(old)
 
-    def cycle(refit):
+    def cycle(refit, measurements=()):
         return SimpleNamespace(ctx=SimpleNamespace(pointing=p, model=old), at=at,
-                               standby=p.standby_steps(old), run_rec=SimpleNamespace(model=refit))
+                               standby=p.standby_steps(old),
+                               run_rec=SimpleNamespace(model=refit, measurements=list(measurements)))
 
     assert p.leave_steps(new) != p.leave_steps(old)
     assert SharedCapture.leave_pose(None, cycle(new)) == p.leave_steps(new)
     assert SharedCapture.leave_pose(None, cycle(None)) == p.leave_steps(old)
+    seen = SimpleNamespace(az_steps=at[0], el_steps=at[1], centroid_enu=tuple(p.aim_point + 0.4 * frame.v))
+    assert SharedCapture.leave_pose(None, cycle(new, [seen])) == p.leave_steps(new, (at, seen.centroid_enu))
+
+
+@pytest.mark.parametrize("side", [1.0, -1.0])
+def test_a_beam_seen_away_from_where_its_model_puts_it_parks_that_much_farther_out(cfg, side):
+    """The park after a measurement lies as much farther from the view as the measured centroid
+    lay from where the refitted model puts that pose's beam (a model that could not follow its
+    measurements, or a centroid off: either way the parked spot clears the view); a centroid where
+    the model puts the beam leaves the park where it was."""
+    from controller.geometry.model.tracking import TrackingModel
+    from tests.calibration.conftest import calibrated_record
+
+    frame = TargetFrame.from_config(cfg.target(), (768, 1024))
+    model = calibrated_record(cfg, "H04")
+    p = GeometryPointing(cfg.heliostat("H04"), cfg.target(), cfg.light_source(), frame, 8.0, None,
+                         aim_point=np.asarray(cfg.target().center_enu_m, float) + side * 2.0 * frame.u,
+                         model=model)
+    pose = p.aim_steps(model)
+    values = TrackingModel.from_dict(model.params).values
+    u0, v0 = p.plane_uv([pose], values)[0]
+    assert abs(u0 - side * 2.0) < 0.01 and abs(v0) < 0.01  # the model puts the beam on its aim
+
+    def parked_u(seen_uv) -> float:
+        centroid = frame.center + seen_uv[0] * frame.u + seen_uv[1] * frame.v
+        return float(p.plane_uv([p.leave_steps(model, (pose, centroid))], values)[0, 0])
+
+    base = float(p.plane_uv([p.leave_steps(model)], values)[0, 0])
+    assert np.sign(base) == side and abs(base) > frame.width_m / 2
+    assert parked_u((u0, v0)) == pytest.approx(base, abs=0.01)
+    for du, dv in ((0.3, 0.4), (-0.6, 0.8), (0.0, -1.5)):  # d = 0.5, 1.0, 1.5 m, towards either side
+        d = float(np.hypot(du, dv))
+        assert parked_u((u0 + du, v0 + dv)) == pytest.approx(base + side * d, abs=0.02)
 
 
 def test_aim_and_standby_steps_are_traced_once_per_model_and_ray_model(cfg, monkeypatch):
@@ -379,3 +413,35 @@ def test_slews_traced_together_are_the_slews_traced_one_at_a_time(wide):
             assert together.path_to(s, standby) == want
             kinds.add("direct" if want == [standby] else "detour" if want else "there")
     assert {"direct", "there"} <= kinds and kinds & {"detour", "refused"}
+
+
+def test_a_model_that_could_not_follow_its_measurements_parks_farther_out(cfg):
+    """A fit whose residual exceeds the stated noise holds effects its covariance does not (a
+    measurement it could not follow, or a term it lacks): its park allows 3σ of that unexplained
+    residual, doubled by the reflection, at the park's range; a fit within its noise parks where
+    its covariance alone puts it."""
+    from controller.calibration.cycle.model_update import unexplained_sigma_m
+    from controller.geometry.model.tracking import TERMS
+    from tests.calibration.conftest import calibrated_record
+
+    frame = TargetFrame.from_config(cfg.target(), (768, 1024))
+    base = calibrated_record(cfg, "H04")
+    tight = {"covariance_si": (1e-14 * np.eye(len(TERMS))).tolist()}  # the position known to µrad
+
+    def clearance(residual_mrad):
+        model = ModelRecord(base.params, {}, residual_mrad, 6, tight)
+        p = GeometryPointing(cfg.heliostat("H04"), cfg.target(), cfg.light_source(), frame, 8.0, None,
+                             cfg.calibration.model, model=model)
+        return p.park_clearance_m(p.source, model), p
+
+    noise = cfg.calibration.model.noise_mrad
+    within, _ = clearance(noise)
+    assert clearance(0.5 * noise)[0] == within
+    for r in (1.0, 3.0):
+        c, p = clearance(r)
+        throw = float(np.linalg.norm(frame.center - p.heliostat_pos))
+        floor = unexplained_sigma_m(p.model, noise, frame.center - p.heliostat_pos)
+        assert floor == pytest.approx(2e-3 * np.sqrt(r * r - noise * noise) * throw)
+        # It replaces the covariance's 4σ position (here the stated noise's alone, at the park's
+        # slightly longer throw) at 3σ: what it adds is 3 floor less that.
+        assert 3.0 * floor - 4.0 * 1.2 * 2e-3 * noise * throw < c - within <= 3.0 * floor
