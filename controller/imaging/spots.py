@@ -47,6 +47,8 @@ from typing import NamedTuple
 import cv2
 import numpy as np
 
+from controller.imaging.centroid import SPECK_SIGMAS, significant
+
 SMOOTH_PX = 2.0
 SNR = 8.0
 FLOOR = 0.05
@@ -113,7 +115,7 @@ def window_spots(hdr, windows) -> np.ndarray:
         peak = float(w.max())
         if peak <= SNR * noise:
             continue
-        keep = w > max(FLOOR * peak, 3.0 * noise)
+        keep = significant(w, w > max(FLOOR * peak, 3.0 * noise), SPECK_SIGMAS * noise)
         c = _centroid(np.where(keep, np.clip(s, 0.0, None), 0.0))
         if c is not None:
             out[k] = (c0 + c[0], r0 + c[1])
@@ -163,8 +165,12 @@ def cell_centroids(hdr, cells, windows, floor: float = 0.0) -> np.ndarray:
 
 def _weighed(region: np.ndarray, noise: float, floor: float) -> np.ndarray:
     """``region`` of the smoothed excess where it is above 3 σ_b and ``floor`` times its peak
-    (a measurement's centroid threshold), 0 elsewhere."""
-    return np.where(region > max(3.0 * noise, floor * float(region.max(initial=0.0))), region, 0.0)
+    (a measurement's centroid threshold) in parts that rise :data:`SPECK_SIGMAS` σ_b above the
+    background (:func:`controller.imaging.centroid.significant`: not noise specks), 0 elsewhere."""
+    if region.size == 0:
+        return region
+    mask = region > max(3.0 * noise, floor * float(region.max(initial=0.0)))
+    return np.where(significant(region, mask, SPECK_SIGMAS * noise), region, 0.0)
 
 
 def _centroid(e: np.ndarray) -> np.ndarray | None:

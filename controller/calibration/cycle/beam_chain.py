@@ -12,7 +12,7 @@ from controller.errors import InputError, NoBeamError
 from controller.geometry.target_frame import TargetFrame
 from controller.imaging.background import subtract_background
 from controller.imaging.beam import analyze
-from controller.imaging.centroid import energy_centroid
+from controller.imaging.centroid import SPECK_SIGMAS, energy_centroid
 from controller.imaging.clipped_spot import clipped_centre
 from controller.imaging.crf_io import load_crf
 from controller.imaging.hdr import HdrMerger
@@ -77,7 +77,7 @@ class BeamChain:
         # keeps for the shape. A detached or dim lobe (canting error) carries beam energy
         # and must pull the aim too (docs/campaigns.md).
         signal = subtract_background(hdr, r.background)
-        c = energy_centroid(signal, self.centroid_threshold)
+        c = energy_centroid(signal, self.centroid_threshold, min_sigmas=SPECK_SIGMAS)  # not noise specks
         noise = r.background.noise
         if not c.peak > MIN_PEAK_SNR * noise:
             raise BeamNotFound(f"no beam spot found (peak {c.peak:.4g} is within {MIN_PEAK_SNR:g}x the "
