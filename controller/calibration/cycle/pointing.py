@@ -27,8 +27,8 @@ from controller.geometry.spot import SIGMAS, MirrorOptics, park_clearances_m, pr
 from controller.geometry.target_frame import TargetFrame
 
 PARK_MARGIN_M = 0.5  # a parked spot's 3σ footprint ends at least this far outside the camera's view
-# Steps solved by GeometryPointing._steps: (heliostat config object, model terms, point, source)
-# -> steps. A 10,000-heliostat night asks for a few per heliostat and lamp.
+LEAVE_MIN_M = 0.01  # m: a leave point moves out by more only (less is noise; a moved point is solved anew)
+# GeometryPointing._steps: (heliostat config, model terms, point, source) -> steps (a few per heliostat, lamp)
 AIMS_KEPT = 200_000
 _AIMS = Solved(AIMS_KEPT)
 # GeometryPointing.park_clearance_m: (heliostat, settings, model terms, source, view) -> m.
@@ -332,7 +332,7 @@ class GeometryPointing(BeamSafety):
         if seen is not None and seen[1] is not None and model is not None:
             hit = self.plane_uv([seen[0]], TrackingModel.from_dict(model.params).values)[0]
             d = float(np.hypot(*(hit - [(np.asarray(seen[1], float) - f.center) @ a for a in (f.u, f.v)])))
-            point = point + (d if np.isfinite(d) else 0.0) * np.sign(float((point - f.center) @ f.u)) * f.u
+            point = point + (d if d > LEAVE_MIN_M else 0.0) * np.sign(float((point - f.center) @ f.u)) * f.u
         return self.standby_steps(model, point)
 
     def fine_correction(self, az_steps: int, el_steps: int, offset_enu: np.ndarray) -> Step:
