@@ -45,8 +45,7 @@ def test_features_are_set_and_read_back(fake_gv):
         assert (imager.feature("TriggerMode"), imager.feature("TriggerSource")) == ("On", "Software")
         assert imager.exposure_s() == pytest.approx(0.003)
         assert imager.gain() == pytest.approx(2.0)
-        imager.trigger()
-        frame = imager.next_frame(scaled_s(2.0))
+        frame = _complete_frame(imager)
         assert frame.image.shape == (48, 64) and frame.image.dtype == np.uint16
         assert frame.timestamp_ns > 0
     finally:

@@ -171,23 +171,6 @@ class SharedCapture:
         rank = self.layout.rank(self.gate.slot(cyc._ticket))  # its place in its tier
         return identity_step(cyc.ctx.pointing, (cyc.az, cyc.el), *rank, self.frame, self.layout.step_m)
 
-    def leave_pose(self, cyc) -> tuple[int, int]:
-        """Where ``cyc``'s heliostat parks after its measurement: the standby point on its slot's side
-        (:meth:`GeometryPointing.leave_steps`, with the model refitted on its last measurement, which
-        it is given), so that its beam leaves the target the short way and the slot goes on sooner
-        (:meth:`hand_over`) — if the slew there keeps the beam off the other targets and out of the
-        person zones (``BeamSafety.path_to``); else its standby, checked before it took the slot."""
-        p, last = cyc.ctx.pointing, cyc.run_rec.measurements[-1] if cyc.run_rec.measurements else None
-        if cyc.at is None:
-            return cyc.standby
-        try:
-            pose = p.leave_steps(cyc.run_rec.model or cyc.ctx.model,
-                                 last and ((last.az_steps, last.el_steps), last.centroid_enu))
-            p.path_to(cyc.at, pose)
-        except (HeliocalError, ValueError):
-            return cyc.standby
-        return pose
-
     def hand_over(self, cyc):
         """A drive watch for ``cyc``'s park after its measurement: its slot goes to the next heliostat
         (:meth:`TargetGate.vacate`) once its beam is off the target, margin included, read every polling

@@ -36,7 +36,7 @@ from controller.calibration.cycle.approach import approach_path
 from controller.calibration.cycle.coarse import correction_step
 from controller.calibration.cycle.context import CycleContext, CycleObserver
 from controller.calibration.cycle.observations import BeamNotFound, NoBeam, Observation
-from controller.calibration.cycle.park import STOWED_BESIDE, park, stay_or_stow
+from controller.calibration.cycle.park import STOWED_BESIDE, leave_pose, park, stay_or_stow
 from controller.calibration.cycle.search import cycle_search
 from controller.calibration.cycle.shared_machine import shared_machine
 from controller.calibration.records import CorrectionRecord, RunRecord, measurement_record
@@ -239,9 +239,9 @@ class CalibrationCycle:
     def do_standby(self) -> str:
         if self.measured or self.cause:
             if self.beam_on_target:
-                if self.ctx.group:  # several beams: off the target the short way (group.py)
+                if self.ctx.group or self.measured:  # the short way, with what it showed (park.py)
                     with self.ctx.time.computing():
-                        self.standby = self.ctx.group.leave_pose(self)
+                        self.standby = leave_pose(self)
                 self._park("standby", self.ctx.group and self.ctx.group.hand_over(self))
                 self.beam_on_target = False
                 self.run_rec.off_target_s = self.ctx.time.now()

@@ -13,6 +13,8 @@ from collections.abc import Callable
 from contextlib import AbstractContextManager, nullcontext
 from typing import Any, Protocol
 
+from controller.errors import HeliocalError
+
 
 class _Pointing(Protocol):
     def path_to(self, start: tuple[int, int], end: tuple[int, int]) -> list[tuple[int, int]]: ...
@@ -60,3 +62,22 @@ def stay_or_stow(drive: Any, pointing: _Pointing, timeout_s: float, time: Any) -
     drive.stow()
     drive.wait_in_position(timeout_s, time=time)
     return "stowed" if safe_where_it_stands(drive, pointing) else STOWED_BESIDE
+
+
+def leave_pose(cyc) -> tuple[int, int]:
+    """Where a calibration cycle ``cyc``'s heliostat parks after its measurement: the standby
+    point on the side nearest its aim (:meth:`GeometryPointing.leave_steps`, with the model
+    refitted on its last measurement, which it is given), so that its beam leaves the target the
+    short way and with what the measurement showed — if the slew there keeps the beam off the
+    other targets and out of the person zones (``BeamSafety.path_to``); else its standby."""
+    p = cyc.ctx.pointing
+    last = cyc.run_rec.measurements[-1] if cyc.run_rec.measurements else None
+    if cyc.at is None:
+        return cyc.standby
+    try:
+        pose = p.leave_steps(cyc.run_rec.model or cyc.ctx.model,
+                             last and ((last.az_steps, last.el_steps), last.centroid_enu))
+        p.path_to(cyc.at, pose)
+    except (HeliocalError, ValueError):
+        return cyc.standby
+    return pose

@@ -266,7 +266,7 @@ def test_a_round_member_parks_with_the_model_refitted_on_its_measurement(cfg):
     new model leaves with the old one."""
     from types import SimpleNamespace
 
-    from controller.calibration.beams.group import SharedCapture
+    from controller.calibration.cycle.park import leave_pose
     from tests.calibration.conftest import calibrated_record
 
     frame = TargetFrame.from_config(cfg.target(), (768, 1024))
@@ -284,10 +284,10 @@ def test_a_round_member_parks_with_the_model_refitted_on_its_measurement(cfg):
                                run_rec=SimpleNamespace(model=refit, measurements=list(measurements)))
 
     assert p.leave_steps(new) != p.leave_steps(old)
-    assert SharedCapture.leave_pose(None, cycle(new)) == p.leave_steps(new)
-    assert SharedCapture.leave_pose(None, cycle(None)) == p.leave_steps(old)
+    assert leave_pose(cycle(new)) == p.leave_steps(new)
+    assert leave_pose(cycle(None)) == p.leave_steps(old)
     seen = SimpleNamespace(az_steps=at[0], el_steps=at[1], centroid_enu=tuple(p.aim_point + 0.4 * frame.v))
-    assert SharedCapture.leave_pose(None, cycle(new, [seen])) == p.leave_steps(new, (at, seen.centroid_enu))
+    assert leave_pose(cycle(new, [seen])) == p.leave_steps(new, (at, seen.centroid_enu))
 
 
 @pytest.mark.parametrize("side", [1.0, -1.0])
