@@ -49,9 +49,7 @@ def energy_centroid(signal: np.ndarray, rel_threshold: float, smooth_sigma_px: f
     peak = float(smooth.max())
     above = smooth > rel_threshold * peak
     if min_sigmas > 0 and above.any() and not above.all():
-        rest = smooth[~above][::RATE]
-        level = float(np.median(rest))
-        sigma = 1.4826 * float(np.median(np.abs(rest - level)))
+        level, sigma = robust_level(smooth[~above][::RATE])
         above = significant(smooth, above, level + min_sigmas * sigma)
     clipped = tuple(name for name, e in (("top", above[0]), ("bottom", above[-1]), ("left", above[:, 0]),
                                          ("right", above[:, -1])) if e.any())
@@ -69,6 +67,13 @@ RATE = 4  # every RATE-th pixel outside the mask gives its level and σ: a megap
 # How far (σ of the smoothed background) a part of a centroid's mask must rise above the
 # background's level to weigh in: the cheap cameras' noise specks reach 6 σ (significant).
 SPECK_SIGMAS = 8.0
+
+
+def robust_level(values: np.ndarray) -> tuple[float, float]:
+    """(level, σ) of ``values`` robust to the few that are not background: the median and
+    1.4826 × the median absolute deviation (σ of a normal distribution)."""
+    level = float(np.median(values))
+    return level, 1.4826 * float(np.median(np.abs(values - level)))
 
 
 def significant(smooth: np.ndarray, mask: np.ndarray, floor: float) -> np.ndarray:

@@ -47,7 +47,7 @@ from typing import NamedTuple
 import cv2
 import numpy as np
 
-from controller.imaging.centroid import SPECK_SIGMAS, significant
+from controller.imaging.centroid import SPECK_SIGMAS, robust_level, significant
 
 SMOOTH_PX = 2.0
 SNR = 8.0
@@ -77,8 +77,8 @@ def _level(sm: np.ndarray, windows) -> tuple[float, float]:
     out = sm[_outside(sm.shape, windows)]
     if out.size == 0:
         out = sm.ravel()
-    b = float(np.median(out))
-    return b, max(1.4826 * float(np.median(np.abs(out - b))), 1e-9)
+    b, sigma = robust_level(out)
+    return b, max(sigma, 1e-9)
 
 
 class Excess(NamedTuple):
@@ -115,7 +115,7 @@ def window_spots(hdr, windows) -> np.ndarray:
         peak = float(w.max())
         if peak <= SNR * noise:
             continue
-        keep = significant(w, w > max(FLOOR * peak, 3.0 * noise), SPECK_SIGMAS * noise)
+        keep = _weighed(w, noise, FLOOR) > 0.0  # the centroid's mask, as a cell's measurement weighs it
         c = _centroid(np.where(keep, np.clip(s, 0.0, None), 0.0))
         if c is not None:
             out[k] = (c0 + c[0], r0 + c[1])
