@@ -46,8 +46,16 @@ their own heliostat's beam in the recent captures — a spot credited to another
 first ten, each with the heliostat whose beam hit nearest the centroid. ``centroid_error_m``:
 how far the measurements' centroids lay from their own beam's true hit — ``measurements``,
 ``p50``, ``p99``, ``p999``, ``max`` (m; :meth:`controller.commands.sim.field.OnTarget.centroid_errors`).
-``controller_cpu_s``: CPU seconds of this process and its worker processes over steps 2-5 —
-the night's share includes the in-process simulated plant (its cameras and physics).
+``controller_ms_per_measurement``, ``plant_ms_per_measurement``: the night's CPU (this process)
+per measurement without, and of, the simulated plant's share: its devices' work with the plant
+clock stopped (``PlantClock.frozen_cpu_s``: cameras, drive physics), its clock's machinery in
+the controller's threads (``PlantClock.clock_cpu_s``, reported as ``night_plant_clock_cpu_s``:
+sleeps woken to wait again as the simulated clock's rate changes; a plant's controller sleeps
+once per pause) and the benchmark's own truth watcher checking each measurement's centroid in
+the cycles' threads (:meth:`controller.commands.sim.field.OnTarget.measured`,
+``night_truth_watcher_cpu_s``). ``controller_cpu_s``: CPU seconds of this process and its worker
+processes over steps 2-5 — the night's share includes the in-process simulated plant (its cameras
+and physics).
 ``night_user_cpu_s``, ``night_system_cpu_s``: the night's CPU split into user and kernel time, with
 its ``night_context_switches`` (voluntary: a thread blocked — mostly on the GIL, handed to
 another thread at each release by numpy, OpenCV or SQLite — or waited; involuntary: preempted).
@@ -294,11 +302,16 @@ def main() -> None:
     items, sampled = sample_plan(plan.items, ids, args.sample, args.targets)
     watch = OnTarget(cheap, items)
     since = {tid: len(cam.beams_in_view) for tid, cam in cheap.cameras.items()}
-    cpu0, sim0, use0 = cpu_s(), clock.frozen_cpu_s, usage()
+    cpu0, sim0, tick0, use0 = cpu_s(), clock.frozen_cpu_s, clock.clock_cpu_s, usage()
+    watch0 = watch.cpu_s
     with GcMeter() as collector:
         r = run_planned_night(cheap, items, night, 3600.0 * args.night_h, heliostat_ids=ids,
                               unmeasurable=plan.unmeasurable, workers=args.workers, observers=[watch])
-    night_cpu, plant_cpu, night_use = cpu_s() - cpu0, clock.frozen_cpu_s - sim0, usage() - use0
+    # The simulated plant's CPU: its devices' (frozen blocks), its clock's machinery and the
+    # benchmark's truth watcher.
+    tick_cpu, watch_cpu = clock.clock_cpu_s - tick0, watch.cpu_s - watch0
+    night_cpu, night_use = cpu_s() - cpu0, usage() - use0
+    plant_cpu = clock.frozen_cpu_s - sim0 + tick_cpu + watch_cpu
     say(f"night: {len(r.measured)}/{r.planned} measured, {r.plant_s / 3600:.2f} plant h, "
         f"{r.wall_s:.0f} s wall, {night_cpu:.0f} s CPU ({plant_cpu:.0f} s of it the simulated plant's)")
     fit = refit_field(cfg, cheap.db_path, args.workers)
@@ -339,7 +352,9 @@ def main() -> None:
         "ended_by_night_budget": r.stopped_by_budget,
         "controller_ms_per_measurement": 1e3 * (night_cpu - plant_cpu) / max(1, measured),
         "plant_ms_per_measurement": 1e3 * plant_cpu / max(1, measured),
-        "night_cpu_s": night_cpu, "night_plant_cpu_s": plant_cpu, "night_wall_s": r.wall_s,
+        "night_cpu_s": night_cpu, "night_plant_cpu_s": plant_cpu, "night_plant_clock_cpu_s": tick_cpu,
+        "night_truth_watcher_cpu_s": watch_cpu,
+        "night_wall_s": r.wall_s,
         "night_gc": collector.to_json(),
         "night_user_cpu_s": night_use[0], "night_system_cpu_s": night_use[1],
         "night_context_switches": {"voluntary": int(night_use[2]), "involuntary": int(night_use[3])},

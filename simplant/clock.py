@@ -1,7 +1,9 @@
 """The plant clock: plant seconds run ``speedup`` times faster than wall time, and can stand
 still while the simulator works (rendering is the simulator's cost, not the plant's). The CPU
-time the simulator spends while the clock stands still is counted (:attr:`PlantClock.frozen_cpu_s`):
-a benchmark subtracts it to tell the controller's CPU from the simulated plant's."""
+time the simulator spends while the clock stands still is counted (:attr:`PlantClock.frozen_cpu_s`),
+and so is the CPU of the clock's own machinery in the threads that sleep on it or compute
+(:attr:`PlantClock.clock_cpu_s`): a benchmark subtracts both to tell the controller's CPU from
+the simulated plant's."""
 
 from __future__ import annotations
 
@@ -23,6 +25,12 @@ class PlantClock:
         self._realtime = 0
         self._local = threading.local()  # per thread: depth of frozen blocks, CPU time at the outermost
         self.frozen_cpu_s = 0.0  # CPU seconds spent inside frozen blocks, every thread
+        # CPU seconds of the clock's machinery outside frozen blocks: sleeps waking to wait
+        # again as the rate changes, and realtime()'s bookkeeping. A plant's controller sleeps
+        # once per pause and its computing() is nothing: on the simulated plant a night's pause
+        # is woken again whenever a thread stops computing (counted as the controller's before
+        # 2026-11-30; issue 42).
+        self.clock_cpu_s = 0.0
         self._faster = threading.Condition(self._lock)  # the clock may run faster (sleep)
         self._slow = 0  # sleeps timed at 1x or begun while still, waiting on _faster
 
@@ -63,16 +71,26 @@ class PlantClock:
     def realtime(self):
         """Inside the block plant time runs at 1x: the controller's own computing costs the
         plant what it would cost on site, whatever the speedup (nestable, any thread)."""
+        cpu0 = time.thread_time()
         with self._lock:
             self._rebase()
             self._realtime += 1
+            self._count_cpu(cpu0)
         try:
             yield
         finally:
+            cpu0 = time.thread_time()
             with self._lock:
                 self._rebase()
                 self._realtime -= 1
                 self._wake_slow()
+                self._count_cpu(cpu0)
+
+    def _count_cpu(self, cpu0: float) -> None:
+        """Add this thread's CPU since ``cpu0`` to :attr:`clock_cpu_s` (the caller holds the lock),
+        unless a frozen block of this thread counts it already."""
+        if not getattr(self._local, "depth", 0):
+            self.clock_cpu_s += time.thread_time() - cpu0
 
     def _wake_slow(self) -> None:
         """The clock runs fast again (nobody computes, the simulator does not work): sleeps timed
@@ -100,12 +118,16 @@ class PlantClock:
         2026-11-29 it slept ``plant_seconds / speedup`` of wall time: with a night's cycles
         computing in turn, a 0.1 s poll pause lasted about 0.01 plant s, and a drive's wait read
         its status 23 times on average where 3.4 do now; issue 42.)"""
+        cpu0 = time.thread_time()
         with self._lock:
             end = self._now() + max(0.0, plant_seconds)
-            while (left := end - self._now()) > 0:
-                slow = bool(self._realtime or self._frozen)  # timed at 1x: woken when that ends
-                self._slow += slow
-                try:
-                    self._faster.wait(left if slow else left / self.speedup)
-                finally:
-                    self._slow -= slow
+            try:
+                while (left := end - self._now()) > 0:
+                    slow = bool(self._realtime or self._frozen)  # timed at 1x: woken when that ends
+                    self._slow += slow
+                    try:
+                        self._faster.wait(left if slow else left / self.speedup)
+                    finally:
+                        self._slow -= slow
+            finally:
+                self._count_cpu(cpu0)

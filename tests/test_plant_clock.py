@@ -4,6 +4,7 @@ meanwhile (1x while the controller computes, still while the simulator works).""
 from __future__ import annotations
 
 import threading
+import time
 
 import pytest
 
@@ -95,3 +96,29 @@ def test_a_slow_sleep_is_woken_only_when_the_clock_runs_fast_again():
     computing.end()
     assert done.wait(scaled_s(3.0)), "the sleep was not woken when the clock sped up"
     assert len(wakes) == 1 and out["slept"] >= 20.0
+
+
+def busy(cpu_s: float) -> None:
+    """Spend ``cpu_s`` of this thread's CPU."""
+    t0 = time.thread_time()
+    while time.thread_time() - t0 < cpu_s:
+        pass
+
+
+def test_the_clocks_machinery_is_counted_and_not_the_work_inside_its_blocks():
+    """``clock_cpu_s`` counts what the clock itself costs a thread (a sleep, the bookkeeping of
+    a computing block), never the computing inside ``realtime`` nor the simulator's work inside
+    ``frozen`` (``frozen_cpu_s``), and a sleep inside a frozen block only once."""
+    clock = PlantClock(SPEEDUP)
+    with clock.realtime():
+        busy(0.05)
+    assert 0.0 < clock.clock_cpu_s < 0.01
+    with clock.frozen():
+        busy(0.05)
+        before = clock.clock_cpu_s
+        clock.sleep(0.0)
+        assert clock.clock_cpu_s == before  # frozen_cpu_s counts it
+    assert clock.frozen_cpu_s >= 0.05
+    before = clock.clock_cpu_s
+    clock.sleep(0.5)
+    assert clock.clock_cpu_s > before

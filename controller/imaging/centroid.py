@@ -87,7 +87,11 @@ def significant(smooth: np.ndarray, mask: np.ndarray, floor: float) -> np.ndarra
     labels, n = ndimage.label(mask, structure=np.ones((3, 3), bool))
     if n <= 1:
         return mask
-    high = np.asarray(ndimage.maximum(smooth, labels, np.arange(1, n + 1)), float)
-    keep = high > floor
-    keep[int(np.argmax(high))] = True
-    return np.concatenate([[False], keep])[labels]
+    # A part rises above the floor where any of its pixels does: marking the labels of those
+    # pixels needs no per-part maximum (ndimage.maximum sorts the whole image by label).
+    keep = np.zeros(n + 1, bool)
+    keep[labels[mask & (smooth > floor)]] = True
+    peak = smooth[mask].max()
+    keep[labels[mask & (smooth == peak)].min()] = True  # the first part at the peak, as argmax
+    keep[0] = False
+    return keep[labels]

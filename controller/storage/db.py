@@ -276,6 +276,7 @@ class CampaignStore:
     # -- one heliostat run, atomically ------------------------------------------------------
     def record_run(self, campaign_id: int, run: RunRecord) -> int:
         """Insert the run and all its children in one transaction; returns the run id."""
+        model_row = None
         with self.tx() as db:
             cur = db.execute(
                 "INSERT INTO heliostat_runs (campaign_id, heliostat_id, queue_index, status, "
@@ -311,13 +312,11 @@ class CampaignStore:
                            "del_steps) VALUES (?,?,?,?,?,?,?)",
                            (run_id, k.iteration, k.kind, k.daz_deg, k.del_deg, k.daz_steps, k.del_steps))
             if run.model is not None:
-                db.execute("INSERT INTO model_params (heliostat_id, campaign_id, run_id, params_json, "
-                           "sigma_json, residual_mrad, n_measurements, created_utc, detail_json) "
-                           "VALUES (?,?,?,?,?,?,?,?,?)",
-                           (run.heliostat_id, campaign_id, run_id, json.dumps(run.model.params),
-                            json.dumps(run.model.sigma), run.model.residual_mrad,
-                            run.model.n_measurements, utc_now(), json.dumps(run.model.detail)))
-            return run_id
+                model_row = self._models.insert(db, run.heliostat_id, campaign_id, run_id, run.model)
+        if model_row is not None:  # committed: the next run of this heliostat reads it undecoded
+            with self._lock:
+                self._models.keep(int(model_row), run.model)
+        return run_id
 
     # -- queries ----------------------------------------------------------------------------
     def runs(self, campaign_id: int) -> list[RunRecord]:

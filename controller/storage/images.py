@@ -7,7 +7,7 @@ import hashlib
 from pathlib import Path
 
 from controller.calibration.records import ImageRecord
-from controller.io.images import write_atomic
+from controller.io.images import write_bytes_atomic
 from controller.storage.checks import has_table, resolved_image_path, stored_image_path
 
 
@@ -28,7 +28,7 @@ class ImageArchive:
             if not ok:
                 raise OSError(f"could not encode {p} as PNG")
             data = buf.tobytes()  # hashed as written: the file is not read back
-            write_atomic(p, lambda t, data=data: t.write_bytes(data))
+            write_bytes_atomic(p, data)
             out.append(ImageRecord(kind, str(p), hashlib.sha256(data).hexdigest(),
                                    tuple(float(t) for t in frame.exposures)))
         return out

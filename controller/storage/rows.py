@@ -3,6 +3,7 @@ JSON columns must parse to the kind of value written, the statuses must be known
 
 from __future__ import annotations
 
+import json
 import math
 import sqlite3
 from pathlib import Path
@@ -14,6 +15,7 @@ from controller.calibration.records import (
     MeasurementRecord,
     ModelRecord,
     RunRecord,
+    utc_now,
 )
 from controller.storage.checks import RecordError, enum_column, json_column
 
@@ -79,6 +81,24 @@ class ModelRows:
         self.path, self.kept = path, kept
         self._by_id: dict[int, ModelRecord] = {}
 
+    @staticmethod
+    def insert(db: sqlite3.Connection, heliostat_id: str, campaign_id: int, run_id: int,
+               model: ModelRecord) -> int:
+        """Insert ``model``, fitted on run ``run_id``, inside the caller's transaction; its row id
+        (:meth:`keep` it once committed)."""
+        return int(db.execute(
+            "INSERT INTO model_params (heliostat_id, campaign_id, run_id, params_json, sigma_json, "
+            "residual_mrad, n_measurements, created_utc, detail_json) VALUES (?,?,?,?,?,?,?,?,?)",
+            (heliostat_id, campaign_id, run_id, json.dumps(model.params), json.dumps(model.sigma),
+             model.residual_mrad, model.n_measurements, utc_now(), json.dumps(model.detail))).lastrowid)
+
+    def keep(self, row_id: int, record: ModelRecord) -> None:
+        """``record``, just written as row ``row_id`` (and committed): kept as if read back,
+        without its JSON parsed again (a night's next run of the heliostat asks for it)."""
+        self._by_id[row_id] = record
+        while len(self._by_id) > self.kept:
+            del self._by_id[next(iter(self._by_id))]
+
     def latest(self, db: sqlite3.Connection, heliostat_ids=None) -> dict[str, ModelRecord]:
         """The latest model of each heliostat that has one (of ``heliostat_ids``, or all): their
         row ids in one query on the index, the rows not decoded before in as few as SQLite's
@@ -96,7 +116,5 @@ class ModelRows:
             chunk = missing[k:k + 500]
             for r in db.execute(f"SELECT * FROM model_params WHERE id IN ({','.join('?' * len(chunk))})",
                                 chunk).fetchall():
-                self._by_id[int(r["id"])] = model_from_row(r, self.path)
-        while len(self._by_id) > self.kept:
-            del self._by_id[next(iter(self._by_id))]
+                self.keep(int(r["id"]), model_from_row(r, self.path))
         return {h: self._by_id[i] for i, h in latest}

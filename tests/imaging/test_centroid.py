@@ -109,3 +109,27 @@ def test_significant_keeps_the_peak_and_every_part_that_rises_above_the_floor():
     assert np.array_equal(significant(smooth, mask, 1.8), (smooth > 1.9))  # the speck goes
     assert np.array_equal(significant(smooth, mask, 9.0), smooth == 5.0)  # the peak's part stays
     assert np.array_equal(significant(smooth, mask, 0.5), mask)
+
+
+def test_significant_is_the_per_part_maximum_rule_on_random_noise():
+    """Each 8-connected part kept exactly when its own maximum of ``smooth`` is above the floor,
+    or when it holds the mask's peak (the first such part by label, as ``argmax`` of the parts'
+    maxima): checked against ndimage's per-label maximum on masks of many parts."""
+    from scipy import ndimage
+
+    from controller.imaging.centroid import significant
+
+    rng = np.random.default_rng(7)
+    for trial in range(40):
+        smooth = rng.normal(size=(24, 32)).astype(np.float32)
+        if trial % 4 == 0:
+            smooth = np.round(smooth)  # ties: several parts at the peak
+        mask = smooth > 0.8
+        labels, n = ndimage.label(mask, structure=np.ones((3, 3), bool))
+        assert n > 1
+        high = np.asarray(ndimage.maximum(smooth, labels, np.arange(1, n + 1)), float)
+        floor = float(np.quantile(high, 0.6))
+        keep = high > floor
+        keep[int(np.argmax(high))] = True
+        want = np.concatenate([[False], keep])[labels]
+        assert np.array_equal(significant(smooth, mask, floor), want)

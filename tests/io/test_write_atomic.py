@@ -1,4 +1,5 @@
-"""``write_atomic``: a file appears whole or not at all, with the mode a plain open() gives it."""
+"""``write_atomic``, ``write_bytes_atomic``: a file appears whole or not at all, with the mode a
+plain open() gives it."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ import threading
 
 import pytest
 
-from controller.io.images import write_atomic
+from controller.io.images import write_atomic, write_bytes_atomic
 
 
 def _umask() -> int:
@@ -17,13 +18,18 @@ def _umask() -> int:
     return mask
 
 
-def test_files_written_from_many_threads_get_the_umasks_mode(tmp_path):
+WRITERS = {"write_atomic": lambda p, data: write_atomic(p, lambda t: t.write_bytes(data)),
+           "write_bytes_atomic": write_bytes_atomic}
+
+
+@pytest.mark.parametrize("writer", sorted(WRITERS))
+def test_files_written_from_many_threads_get_the_umasks_mode(tmp_path, writer):
     """Each of 8 threads writes 25 files at once; every file has mode 0666 less the umask (the
     umask is read once: setting it to read it, per file, would let another thread's file slip
     through with 0666) and its own content."""
     def work(t: int) -> None:
         for i in range(25):
-            write_atomic(tmp_path / f"{t}-{i}.bin", lambda p, t=t, i=i: p.write_bytes(f"{t}-{i}".encode()))
+            WRITERS[writer](tmp_path / f"{t}-{i}.bin", f"{t}-{i}".encode())
 
     threads = [threading.Thread(target=work, args=(t,)) for t in range(8)]
     for th in threads:
@@ -46,3 +52,18 @@ def test_a_writer_that_fails_leaves_nothing(tmp_path):
     with pytest.raises(OSError, match="disk full"):
         write_atomic(tmp_path / "x.png", fail)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_bytes_written_atomically_make_the_missing_folder_and_replace_an_old_file(tmp_path):
+    p = tmp_path / "night" / "pass" / "F00001-it0-low.png"
+    write_bytes_atomic(p, b"first")
+    write_bytes_atomic(p, b"second")
+    assert p.read_bytes() == b"second"
+    assert [f.name for f in p.parent.iterdir()] == [p.name]  # no temporary file left over
+
+
+def test_bytes_that_cannot_be_renamed_into_place_leave_nothing(tmp_path):
+    (tmp_path / "x.png").mkdir()  # a folder where the file should go: the rename fails
+    with pytest.raises(OSError):
+        write_bytes_atomic(tmp_path / "x.png", b"data")
+    assert [f.name for f in tmp_path.iterdir()] == ["x.png"]

@@ -167,6 +167,23 @@ def test_latest_models_parse_each_row_once(store, tmp_path):
         assert {h: m.params for h, m in fresh.items()} == {h: m.params for h, m in now.items()}
 
 
+def test_a_model_recorded_is_read_back_as_written_without_its_row_decoded(store, tmp_path):
+    """The model a run records is the record the next ask for the heliostat's latest returns (a
+    night's next run of it: nothing decoded); read back afresh it is equal. A transaction that
+    fails keeps nothing: the heliostat's latest model is still the one before."""
+    cid, _ = _open(store, queue=("H1", "H2"))
+    run = _run("H1")
+    store.record_run(cid, run)
+    assert store.latest_model("H1") is run.model
+    with CampaignStore(tmp_path / "c.db", readonly=True) as other:
+        assert other.latest_model("H1") == run.model
+    again = _run("H1")  # the same heliostat twice in a campaign: refused, nothing kept
+    again.model = ModelRecord({"az_offset_mrad": 9.0}, {"az_offset_mrad": 0.1}, 0.1, 5)
+    with pytest.raises(sqlite3.IntegrityError):
+        store.record_run(cid, again)
+    assert store.latest_model("H1") is run.model
+
+
 @pytest.mark.parametrize(
     "north, paint", [(265.60, -85.60), (180.0, 0.0), (90.0, 90.0), (0.0, 180.0), (270.0, -90.0)]
 )

@@ -105,6 +105,7 @@ def test_several_beams_on_the_cheap_field_and_a_beam_not_the_captures_is_counted
     assert watch.elsewhere == []  # every spot was credited to its own beam (the plant's truth)
     acc = watch.centroid_errors()  # every measurement's centroid against its own beam's true hit
     assert acc["measurements"] == len(night.measured) and 0 <= acc["p50"] <= acc["p99"] <= acc["max"] <= 1.0
+    assert watch.cpu_s > 0.0  # the truth watcher's CPU, kept apart from the controller's
     watch.on.clear()
     last = dict(watch.state)
     watch.state_changed = lambda *_: None  # a watcher that expects no beam anywhere
