@@ -70,10 +70,10 @@ def leave_pose(cyc) -> tuple[int, int]:
     refitted on its last measurement, which it is given), so that its beam leaves the target the
     short way and with what the measurement showed — if the slew there keeps the beam off the
     other targets and out of the person zones (``BeamSafety.path_to``); else its standby."""
-    p = cyc.ctx.pointing
-    last = cyc.run_rec.measurements[-1] if cyc.run_rec.measurements else None
     if cyc.at is None:
         return cyc.standby
+    p = cyc.ctx.pointing
+    last = cyc.run_rec.measurements[-1] if cyc.run_rec.measurements else None
     try:
         pose = p.leave_steps(cyc.run_rec.model or cyc.ctx.model,
                              last and ((last.az_steps, last.el_steps), last.centroid_enu))
