@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -41,8 +42,30 @@ from controller.geometry.vectors import vector_to_azel
 from controller.storage.images import ImageArchive
 from controller.storage.nights import NightBook
 
-WATCH_S = 0.02  # wall seconds between checks of the night's budget
+WATCH_S = 0.02  # wall seconds: the budget watcher's shortest wait, so at most WATCH_S x speedup plant s late
 CONFIRM_S = 5.0  # plant seconds a lamp of the in-process panel may take to confirm
+
+
+def watch_budget(cheap, end: float, done: threading.Event, stop: Callable[[], None], name: str
+                 ) -> tuple[threading.Thread, threading.Event]:
+    """Start a thread that calls ``stop()`` once ``cheap``'s plant clock reaches ``end`` (plant s),
+    unless ``done`` is set first; returns it and the event it sets when it stopped the night. It
+    waits the wall time the rest of the budget takes at the clock's fastest rate (``speedup``;
+    at 1x or still it runs slower), at least :data:`WATCH_S`: one check every 20 ms woke it some
+    two and a half times per measurement of a 10,000-heliostat night (issue 42)."""
+    over = threading.Event()
+    speedup = cheap.plant.clock.speedup
+
+    def watch() -> None:
+        while not done.wait(max(WATCH_S, (end - cheap.time.now()) / speedup)):
+            if cheap.time.now() >= end:
+                over.set()
+                stop()
+                return
+
+    watcher = threading.Thread(target=watch, name=name, daemon=True)
+    watcher.start()
+    return watcher, over
 
 
 @dataclass
@@ -87,7 +110,6 @@ def run_cheap_night(cheap, plan: list[PlanItem] | None, night: str, budget_s: fl
     every campaign of the night does."""
     store = open_store(cheap.db_path)
     book = NightBook(store)
-    over = threading.Event()
     done = threading.Event()
     try:
         plant = cheap_field(cheap, store)
@@ -102,17 +124,8 @@ def run_cheap_night(cheap, plan: list[PlanItem] | None, night: str, budget_s: fl
         if unsafe_lamp_change:
             pn._change_lamp = lambda lamp, standbys: plant.lights_out()
         t0 = cheap.time.now()
-
-        def watch() -> None:
-            while not done.wait(WATCH_S):
-                if cheap.time.now() >= t0 + budget_s:
-                    over.set()
-                    pn.request_stop()
-                    return
-
         wall0 = time.perf_counter()
-        watcher = threading.Thread(target=watch, name="night-budget", daemon=True)
-        watcher.start()
+        watcher, over = watch_budget(cheap, t0 + budget_s, done, pn.request_stop, "night-budget")
         try:
             summary = pn.run()
         finally:

@@ -33,8 +33,8 @@ from controller.calibration.campaign.observers import CampaignObserver
 from controller.calibration.campaign.runner import Campaign, CampaignOptions
 from controller.calibration.night.planned import calibration_night
 from controller.commands._numbers import Number
-from controller.commands.cheap_night import WATCH_S, cheap_field
 from controller.commands.cheap_night import calibrate_from_truth as seed_from_truth
+from controller.commands.cheap_night import cheap_field, watch_budget
 from controller.commands.cheap_night import run_cheap_night as run_planned_night
 from controller.commands.common import add_json_option, print_json
 from controller.commands.field import open_store
@@ -76,21 +76,11 @@ def night_zero(cheap, ids: list[str], name: str, budget_s: float, observers=()) 
     the console's stop would after ``budget_s`` plant seconds; ``observers`` are told what it does."""
     store = open_store(cheap.db_path)
     done = threading.Event()
-    over = threading.Event()
     try:
         campaign = Campaign(cheap_field(cheap, store), CampaignOptions(name=name), heliostat_ids=ids,
                             observers=observers)
         t0, wall0 = cheap.time.now(), time.perf_counter()
-
-        def watch() -> None:
-            while not done.wait(WATCH_S):
-                if cheap.time.now() >= t0 + budget_s:
-                    over.set()
-                    campaign.request_stop()
-                    return
-
-        watcher = threading.Thread(target=watch, name="night-0-budget", daemon=True)
-        watcher.start()
+        watcher, over = watch_budget(cheap, t0 + budget_s, done, campaign.request_stop, "night-0-budget")
         try:
             r = calibration_night(NightBook(store), campaign)
         finally:

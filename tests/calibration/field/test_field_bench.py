@@ -5,6 +5,7 @@ truth."""
 from __future__ import annotations
 
 import dataclasses
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -16,7 +17,7 @@ from controller.calibration.campaign.observers import CampaignObserver
 from controller.calibration.campaign.runner import Campaign, CampaignOptions
 from controller.calibration.night.passes import night_passes
 from controller.calibration.night.planner import plan_field
-from controller.commands.cheap_night import cheap_field, run_cheap_night
+from controller.commands.cheap_night import WATCH_S, cheap_field, run_cheap_night, watch_budget
 from controller.commands.field import open_store
 from controller.commands.sim.field import OnTarget, run_planned_night, seed_from_truth, strays
 from controller.devices.drive import AxisLimits, DriveLimits
@@ -32,6 +33,39 @@ ROOT = Path(__file__).resolve().parents[3]
 @pytest.fixture(scope="module")
 def base() -> dict:
     return yaml.safe_load((ROOT / "configs" / "demo.yaml").read_text())
+
+
+def test_night_stopped_by_its_budget(base, tmp_path):
+    """A night whose budget ends before its work does is stopped by the budget watcher (which
+    waits the rest of the budget at the clock's fastest rate rather than checking every 20 ms):
+    it says so, and it was asked to stop no later than WATCH_S x speedup plant s after the end,
+    plus the parking of the heliostats it had in flight."""
+    field = CheapField(field_data(base, 6, 2, 1), tmp_path, speedup=1000.0)
+    whole = run_cheap_night(field, None, "n1", budget_s=8 * 3600.0)
+    assert not whole.stopped_by_budget
+    field = CheapField(field_data(base, 6, 2, 1), tmp_path / "short", speedup=1000.0)
+    budget = 0.25 * whole.plant_s
+    night = run_cheap_night(field, None, "n1", budget_s=budget)
+    assert night.stopped_by_budget
+    assert len(night.measured) < len(whole.measured)
+    assert budget <= night.plant_s < whole.plant_s
+
+
+def test_budget_watcher_ends_with_the_night(base, tmp_path):
+    """A night that ends first ends its watcher at once, however far the budget's end is, and
+    the night is not stopped; one whose end is reached is stopped once, on plant time."""
+    field = CheapField(field_data(base, 2, 1, 1), tmp_path, speedup=1000.0)
+    done, stops = threading.Event(), []
+    watcher, over = watch_budget(field, field.time.now() + 1e7, done, lambda: stops.append(1), "w")
+    done.set()
+    watcher.join(scaled_s(5.0))
+    assert not watcher.is_alive() and not over.is_set() and stops == []
+    end = field.time.now() + 2.0
+    watcher, over = watch_budget(field, end, threading.Event(), lambda: stops.append(1), "w")
+    assert over.wait(scaled_s(5.0))
+    watcher.join(scaled_s(5.0))
+    assert stops == [1] and field.time.now() >= end
+    assert WATCH_S * field.plant.clock.speedup <= 20.0  # the most a stop may come late, plant s
 
 
 def test_small_field_night_one_beam_per_target(base, tmp_path):
