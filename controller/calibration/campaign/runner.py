@@ -43,6 +43,7 @@ from controller.calibration.campaign.lamp_change import clear_targets
 from controller.calibration.campaign.no_beam import NoBeamWatch, RefusalObserver
 from controller.calibration.campaign.observers import CampaignObserver, Observers
 from controller.calibration.campaign.outcome import CampaignResult, looked_and_failed, outcome
+from controller.calibration.campaign.parallel import opencv_single_threaded
 from controller.calibration.campaign.queue_order import order_queue
 from controller.calibration.cycle.beam_chain import BeamChain
 from controller.calibration.cycle.context import CycleContext, CycleObserver
@@ -330,7 +331,7 @@ class Campaign:
             return rec
 
         depth = self.opt.pipeline_depth * (1 if self.slots is None else self.slots.k)
-        with ThreadPoolExecutor(max_workers=depth, thread_name_prefix="cycle") as pool:
+        with opencv_single_threaded(), ThreadPoolExecutor(depth, thread_name_prefix="cycle") as pool:
             futures = [pool.submit(one, t, qi, hid) for t, (qi, hid) in enumerate(todo)]
             try:
                 for f in futures:
@@ -372,8 +373,7 @@ class Campaign:
             heliostat_id=hid, queue_index=qi, ticket=ticket, drive=self.drive(hid),
             camera=_CameraView(self._capture), pointing=pointing,
             merge=chain.merge if self.group is None else self.group.merge,  # a round's frame merged once
-            analyze=functools.partial(chain.analyze, allow_clipped=True),
-            match=chain.match, gate=gate,
+            analyze=functools.partial(chain.analyze, allow_clipped=True), match=chain.match, gate=gate,
             model=self.store.latest_model(hid), history=self.store.measurements(heliostat_id=hid),
             tolerance_mrad=cal.tolerance_mrad, max_iterations=1 if self.opt.observe else cal.max_iterations,
             observe_only=self.opt.observe, settle_s=self.opt.settle_s,

@@ -9,10 +9,12 @@ import sqlite3
 import threading
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 import yaml
 
+from controller.calibration.campaign.parallel import opencv_single_threaded
 from controller.calibration.campaign.runner import CampaignResult
 from controller.calibration.cycle.beam_safety import UnsafePath
 from controller.calibration.cycle.pointing import GeometryPointing
@@ -246,3 +248,33 @@ def test_ctrl_c_asks_every_target_to_stop_and_waits_for_them():
     with pytest.raises(KeyboardInterrupt):
         run_per_target({"upper": job("upper", True), "lower": job("lower", False)}, stop.set)
     assert sorted(ended) == ["lower", "upper"]  # both parked and ended before the interrupt went on
+
+
+def test_opencv_runs_on_the_calling_threads_until_the_last_campaign_ends():
+    """Campaigns side by side (a night's targets) each make OpenCV single-threaded; the thread
+    count it had comes back when the last of them ends, not when the first does."""
+    before = cv2.getNumThreads()
+    cv2.setNumThreads(3)
+    try:
+        first_in, second_out = threading.Event(), threading.Event()
+        seen: list[int] = []
+
+        def second() -> None:
+            first_in.wait(scaled_s(10.0))
+            with opencv_single_threaded():
+                seen.append(cv2.getNumThreads())
+            second_out.set()
+
+        t = threading.Thread(target=second)
+        t.start()
+        with opencv_single_threaded():
+            first_in.set()
+            assert second_out.wait(scaled_s(10.0))
+            assert cv2.getNumThreads() == 1  # the second ended; this one has not
+        t.join(scaled_s(10.0))
+        assert seen == [1] and cv2.getNumThreads() == 3
+        with pytest.raises(RuntimeError), opencv_single_threaded():
+            raise RuntimeError("a campaign that fails")
+        assert cv2.getNumThreads() == 3
+    finally:
+        cv2.setNumThreads(before)

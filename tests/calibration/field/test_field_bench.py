@@ -8,6 +8,7 @@ import dataclasses
 import threading
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 import yaml
@@ -49,6 +50,30 @@ def test_night_stopped_by_its_budget(base, tmp_path):
     assert night.stopped_by_budget
     assert len(night.measured) < len(whole.measured)
     assert budget <= night.plant_s < whole.plant_s
+
+
+def test_a_nights_cycles_run_opencv_on_their_own_threads(base, tmp_path):
+    """While a night's cycles measure, OpenCV keeps no worker pool of its own (it would only
+    spin between the cycles' calls); the process's setting is back once the night is over."""
+
+    class Threads(CampaignObserver):
+        def __init__(self) -> None:
+            self.seen: list[int] = []
+
+        def measured(self, heliostat_id, measurement) -> None:
+            self.seen.append(cv2.getNumThreads())
+
+    before = cv2.getNumThreads()
+    cv2.setNumThreads(2)
+    try:
+        field = CheapField(field_data(base, 4, 2, 1), tmp_path, speedup=1000.0)
+        threads = Threads()
+        night = run_planned_night(field, None, "n1", budget_s=8 * 3600.0, observers=[threads])
+        assert len(night.measured) == 4 and len(threads.seen) >= 4
+        assert set(threads.seen) == {1}
+        assert cv2.getNumThreads() == 2
+    finally:
+        cv2.setNumThreads(before)
 
 
 def test_budget_watcher_ends_with_the_night(base, tmp_path):
