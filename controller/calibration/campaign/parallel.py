@@ -1,6 +1,7 @@
 """Several targets at once: one job (a campaign, a sequence of passes) per target, each on its
 own thread with its own camera, beam chain and target gate, so each target has at most one
-beam at a time while the targets work side by side (docs/campaigns.md, "Several targets")."""
+beam at a time while the targets work side by side (docs/campaigns.md, "Several targets");
+and OpenCV kept on the threads of the cycles while campaigns run (:func:`opencv_single_threaded`)."""
 
 from __future__ import annotations
 
