@@ -93,5 +93,4 @@ def significant(smooth: np.ndarray, mask: np.ndarray, floor: float) -> np.ndarra
     keep[labels[mask & (smooth > floor)]] = True
     peak = smooth[mask].max()
     keep[labels[mask & (smooth == peak)].min()] = True  # the first part at the peak, as argmax
-    keep[0] = False
-    return keep[labels]
+    return keep[labels]  # label 0, outside the mask, is never kept

@@ -65,8 +65,13 @@ def run_per_target(jobs: dict[str, Callable[[], R]],
     return {tid: results[tid] for tid in jobs}
 
 
-_OPENCV = threading.Lock()
-_opencv_users: list[int] = []  # the thread count before the first user, once per user inside
+class _OpenCvThreads:
+    """The blocks of :func:`opencv_single_threaded` inside now, and OpenCV's thread count before
+    the first of them."""
+
+    lock = threading.Lock()
+    users = 0
+    before = 0
 
 
 @contextlib.contextmanager
@@ -79,13 +84,16 @@ def opencv_single_threaded() -> Iterator[None]:
     (``sched_yield``) after every call. In a sampled night of a 10,000-heliostat field (3
     targets, K = 4) the pool's worker took 3.6 s of CPU, nearly all of it in the kernel, about
     3 % of the controller's, and 6 % of the night's context switches (issue 42)."""
-    with _OPENCV:
-        _opencv_users.append(cv2.getNumThreads() if not _opencv_users else _opencv_users[0])
-        cv2.setNumThreads(1)
+    state = _OpenCvThreads
+    with state.lock:
+        if not state.users:
+            state.before = cv2.getNumThreads()
+            cv2.setNumThreads(1)
+        state.users += 1
     try:
         yield
     finally:
-        with _OPENCV:
-            before = _opencv_users.pop()
-            if not _opencv_users:
-                cv2.setNumThreads(before)
+        with state.lock:
+            state.users -= 1
+            if not state.users:
+                cv2.setNumThreads(state.before)
