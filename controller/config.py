@@ -183,6 +183,8 @@ class Calibration(_Model):
     beams_per_target: int = Field(default=1, ge=1, le=8,
                                   description="heliostats measured in one capture on a target, each at "
                                               "its own slot (lamps at night only, docs/campaigns.md)")
+    python_one_core: bool = Field(default=True, description="while a campaign measures, every Python "
+                                  "thread of the controller on one core (docs/campaigns.md)")
     identity_settle_s: float = Field(default=0.1, ge=0, le=60,
                                      description="settling time after the identity step of a shared capture "
                                                  "(beams_per_target > 1), s; at most settle_s")

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from controller.devices.camera import CameraError
+from controller.devices.cores import all_cores
 
 PIXEL_DTYPES = {"Mono8": np.uint8, "Mono12": np.uint16, "Mono16": np.uint16}
 SUPPORTED_FORMATS = tuple(PIXEL_DTYPES)
@@ -84,6 +85,12 @@ class GigeImager:
     """One opened, configured and streaming imager. ``role`` (LOW/HIGH) names it in messages."""
 
     def __init__(self, device_id: str, role: str, settings: ImagerSettings, *, discover: bool = True) -> None:
+        # Aravis starts its threads here (the device's heartbeat, the stream's receiver): they
+        # inherit the opening thread's cores and must never share Python's one core.
+        with all_cores():
+            self._open(device_id, role, settings, discover)
+
+    def _open(self, device_id: str, role: str, settings: ImagerSettings, discover: bool) -> None:
         if settings.pixel_format not in PIXEL_DTYPES:
             raise CameraError(f"GigE camera: pixel format {settings.pixel_format!r} is not supported "
                               f"(supported: {', '.join(SUPPORTED_FORMATS)})")

@@ -4,11 +4,13 @@
 from __future__ import annotations
 
 import os
+import threading
 
 import numpy as np
 import pytest
 
 from controller.devices.camera import CameraError
+from controller.devices.cores import python_on_one_core
 from controller.devices.gige import GigeCamera
 from controller.devices.gige_device import GigeImager, ImagerSettings, IncompleteFrame, discovered_devices
 from tests.conftest import scaled_s
@@ -196,3 +198,35 @@ def test_thousand_pairs_leak_no_buffers_or_descriptors(fake_gv, camera_config):
     for _ in range(3):  # open/close cycles leave nothing behind either
         GigeCamera(cfg).close()
     assert _open_fds() <= closed
+
+
+def _native_threads() -> dict[int, set[int]]:
+    """The process's threads that Python does not run, with their cores."""
+    python = {t.native_id for t in threading.enumerate()}
+    out = {}
+    for tid in map(int, os.listdir("/proc/self/task")):
+        if tid not in python:
+            try:
+                out[tid] = os.sched_getaffinity(tid)
+            except OSError:  # ended meanwhile
+                pass
+    return out
+
+
+@pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="the process may use fewer than two cores here")
+def test_aravis_threads_keep_every_core_while_python_is_on_one(fake_gv):
+    """A camera opened while a campaign holds Python on one core (a reconnect): the heartbeat
+    and stream threads Aravis starts must not share that core with the interpreter."""
+    everywhere = os.sched_getaffinity(0)
+    before = set(_native_threads())
+    with python_on_one_core():
+        assert len(os.sched_getaffinity(0)) == 1
+        imager = GigeImager(fake_gv.device_id, "LOW", _settings())
+        try:
+            started = {tid: cores for tid, cores in _native_threads().items() if tid not in before}
+            assert started, "Aravis started no thread of its own: nothing was checked"
+            assert all(cores == everywhere for cores in started.values()), started
+            assert len(os.sched_getaffinity(0)) == 1  # the opening thread is back on the one core
+            assert _complete_frame(imager).image.shape == (48, 64)
+        finally:
+            imager.close()

@@ -1,7 +1,7 @@
 """Several targets at once: one job (a campaign, a sequence of passes) per target, each on its
 own thread with its own camera, beam chain and target gate, so each target has at most one
 beam at a time while the targets work side by side (docs/campaigns.md, "Several targets");
-and OpenCV kept on the threads of the cycles while campaigns run (:func:`opencv_single_threaded`)."""
+and how the cycles' threads run while campaigns measure (:func:`campaign_threads`)."""
 
 from __future__ import annotations
 
@@ -11,6 +11,8 @@ from collections.abc import Callable, Iterator
 from typing import TypeVar
 
 import cv2
+
+from controller.devices.cores import HeldSetting, python_on_one_core
 
 R = TypeVar("R")
 
@@ -65,17 +67,16 @@ def run_per_target(jobs: dict[str, Callable[[], R]],
     return {tid: results[tid] for tid in jobs}
 
 
-class _OpenCvThreads:
-    """The blocks of :func:`opencv_single_threaded` inside now, and OpenCV's thread count before
-    the first of them."""
-
-    lock = threading.Lock()
-    users = 0
-    before = 0
+def _opencv_one_thread() -> int:
+    before = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    return before
 
 
-@contextlib.contextmanager
-def opencv_single_threaded() -> Iterator[None]:
+_OPENCV = HeldSetting(_opencv_one_thread, cv2.setNumThreads)
+
+
+def opencv_single_threaded() -> contextlib.AbstractContextManager[None]:
     """OpenCV on the calling threads only while the block runs (``cv2.setNumThreads(1)``), as
     it was once the last of several overlapping blocks (a night's targets) has ended.
 
@@ -84,16 +85,13 @@ def opencv_single_threaded() -> Iterator[None]:
     (``sched_yield``) after every call. In a sampled night of a 10,000-heliostat field (3
     targets, K = 4) the pool's worker took 3.6 s of CPU, nearly all of it in the kernel, about
     3 % of the controller's, and 6 % of the night's context switches (issue 42)."""
-    state = _OpenCvThreads
-    with state.lock:
-        if not state.users:
-            state.before = cv2.getNumThreads()
-            cv2.setNumThreads(1)
-        state.users += 1
-    try:
+    return _OPENCV.hold()
+
+
+@contextlib.contextmanager
+def campaign_threads(python_one_core: bool) -> Iterator[None]:
+    """How a campaign's cycle threads run while it measures: OpenCV on them alone
+    (:func:`opencv_single_threaded`) and, with ``python_one_core`` (``calibration.python_one_core``),
+    every Python thread of the process on one core (:func:`controller.devices.cores.python_on_one_core`)."""
+    with opencv_single_threaded(), python_on_one_core(python_one_core):
         yield
-    finally:
-        with state.lock:
-            state.users -= 1
-            if not state.users:
-                cv2.setNumThreads(state.before)

@@ -43,7 +43,7 @@ from controller.calibration.campaign.lamp_change import clear_targets
 from controller.calibration.campaign.no_beam import NoBeamWatch, RefusalObserver
 from controller.calibration.campaign.observers import CampaignObserver, Observers
 from controller.calibration.campaign.outcome import CampaignResult, looked_and_failed, outcome
-from controller.calibration.campaign.parallel import opencv_single_threaded
+from controller.calibration.campaign.parallel import campaign_threads
 from controller.calibration.campaign.queue_order import order_queue
 from controller.calibration.cycle.beam_chain import BeamChain
 from controller.calibration.cycle.context import CycleContext, CycleObserver
@@ -292,8 +292,7 @@ class Campaign:
                                        cal.identity_settle_s, cal.centroid_threshold)
         t0 = self.time.now()
         session: list[RunRecord] = []
-        cycles = self._cycles
-        stop = self._stop
+        cycles, stop = self._cycles, self._stop
         watch = NoBeamWatch(self.cfg.light_source(self.opt.light_source).id, self.cfg.target().id, self.lamp)
         observer = RefusalObserver(self.observer, watch, cycles)  # counts refusals early
         self.observer.campaign_started(cid, list(queue), set(done))
@@ -331,7 +330,8 @@ class Campaign:
             return rec
 
         depth = self.opt.pipeline_depth * (1 if self.slots is None else self.slots.k)
-        with opencv_single_threaded(), ThreadPoolExecutor(depth, thread_name_prefix="cycle") as pool:
+        with campaign_threads(self.cfg.calibration.python_one_core), \
+                ThreadPoolExecutor(depth, thread_name_prefix="cycle") as pool:
             futures = [pool.submit(one, t, qi, hid) for t, (qi, hid) in enumerate(todo)]
             try:
                 for f in futures:

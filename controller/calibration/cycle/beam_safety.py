@@ -189,17 +189,21 @@ class BeamSafety:
         min(w/2 + m_u − |u|, h/2 + m_v − |v|) at the hit (u, v) in a target's plane, negative
         outside, −∞ for a ray pointing away from the plane; ≥ 0: it lands on it. Every plane at
         once (:func:`_planes`): a slew's check traces hundreds of rays past three targets,
-        thousands of times a night."""
-        centre, normal, u, v, half = self._planes
+        thousands of times a night. With q = c − centre, the ray meets a plane at
+        t = −(q·n)/(b·n), and (u, v) = (q·u + t b·u, q·v + t b·v): two products of the rays with
+        the planes' axes, (N, 3) by (3, 3T)."""
+        axes, offsets, half = self._planes
+        planes = len(half)
+        q, d = c @ axes - offsets, b @ axes  # (q·n, q·u, q·v) and (b·n, b·u, b·v), T columns each
         with np.errstate(divide="ignore", invalid="ignore"):
-            t = np.einsum("ntk,tk->nt", centre - c[:, None], normal) / (b @ normal.T)
-            hit = c[:, None] + t[..., None] * b[:, None] - centre
+            t = -q[:, :planes] / d[:, :planes]
+            hu = q[:, planes:2 * planes] + t * d[:, planes:2 * planes]
+            hv = q[:, 2 * planes:] + t * d[:, 2 * planes:]
         m = np.asarray(margin_m, float)
         mu, mv = (m[:, :1], m[:, 1:]) if m.ndim == 2 else np.broadcast_to(m, (2,))
-        d = np.minimum(half[:, 0] + mu - np.abs(np.einsum("ntk,tk->nt", hit, u)),
-                       half[:, 1] + mv - np.abs(np.einsum("ntk,tk->nt", hit, v)))
-        d = np.where(np.isfinite(t) & (t >= 0.0), d, -np.inf)
-        return np.stack([d[:, 0], d[:, 1:].max(axis=1, initial=-np.inf)], axis=1)
+        depth = np.minimum(half[:, 0] + mu - np.abs(hu), half[:, 1] + mv - np.abs(hv))
+        depth = np.where(np.isfinite(t) & (t >= 0.0), depth, -np.inf)
+        return np.stack([depth[:, 0], depth[:, 1:].max(axis=1, initial=-np.inf)], axis=1)
 
     def may_wait_at(self, pose, standby, aim, margin_m: float) -> bool:
         """Whether a heliostat about to take its turn may wait at ``pose`` (motor steps, where it
@@ -330,12 +334,14 @@ def _never_back(inside: np.ndarray) -> bool:
 
 
 def _planes(frame: TargetFrame, target: Target, others: tuple) -> tuple[np.ndarray, ...]:
-    """(centre, normal, u, v (T, 3), half width and height (T, 2)) of ``target`` seen through
-    ``frame`` and each of ``others`` (:func:`_other_frames`), the target first: the planes
-    :meth:`BeamSafety._depths` traces every ray past at once."""
+    """(axes (3, 3T): the normals, then the u axes, then the v axes of the T planes as columns;
+    offsets (3T,): each plane's centre dotted with them; half width and height (T, 2)) of
+    ``target`` seen through ``frame`` and each of ``others`` (:func:`_other_frames`), the target
+    first: the planes :meth:`BeamSafety._depths` traces every ray past at once."""
     rows = [(frame.center, frame, target), *others]
-    return (np.array([c for c, _, _ in rows], float),
-            *(np.array([getattr(f, a) for _, f, _ in rows], float) for a in ("normal", "u", "v")),
+    centre = np.array([c for c, _, _ in rows], float)
+    axes = np.vstack([np.array([getattr(f, a) for _, f, _ in rows], float) for a in ("normal", "u", "v")])
+    return (np.ascontiguousarray(axes.T), np.einsum("ak,ak->a", axes, np.tile(centre, (3, 1))),
             np.array([(t.width_m / 2, t.height_m / 2) for _, _, t in rows], float))
 
 

@@ -5,6 +5,7 @@ truth."""
 from __future__ import annotations
 
 import dataclasses
+import os
 import threading
 from pathlib import Path
 
@@ -52,18 +53,22 @@ def test_night_stopped_by_its_budget(base, tmp_path):
     assert budget <= night.plant_s < whole.plant_s
 
 
-def test_a_nights_cycles_run_opencv_on_their_own_threads(base, tmp_path):
+def test_a_nights_cycles_run_opencv_on_their_own_threads_and_python_on_one_core(base, tmp_path):
     """While a night's cycles measure, OpenCV keeps no worker pool of its own (it would only
-    spin between the cycles' calls); the process's setting is back once the night is over."""
+    spin between the cycles' calls) and every cycle runs on one core (where the machine has
+    two); the process's settings are back once the night is over."""
 
     class Threads(CampaignObserver):
         def __init__(self) -> None:
             self.seen: list[int] = []
+            self.cores: set[frozenset[int]] = set()
 
         def measured(self, heliostat_id, measurement) -> None:
             self.seen.append(cv2.getNumThreads())
+            self.cores.add(frozenset(os.sched_getaffinity(0)))
 
     before = cv2.getNumThreads()
+    everywhere = os.sched_getaffinity(0)
     cv2.setNumThreads(2)
     try:
         field = CheapField(field_data(base, 4, 2, 1), tmp_path, speedup=1000.0)
@@ -72,6 +77,9 @@ def test_a_nights_cycles_run_opencv_on_their_own_threads(base, tmp_path):
         assert len(night.measured) == 4 and len(threads.seen) >= 4
         assert set(threads.seen) == {1}
         assert cv2.getNumThreads() == 2
+        if len(everywhere) > 1:  # each pass's campaign takes the core its first thread runs on
+            assert threads.cores and all(len(c) == 1 and c <= everywhere for c in threads.cores)
+        assert os.sched_getaffinity(0) == everywhere
     finally:
         cv2.setNumThreads(before)
 
