@@ -5,9 +5,9 @@ runs Python at a time, whatever the cores. A night of a 10,000-heliostat field r
 (a cycle per beam of each target's pipeline, a job per target, the state timeouts): spread over
 two cores, every hand-over of the lock wakes the next thread on the other core (on a virtual
 machine an exit to the hypervisor) and moves its working set between caches. Kept on one core,
-the hand-over is a run-queue change on that core. Measured on sampled nights (issue 42,
-docs/results.md): the controller's CPU per measurement 19 % less, the night's kernel time and
-voluntary context switches a quarter, its wall time unchanged (it used 1.1 cores).
+the hand-over is a run-queue change on that core. In sampled nights of the 10,000-heliostat
+field the night's voluntary context switches fell to a third and its kernel time to half, its
+wall time unchanged (it used 1.1 cores; docs/results.md, issue 42).
 
 Native threads keep every core: a camera's GigE stream thread (Aravis) receives packets at line
 rate and must never wait behind Python. Only the threads Python knows are moved, and a thread
