@@ -85,8 +85,9 @@ def _python_threads() -> list[int]:
 
 
 def _pin_python() -> tuple[set[int], dict[int, set[int]]] | None:
-    """Every Python thread onto the calling thread's core; (the process's cores, each moved
-    thread's own) to give back, None when nothing was moved."""
+    """Every Python thread onto the calling thread's core; (the cores the calling thread may
+    use, taken as the process's; each moved thread's own) to give back, None when nothing was
+    moved."""
     if not hasattr(os, "sched_setaffinity"):
         return None
     everywhere = os.sched_getaffinity(0)
