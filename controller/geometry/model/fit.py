@@ -66,7 +66,7 @@ from controller.geometry.aiming import angle_mrad
 from controller.geometry.design import beam_jacobians, tangents_batch
 from controller.geometry.kinematics import HeliostatKinematics
 from controller.geometry.model.drift import DRIFTING, RandomWalk, Sessions, chain_precision, sessions
-from controller.geometry.model.start import implied_normals, start
+from controller.geometry.model.start import Start, implied_normals, start
 from controller.geometry.model.tracking import (
     NAMES,
     PRIOR_SIGMA_SI,
@@ -231,25 +231,26 @@ class _Problem:
             out[:, :, _OFFSETS] += (self.member @ y)[None]
         return out
 
-    def set_bases(self, x: np.ndarray) -> None:
-        # The tangent bases stay those at the start: the measured normals move only through
-        # the mirror centre (position terms), by far less than the bases' validity.
-        vals = self.sample_values(self.values(x)[None], x)[0]
-        _, c = normal_and_center(self.kin, vals, self.steps)
-        self.bases = tangents_batch(implied_normals(c, self.src, self.spots, self.lamps))
-
-    def residuals(self, terms: np.ndarray, x: np.ndarray) -> np.ndarray:
-        """Whitened data residuals (B, 2S) at each row of ``terms`` (B, n), sessions of x."""
+    def residuals(self, terms: np.ndarray, x: np.ndarray, set_bases: bool = False) -> np.ndarray:
+        """Whitened data residuals (B, 2S) at each row of ``terms`` (B, n), sessions of x. The
+        first row's normals and implied normals (S, 3) are kept as ``first``; with ``set_bases``
+        the tangent bases are taken at the first row's implied normals first."""
         n, c = normal_and_center(self.kin, self.sample_values(terms, x), self.steps)
         implied = implied_normals(c, self.src, self.spots, self.lamps)
+        if set_bases:
+            # The tangent bases stay those at the start: the measured normals move only through
+            # the mirror centre (position terms), by far less than the bases' validity.
+            self.bases = tangents_batch(implied[0])
+        self.first = (n[0], implied[0])
         return np.einsum("sij,bsj->bsi", self.bases, n - implied).reshape(len(terms), -1) / self.noise
 
-    def linearise(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def linearise(self, x: np.ndarray, set_bases: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """(residuals at x, their Jacobian (2S, L)): forward differences over the terms; a
-        session's columns are its samples' reference-offset columns times u_e (Eq. 3)."""
+        session's columns are its samples' reference-offset columns times u_e (Eq. 3). With
+        ``set_bases``, the residuals' tangent bases are taken at x first (the fit's start)."""
         base = self.values(x)
         rows = np.vstack([base, base + np.diag(self.s0 * _JAC_STEP)])
-        r = self.residuals(rows, x)
+        r = self.residuals(rows, x, set_bases)
         jt = ((r[1:] - r[0]) / _JAC_STEP).T
         if not self.ndrift:
             return r[0], jt
@@ -281,10 +282,9 @@ def fit_model(kin: HeliostatKinematics, samples: Sequence[Sample], *, noise_mrad
     pb = _Problem(kin, data, st.prior, st.sigma, sess, noise_mrad * 1e-3)
     x = np.zeros(pb.npar + pb.ndrift)
     x[:pb.npar] = (st.values - st.prior) / st.sigma
-    pb.set_bases(x)
     weights = np.ones(len(samples))
     converged = False
-    r, jac = pb.linearise(x)
+    r, jac = pb.linearise(x, set_bases=True)
     for it in range(MAX_STEPS):
         w = np.repeat(np.sqrt(weights * pb.age_w), 2)
         jd = w[:, None] * jac
@@ -304,13 +304,15 @@ def fit_model(kin: HeliostatKinematics, samples: Sequence[Sample], *, noise_mrad
             converged = True
             break
         weights = new
-    return _result(pb, samples, x, weights, converged, st.notes, p0, (r, jac))
+    return _result(pb, samples, x, weights, converged, st, p0, (r, jac))
 
 
 def _result(pb: _Problem, samples: Sequence[Sample], x: np.ndarray, weights: np.ndarray, converged: bool,
-            notes: tuple[str, ...], p0: np.ndarray, linear: tuple[np.ndarray, np.ndarray]) -> ModelFit:
+            st: Start, p0: np.ndarray, linear: tuple[np.ndarray, np.ndarray]) -> ModelFit:
     """ModelFit at the optimum x: Σ and identification of Eq. (2), residuals per sample;
-    ``linear``: (residuals, Jacobian) at x."""
+    ``linear``: (residuals, Jacobian) at x, the last evaluation of ``pb`` (its ``first`` row:
+    the normals at x); ``st``: the start, whose normals at its prior are those at ``p0`` when
+    no actuator was repaired."""
     npar = pb.npar
     w = np.repeat(np.sqrt(weights * pb.age_w), 2)
     r, jac = linear
@@ -333,10 +335,12 @@ def _result(pb: _Problem, samples: Sequence[Sample], x: np.ndarray, weights: np.
                               "measure more geometries")
     sv = np.linalg.svd(jd[:, :npar][:, identified], compute_uv=False)
     values = pb.values(x)
-    n, c = normal_and_center(pb.kin, pb.sample_values(values[None], x)[0], pb.steps)
-    res = angle_mrad(n, implied_normals(c, pb.src, pb.spots, pb.lamps))
-    n0, c0 = normal_and_center(pb.kin, np.repeat(p0[None], len(samples), axis=0), pb.steps)
-    res0 = angle_mrad(n0, implied_normals(c0, pb.src, pb.spots, pb.lamps))
+    res = angle_mrad(*pb.first)
+    if st.notes:  # the start's prior is a repaired p0: the initial residuals are p0's own
+        n0, c0 = normal_and_center(pb.kin, np.repeat(p0[None], len(samples), axis=0), pb.steps)
+        res0 = angle_mrad(n0, implied_normals(c0, pb.src, pb.spots, pb.lamps))
+    else:
+        res0 = angle_mrad(*st.at_prior)
     drift, times = None, None
     if pb.ndrift:
         y = x[npar:].reshape(-1, len(DRIFTING)) * pb.sess.scale[:, None]
@@ -345,7 +349,7 @@ def _result(pb: _Problem, samples: Sequence[Sample], x: np.ndarray, weights: np.
     rms0 = float(np.sqrt(np.mean(res0[np.isfinite(res0)] ** 2))) if np.isfinite(res0).any() else float("nan")
     return ModelFit(TrackingModel(values), np.sqrt(np.diag(cov)), cov, identified, res,
                     float(np.sqrt(np.mean(res**2))), rms0, weights, float(np.sqrt(s2)), float(sv[0] / sv[-1]),
-                    converged, drift, times, notes)
+                    converged, drift, times, st.notes)
 
 
 @dataclass(frozen=True, eq=False)  # numpy field

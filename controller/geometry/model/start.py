@@ -46,12 +46,14 @@ _AXES = (("azimuth", "az_stroke0", "az_offset", 0), ("elevation", "el_stroke0", 
 @dataclass(frozen=True, eq=False)  # numpy fields
 class Start:
     """The fit's prior mean ``prior`` and σ ``sigma`` (SI) after any actuator repair, the
-    start ``values`` (SI) and one ``notes`` line per repaired actuator."""
+    start ``values`` (SI), one ``notes`` line per repaired actuator, and ``at_prior``: the
+    normals and implied normals (S, 3 each) at ``prior``, which the start is taken from."""
 
     prior: np.ndarray
     sigma: np.ndarray
     values: np.ndarray
     notes: tuple[str, ...]
+    at_prior: tuple[np.ndarray, np.ndarray]
 
 
 def implied_normals(centers: np.ndarray, source_dirs: np.ndarray, spots: np.ndarray,
@@ -123,4 +125,4 @@ def start(kin: HeliostatKinematics, prior: np.ndarray, sigma: np.ndarray, steps:
     values = prior.copy()
     values[_I["az_offset"]] += float(np.median(d_az))
     values[_I["el_offset"]] += float(np.median(d_el))
-    return Start(prior, sigma, values, notes)
+    return Start(prior, sigma, values, notes, (n, m))
