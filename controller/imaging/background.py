@@ -20,6 +20,21 @@ _CLIP_SIGMA = 3.0
 _LOCAL_MAX_SIDE = 320
 
 
+def median(values: np.ndarray) -> float:
+    """The median of the finite 1-D array ``values`` as :func:`numpy.median` gives it (the mean
+    of the two middle values of an even count; NaN when empty), from one partial sort: a beam's
+    analysis takes about twenty medians of a few thousand samples, and ``numpy.median``'s own
+    checks cost more than the sort (issue 42)."""
+    n = values.size
+    if not n:
+        return float("nan")
+    k = n // 2
+    if n % 2:
+        return float(np.partition(values, k)[k])
+    low, high = np.partition(values, (k - 1, k))[k - 1:k + 1]
+    return float((low + high) / 2)
+
+
 @dataclass(frozen=True)
 class Background:
     """Background model b(x, y) = level + slope_x x + slope_y y
@@ -88,13 +103,13 @@ def estimate_background(image: np.ndarray, mask: np.ndarray | None = None, itera
     v, x, y = sub[keep], xs[keep].astype(np.float64), ys[keep].astype(np.float64)
     if v.size < 3:
         raise InputError("target mask leaves fewer than 3 background pixels")
-    coef = np.array([np.median(v), 0.0, 0.0])
+    coef = np.array([median(v), 0.0, 0.0])
     sigma = 0.0
     use = np.ones(v.size, bool)
     for _ in range(iterations):
         resid = v - (coef[0] + coef[1] * x + coef[2] * y)
         r_use = resid[use]
-        sigma = 1.4826 * float(np.median(np.abs(r_use - np.median(r_use))))
+        sigma = 1.4826 * median(np.abs(r_use - median(r_use)))
         use = np.abs(resid) <= max(_CLIP_SIGMA * sigma, 1e-12 * max(1.0, abs(coef[0])))
         if use.sum() < 3:
             break
@@ -106,7 +121,7 @@ def estimate_background(image: np.ndarray, mask: np.ndarray | None = None, itera
         coef = np.linalg.solve(ata + 1e-12 * np.eye(3), [vu.sum(), np.dot(xu, vu), np.dot(yu, vu)])
     span = abs(coef[1]) * (cols - 1) + abs(coef[2]) * (rows - 1)
     if span <= sigma:
-        level = float(np.median(v[use])) if use.any() else float(coef[0])
+        level = median(v[use]) if use.any() else float(coef[0])
         return Background(level=level, noise=sigma)
     return Background(level=float(coef[0]), slope_x=float(coef[1]), slope_y=float(coef[2]), noise=sigma)
 
@@ -196,7 +211,7 @@ def estimate_local_background(image: np.ndarray, mask: np.ndarray | None = None,
     if ring_full.any():
         resid = (img - bg.evaluate(img.shape, np.float32))[ring_full]
         bg = Background(bg.level, bg.slope_x, bg.slope_y,
-                        noise=1.4826 * float(np.median(np.abs(resid - np.median(resid)))))
+                        noise=1.4826 * median(np.abs(resid - median(resid))))
     return bg, full(near)
 
 

@@ -349,7 +349,7 @@ def analyze(image: np.ndarray, threshold: float = 0.5, background="auto", mask: 
         if background == "fit":
             fit = fit_spot(img, m, _guess(img, bg, float(threshold), m), bg)
             bg = fit.background
-    elif auto and pres is not None and pres.level == 1 and img.dtype == np.float32:
+    elif auto and pres is not None and pres.level == 1:
         bg = pres.background  # the presence decision fitted this plane to these very pixels
     else:
         bg = _background(img, background, m)

@@ -13,6 +13,8 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
+from controller.imaging.background import median
+
 
 @dataclass(frozen=True)
 class EnergyCentroid:
@@ -72,8 +74,8 @@ SPECK_SIGMAS = 8.0
 def robust_level(values: np.ndarray) -> tuple[float, float]:
     """(level, σ) of ``values`` robust to the few that are not background: the median and
     1.4826 × the median absolute deviation (σ of a normal distribution)."""
-    level = float(np.median(values))
-    return level, 1.4826 * float(np.median(np.abs(values - level)))
+    level = median(values)
+    return level, 1.4826 * median(np.abs(values - level))
 
 
 def significant(smooth: np.ndarray, mask: np.ndarray, floor: float) -> np.ndarray:

@@ -37,7 +37,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from controller.imaging.background import Background, estimate_background
+from controller.imaging.background import Background, estimate_background, median
 
 THRESHOLD = 5.5  # z of (P1) at and above which a beam is present
 SIGMA_PX = 4.0  # σ of G in (P1), pixels of the analysis level
@@ -124,7 +124,9 @@ def detect_beam(image: np.ndarray, mask: np.ndarray | None = None, threshold: fl
     target mask of the same shape (True = on the target). Pure; the image is not modified."""
     small, m, scale = pyramid(image, mask)
     target = np.ones(small.shape, bool) if m is None else m
-    plane = estimate_background(small, m)
+    # At full resolution the plane is fitted to the image at its own precision: the analysis
+    # that follows takes this very plane (controller.imaging.beam.analyze).
+    plane = estimate_background(np.asarray(image) if scale == 1 else small, m)
     r = small - np.asarray(plane.evaluate(small.shape, np.float32), np.float32)
     r[~target] = 0.0  # off the target: the plane's level, so the smoothing does not leak it in
     sigma = min(SIGMA_PX, min(small.shape) / 16.0)
@@ -139,12 +141,12 @@ def detect_beam(image: np.ndarray, mask: np.ndarray | None = None, threshold: fl
     peak = float(g[at])
     # Order statistics on every other row and column: g is smooth at σ = 4 px, so this loses
     # nothing and quarters the cost.
-    base = float(np.median(g[::2, ::2][inner[::2, ::2]]))
+    base = median(g[::2, ::2][inner[::2, ::2]])
     fp = _footprint(np.where(target, g, base), at, base + 0.5 * (peak - base)) if peak > base else \
         np.zeros(g.shape, bool)
     rest = _background_sample(g, inner, at, base, peak, fp)
-    floor = float(np.median(rest))
-    spread = 1.4826 * float(np.median(np.abs(rest - floor)))
+    floor = median(rest)
+    spread = 1.4826 * median(np.abs(rest - floor))
     excess = peak - floor
     if not excess > 0.0:
         z = 0.0

@@ -1,13 +1,15 @@
 """The ring ("local") background of controller.imaging.background on synthetic spots: vignetting
 (a bowl-shaped background, 20 counts under a 100-count spot) that one plane over the view
-cannot follow."""
+cannot follow; and the median the background statistics take."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from controller.imaging.background import estimate_local_background
+from controller.imaging.background import estimate_local_background, median
 from controller.imaging.beam import analyze
 
 
@@ -55,3 +57,16 @@ def test_local_respects_the_target_mask():
     _, near = estimate_local_background(img, mask)
     assert not near[:, 128:].any()
     assert _err(img, 70.0, 80.0, background="local", mask=mask.astype(np.uint8)) < 0.2  # measured 0.17
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.floats(-1e6, 1e6, allow_nan=False, width=32), max_size=64),
+       st.sampled_from([np.float32, np.float64]))
+def test_median_is_numpys_median(values, dtype):
+    # The background's own median (one partial sort) must be numpy's, for odd and even counts and
+    # both image precisions: the presence statistic and the planes are compared with thresholds.
+    a = np.asarray(values, dtype)
+    if not a.size:
+        assert np.isnan(median(a))
+    else:
+        assert median(a) == float(np.median(a))
