@@ -13,6 +13,16 @@ from controller.geometry.spot import hit_uv
 
 def identity_step(pointing, pose: tuple[int, int], slot: int, k: int, frame, step_m: float = IDENTITY_STEP_M
                   ) -> tuple[tuple[int, int], np.ndarray]:
+    """:func:`traced_identity_step`, kept by ``pointing`` for its ray model (``BeamSafety.kept``):
+    a slot's check (:func:`controller.calibration.beams.group.slot_parks`) and the capture at
+    the aim ask for the same step (issue 42: two traces per measurement)."""
+    key = ("identity", *(int(s) for s in pose), int(slot), int(k), float(step_m),
+           *(np.asarray(a, float).tobytes() for a in (frame.center, frame.normal, frame.u, frame.v)))
+    return pointing.kept(key, lambda: traced_identity_step(pointing, pose, slot, k, frame, step_m))
+
+
+def traced_identity_step(pointing, pose: tuple[int, int], slot: int, k: int, frame,
+                         step_m: float = IDENTITY_STEP_M) -> tuple[tuple[int, int], np.ndarray]:
     """The known step of a heliostat at ``pose`` (motor steps, both ≥ 0: the approach ended
     moving up on both axes, so the step takes up no backlash) holding ``slot`` of ``k``, and
     its spot's predicted displacement (u, v) m on ``frame``: steps ∝ (cos θ / |∂uv/∂az|,

@@ -57,13 +57,13 @@ class BeamSafety:
         self._planes = _planes(frame, target, self.others)
         self.zones, self.zone_ids = zone_boxes(zones), [z.id for z in zones]
         self.ray_model = (model or TrackingModel.zero()).values
-        self._poses: dict[tuple, tuple | str] = {}  # _kept's
+        self._poses: dict[tuple, tuple | str] = {}  # kept's
 
-    def _kept(self, key: tuple, compute) -> tuple:
-        """``compute()``'s pose (or path), kept by ``key`` and the ray's model: a pointing is
-        asked for its aim and standby steps and its slews several times (a slot's checks,
-        preparing, each park), and each answer traces the beam past the targets and through the
-        person zones. An UnsafePath is kept as its message."""
+    def kept(self, key: tuple, compute) -> tuple:
+        """``compute()``'s pose (or path, or identity step), kept by ``key`` and the ray's model: a
+        pointing is asked for its aim and standby steps, its slews and its identity step several
+        times (a slot's checks, preparing, each park, the capture), and each answer traces the
+        beam past the targets and through the person zones. An UnsafePath is kept as its message."""
         key = self._with_model(key)
         kept = self._poses.get(key)
         if kept is None:
@@ -267,7 +267,7 @@ class BeamSafety:
         # A slot's checks ask for the slews its cycle takes again (from where it stands, from
         # its aim): each answer traces three sweeps of 120 poses.
         key = self._path_key(start, end, margin)
-        return list(self._kept(key, lambda: tuple(self._path(start, end, margin))))
+        return list(self.kept(key, lambda: tuple(self._path(start, end, margin))))
 
     def warm_paths(self, starts, end: tuple[int, int]) -> None:
         """Trace the direct slews from each of ``starts`` (poses, or None) to ``end`` in one
@@ -297,7 +297,7 @@ class BeamSafety:
         at = 0
         for s, p in zip(todo, poses, strict=True):
             if _never_back(inside[at:at + len(p)]):
-                self._kept(self._path_key(s, end, margin), lambda: (end,))
+                self.kept(self._path_key(s, end, margin), lambda: (end,))
             at += len(p)
 
     @staticmethod

@@ -289,7 +289,7 @@ class GeometryPointing(BeamSafety):
     def aim_steps(self, model: ModelRecord | None) -> tuple[int, int]:
         """Steps onto the aim point; UnsafePath when the beam there, or on the approach from
         standby, would enter a person zone (nothing has moved yet)."""
-        return self._kept(("aim", self._aim_key(self.aim_point, model)), lambda: self._aim_steps(model))
+        return self.kept(("aim", self._aim_key(self.aim_point, model)), lambda: self._aim_steps(model))
 
     def _aim_steps(self, model: ModelRecord | None) -> tuple[int, int]:
         aim = self._steps(self.aim_point, model)
@@ -308,7 +308,7 @@ class GeometryPointing(BeamSafety):
         """Steps onto the standby point (or ``point``, m ENU); UnsafePath when the beam there
         would enter a person zone."""
         point = self.standby_point if point is None else point
-        return self._kept(("standby", self._aim_key(point, model)), lambda: self._standby_steps(point, model))
+        return self.kept(("standby", self._aim_key(point, model)), lambda: self._standby_steps(point, model))
 
     def _standby_steps(self, point, model: ModelRecord | None) -> tuple[int, int]:
         standby = self._steps(point, model)

@@ -15,7 +15,7 @@ import pytest
 import yaml
 
 from controller.calibration.beams import slots
-from controller.calibration.beams.identity import identity_step
+from controller.calibration.beams.identity import traced_identity_step
 from controller.calibration.beams.policy import beams_allowed
 from controller.calibration.beams.slots import (
     GAP_M,
@@ -347,7 +347,7 @@ def test_identity_steps_spread_evenly_over_the_target_whatever_each_axis_gearing
                             u=np.array([1.0, 0.0, 0.0]), v=np.array([0.0, 0.0, 1.0]))
     # Azimuth moves the spot three times as far per step as elevation, a little skewed.
     pointing = _LinearPointing([[3e-4, 0.2e-4], [0.1e-4, 1e-4]])
-    moves = [identity_step(pointing, (1000, 2000), slot, 4, frame) for slot in range(4)]
+    moves = [traced_identity_step(pointing, (1000, 2000), slot, 4, frame) for slot in range(4)]
     for step, disp in moves:
         assert min(step) >= 0  # no axis reverses: the approach's backlash stays taken up
         assert abs(np.linalg.norm(disp) - IDENTITY_STEP_M) < 0.01 * IDENTITY_STEP_M
