@@ -210,7 +210,7 @@ class Campaign:
 
             self._pointing_at = pointing_at
             pointing = {hid: pointing_at(hid, aims.get(hid)) for hid in self.ids}
-            warm_aims(pointing.values())  # their standby offsets and steps, in batches
+            warm_aims(pointing.values(), approaches=True)  # standby offsets, steps, approaches: batched
             self.slots, self._tier = None, {}
             if beams > 1:
                 # Slots in tiers, each spaced for its spots; the largest take the target alone
@@ -280,7 +280,7 @@ class Campaign:
             with self.time.computing():
                 at_slot = {(t, s): self._pointing_at(todo[t][1], self.slots.aim(s))
                            for t, s in enumerate(assign_slots(open_, lambda *_: True)) if s is not None}
-                warm_aims(at_slot.values())  # in batches, the steps of the slot each takes if all suit it
+                warm_aims(at_slot.values(), approaches=True)  # batched: the slot each takes if all suit it
                 warm_slews(at_slot.values(), self._current)  # and its slews to standby, as its check asks
                 slots = assign_slots(open_, fits)
             for ticket, slot in enumerate(slots):

@@ -5,7 +5,8 @@ both, :mod:`controller.calibration.cycle.solved`). One at a time each costs abou
 millisecond (an aim solve) to a few (a clearance); a batch over a
 :class:`controller.geometry.pose_batch.KinStack` a few microseconds a heliostat.
 
-The slews a slot's check asks for (:func:`warm_slews`) are traced the same way: the poses of
+The slews a slot's check asks for (:func:`warm_slews`), and each aim's approach from standby
+through the person zones (:func:`warm_approaches`), are traced the same way: the poses of
 H heliostats' slews through :func:`controller.geometry.pose_batch.normal_and_center` over a
 :class:`KinStack`, the same reflection and the same target and person-zone tests per ray as
 :meth:`BeamSafety.warm_paths` (the same slews kept, checked in tests/calibration/cycle/test_warm.py).
@@ -47,10 +48,12 @@ def warm_clearances(pointings: Iterable[GeometryPointing]) -> None:
             _CLEARANCES.put(key, (p.heliostat, p.model_settings), float(c))
 
 
-def warm_aims(pointings: Iterable[GeometryPointing]) -> None:
+def warm_aims(pointings: Iterable[GeometryPointing], approaches: bool = False) -> None:
     """The steps onto the aim point and the standby points on both sides of ``pointings``
     with a model (for their own source and model), batched per source; their clearances first
-    (:func:`warm_clearances`: the standby points depend on them)."""
+    (:func:`warm_clearances`: the standby points depend on them); with ``approaches``, then the
+    approaches from standby to the aim through the person zones (:func:`warm_approaches`: a
+    pass asks for every aim, a lamp change for none)."""
     pointings = [p for p in pointings if p.model is not None]
     warm_clearances(pointings)
     todo: dict[tuple, list] = {}
@@ -76,6 +79,51 @@ def warm_aims(pointings: Iterable[GeometryPointing]) -> None:
             for key, s, f in zip(keys, st, fine, strict=True):
                 if f:  # out of reach: the scalar solve says so, naming the axis
                     _AIMS.put(key, (p.heliostat,), (int(s[0]), int(s[1])))
+    if approaches:
+        warm_approaches(pointings)
+
+
+def warm_approaches(pointings: Iterable[GeometryPointing]) -> None:
+    """The approaches from standby to the aim point of ``pointings`` with a model and person
+    zones, as :meth:`GeometryPointing.aim_steps` traces them through the zones: in batches (per
+    source, targets and person zones, as :func:`warm_slews`), each approach that enters no zone
+    kept as the aim's steps; one that does, or a pointing out of reach, is left to
+    ``aim_steps``, which says why. Its aim and standby steps first (:func:`warm_aims`)."""
+    todo: dict[tuple, list] = {}
+    for p in pointings:
+        if p.model is None or not p.zone_ids:
+            continue
+        key = ("aim", p._aim_key(p.aim_point, p.model))
+        if p._with_model(key) in p._poses:
+            continue
+        try:
+            aim = p._steps(p.aim_point, p.model)
+            sweep = p._sweep(p.standby_steps(p.model), aim)
+        except (HeliocalError, ValueError):
+            continue
+        group = (p.lamp.tobytes() if p.lamp is not None else p.source_dir.tobytes(),
+                 *(a.tobytes() for a in p._planes), p.zones.tobytes())
+        todo.setdefault(group, []).append((p, key, aim, sweep))
+    for items in todo.values():
+        for k in range(0, len(items), SLEW_BATCH):
+            chunk = items[k:k + SLEW_BATCH]
+            inside = _trace_zones([p for p, _, _, _ in chunk], [sweep for _, _, _, sweep in chunk])
+            for (p, key, aim, _), entered in zip(chunk, inside, strict=True):
+                if not entered.any():
+                    p.kept(key, lambda a=aim: a)
+
+
+def _trace_zones(pointings: list[GeometryPointing], sweeps: list[np.ndarray]) -> np.ndarray:
+    """Whether each ray of each of ``sweeps`` (poses, 2) enters a person zone (H, M), as
+    :meth:`BeamSafety.in_zone` traces it, for ``pointings`` sharing a source, targets and person
+    zones: each sweep padded to the longest with its last pose."""
+    m = max(len(s) for s in sweeps)
+    steps = np.array([np.vstack([s, np.repeat(s[-1:], m - len(s), axis=0)]) for s in sweeps])  # (H, M, 2)
+    values = np.array([p.ray_model for p in pointings])[:, None, :]
+    n, c = normal_and_center(KinStack.of([p.kin for p in pointings]).shaped(2), values, steps)
+    n, c = n.reshape(-1, 3), c.reshape(-1, 3)
+    first = pointings[0]
+    return first._in_zone(c, first.reflected(n, c)).reshape(len(pointings), m)
 
 
 def warm_slews(pointings: Iterable[GeometryPointing], current: Mapping[str, tuple[int, int]]) -> None:

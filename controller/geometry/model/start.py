@@ -62,8 +62,10 @@ def implied_normals(centers: np.ndarray, source_dirs: np.ndarray, spots: np.ndar
     finite, else ``source_dirs``) and the direction from each mirror centre to its spot."""
     src = source_dirs
     if lamps is not None:
-        src = np.where(np.isfinite(lamps).all(axis=1, keepdims=True), unit(np.nan_to_num(lamps) - centers),
-                       source_dirs)
+        lit = np.isfinite(lamps).all(axis=1, keepdims=True)
+        # Every sample under a lamp (a night's refit): the lamps' directions as they are.
+        src = unit(lamps - centers) if lit.all() else np.where(lit, unit(np.nan_to_num(lamps) - centers),
+                                                                source_dirs)
     return unit(unit(src) + unit(spots - centers))
 
 

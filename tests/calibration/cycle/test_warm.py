@@ -30,12 +30,13 @@ def field():
     return parse_config(field_data(base, 300, 3, 3, beams=4), "field.yaml")
 
 
-def _pointings(cfg, lamp: str, models: bool) -> list[GeometryPointing]:
+def _pointings(cfg, lamp: str, models: bool, zones: bool = False) -> list[GeometryPointing]:
     frame = TargetFrame.from_config(cfg.target(), (cfg.camera.height_px, cfg.camera.width_px))
     aim = np.asarray(cfg.target().center_enu_m, float) + [2.0, 0.0, 1.0]
     cal = cfg.calibration
     return [GeometryPointing(h, cfg.target(), cfg.light_source(lamp), frame, cal.standby_offset_m, None,
-                             cal.model, aim, model=calibrated_record(cfg, h.id) if models else None)
+                             cal.model, aim, model=calibrated_record(cfg, h.id) if models else None,
+                             **({"others": cfg.targets, "zones": cfg.person_zones} if zones else {}))
             for h in cfg.heliostats[::15]]
 
 
@@ -127,3 +128,30 @@ def test_slews_warmed_in_batches_are_those_traced_one_heliostat_at_a_time(field,
         unkept += sum(len(t.direct_slews((t._steps(w(t), t.model),), t.standby_steps(t.model))[0])
                       for w in wheres[2:]) if any(r[0] == t.heliostat.id for r in reach) else 0
     assert kept and unkept  # clear slews kept; the others left to path_to's detours
+
+
+@pytest.mark.parametrize("lamp", ["L2", "L5"])
+def test_approaches_warmed_in_batches_are_those_traced_one_heliostat_at_a_time(field, lamp, monkeypatch):
+    """A pass asks each pointing for its aim, whose approach from standby is traced through the
+    person zones (``aim_steps``): ``warm_aims(..., approaches=True)`` traces them for all heliostats
+    in a few evaluations of the model and keeps the aims whose approach enters no zone — the
+    aims each pointing finds alone — so that ``aim_steps`` then traces nothing."""
+    assert field.person_zones  # the demo's zones: every approach is traced through them
+    alone, together = _pointings(field, lamp, True, zones=True), _pointings(field, lamp, True, zones=True)
+    expected = {}
+    for p in alone:
+        try:
+            expected[p.heliostat.id] = p.aim_steps(p.model)
+        except LimitError:
+            continue
+    traces = []
+    real = warm.normal_and_center
+    monkeypatch.setattr(warm, "normal_and_center", lambda *a: traces.append(1) or real(*a))
+    monkeypatch.setattr(warm, "SLEW_BATCH", 5)
+    warm.warm_aims(together, approaches=True)
+    assert len(traces) == -(-len(expected) // 5)  # one group: a lamp, the targets, the zones
+    for p in together:
+        monkeypatch.setattr(p, "in_zone", lambda *_: pytest.fail("an approach traced again"))
+        if p.heliostat.id in expected:
+            assert p.aim_steps(p.model) == expected[p.heliostat.id], p.heliostat.id
+    assert len(expected) > 5
