@@ -101,9 +101,7 @@ def warm_approaches(pointings: Iterable[GeometryPointing]) -> None:
             sweep = p._sweep(p.standby_steps(p.model), aim)
         except (HeliocalError, ValueError):
             continue
-        group = (p.lamp.tobytes() if p.lamp is not None else p.source_dir.tobytes(),
-                 *(a.tobytes() for a in p._planes), p.zones.tobytes())
-        todo.setdefault(group, []).append((p, key, aim, sweep))
+        todo.setdefault(_ray_group(p), []).append((p, key, aim, sweep))
     for items in todo.values():
         for k in range(0, len(items), SLEW_BATCH):
             chunk = items[k:k + SLEW_BATCH]
@@ -113,17 +111,31 @@ def warm_approaches(pointings: Iterable[GeometryPointing]) -> None:
                     p.kept(key, lambda a=aim: a)
 
 
-def _trace_zones(pointings: list[GeometryPointing], sweeps: list[np.ndarray]) -> np.ndarray:
-    """Whether each ray of each of ``sweeps`` (poses, 2) enters a person zone (H, M), as
-    :meth:`BeamSafety.in_zone` traces it, for ``pointings`` sharing a source, targets and person
-    zones: each sweep padded to the longest with its last pose."""
+def _ray_group(p: GeometryPointing) -> tuple:
+    """What pointings traced in one batch share: the source (a lamp's position, or the sun's
+    direction), the targets' planes and the person zones."""
+    return (p.lamp.tobytes() if p.lamp is not None else p.source_dir.tobytes(),
+            *(a.tobytes() for a in p._planes), p.zones.tobytes())
+
+
+def _batch_rays(pointings: list[GeometryPointing], sweeps: list[np.ndarray]
+                ) -> tuple[np.ndarray, np.ndarray, int]:
+    """The rays of each of ``sweeps`` (poses, 2) of ``pointings`` sharing a :func:`_ray_group`, as
+    :meth:`BeamSafety.rays` traces them: mirror centres and reflected beams (H · M, 3), each sweep
+    padded to the longest (M poses) with its last pose, and M."""
     m = max(len(s) for s in sweeps)
     steps = np.array([np.vstack([s, np.repeat(s[-1:], m - len(s), axis=0)]) for s in sweeps])  # (H, M, 2)
     values = np.array([p.ray_model for p in pointings])[:, None, :]
     n, c = normal_and_center(KinStack.of([p.kin for p in pointings]).shaped(2), values, steps)
     n, c = n.reshape(-1, 3), c.reshape(-1, 3)
-    first = pointings[0]
-    return first._in_zone(c, first.reflected(n, c)).reshape(len(pointings), m)
+    return c, pointings[0].reflected(n, c), m
+
+
+def _trace_zones(pointings: list[GeometryPointing], sweeps: list[np.ndarray]) -> np.ndarray:
+    """Whether each ray of each of ``sweeps`` (poses, 2) enters a person zone (H, M), as
+    :meth:`BeamSafety.in_zone` traces it (:func:`_batch_rays`)."""
+    c, b, m = _batch_rays(pointings, sweeps)
+    return pointings[0]._in_zone(c, b).reshape(len(pointings), m)
 
 
 def warm_slews(pointings: Iterable[GeometryPointing], current: Mapping[str, tuple[int, int]]) -> None:
@@ -143,9 +155,7 @@ def warm_slews(pointings: Iterable[GeometryPointing], current: Mapping[str, tupl
         except (HeliocalError, ValueError):
             continue
         if starts:
-            group = (p.lamp.tobytes() if p.lamp is not None else p.source_dir.tobytes(),
-                     *(a.tobytes() for a in p._planes), p.zones.tobytes())
-            todo.setdefault(group, []).append((p, end, starts, poses))
+            todo.setdefault(_ray_group(p), []).append((p, end, starts, poses))
     for items in todo.values():
         for k in range(0, len(items), SLEW_BATCH):
             _trace_slews(items[k:k + SLEW_BATCH])
@@ -153,15 +163,10 @@ def warm_slews(pointings: Iterable[GeometryPointing], current: Mapping[str, tupl
 
 def _trace_slews(items: list) -> None:
     """Trace and keep the slews of ``items`` ((pointing, end, starts, poses) sharing a source,
-    targets and person zones): each heliostat's poses padded to the longest with its last pose."""
-    flat = [np.vstack(poses) for _, _, _, poses in items]
-    m = max(len(f) for f in flat)
-    steps = np.array([np.vstack([f, np.repeat(f[-1:], m - len(f), axis=0)]) for f in flat])  # (H, M, 2)
-    values = np.array([p.ray_model for p, _, _, _ in items])[:, None, :]
-    n, c = normal_and_center(KinStack.of([p.kin for p, _, _, _ in items]).shaped(2), values, steps)
-    first = items[0][0]
-    n, c = n.reshape(-1, 3), c.reshape(-1, 3)
-    margins = np.repeat([np.broadcast_to(p.path_margin_m(), (2,)) for p, _, _, _ in items], m, axis=0)
-    inside = first._inside(c, first.reflected(n, c), margins).reshape(len(items), m, -1)
+    targets and person zones, :func:`_batch_rays`)."""
+    pointings = [p for p, _, _, _ in items]
+    c, b, m = _batch_rays(pointings, [np.vstack(poses) for _, _, _, poses in items])
+    margins = np.repeat([np.broadcast_to(p.path_margin_m(), (2,)) for p in pointings], m, axis=0)
+    inside = pointings[0]._inside(c, b, margins).reshape(len(items), m, -1)
     for (p, end, starts, poses), rays in zip(items, inside, strict=True):
         p.keep_clear(starts, end, poses, rays)
