@@ -24,8 +24,11 @@ from __future__ import annotations
 import contextlib
 import os
 import threading
+import time
 from collections.abc import Callable, Iterator
 from typing import Any
+
+PIN_ROUNDS = 1000  # listings of the threads when pinning, at most (threads that keep starting others)
 
 
 class HeldSetting:
@@ -96,10 +99,24 @@ def _pin_python() -> tuple[set[int], dict[int, set[int]]] | None:
     cpu = _current_cpu()
     core = {cpu if cpu in everywhere else min(everywhere)}
     before: dict[int, set[int]] = {}
-    for tid in _python_threads():
-        with contextlib.suppress(OSError):
-            before[tid] = os.sched_getaffinity(tid)
-            os.sched_setaffinity(tid, core)
+    seen: set[int] = set()
+    # A thread not moved yet may start another meanwhile, which inherits its cores: threads are
+    # listed again until every one is moved (those still starting have no id yet: waited for).
+    for _ in range(PIN_ROUNDS):
+        threads = threading.enumerate()
+        new = [t.native_id for t in threads if t.native_id is not None and t.native_id not in seen]
+        seen.update(new)
+        moved = 0
+        for tid in new:
+            with contextlib.suppress(OSError):
+                before[tid] = os.sched_getaffinity(tid)
+                if before[tid] != core:  # else started by a thread moved already
+                    os.sched_setaffinity(tid, core)
+                    moved += 1
+        if not moved and all(t.native_id is not None for t in threads):
+            break
+        if not new:
+            time.sleep(0)  # let a starting thread run to where it has an id
     return everywhere, before
 
 

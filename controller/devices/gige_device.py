@@ -12,6 +12,7 @@ never shrinks however many frames are taken. Frames are 2-D ``uint8`` (Mono8) or
 from __future__ import annotations
 
 import threading
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -22,6 +23,11 @@ from controller.devices.cores import all_cores
 PIXEL_DTYPES = {"Mono8": np.uint8, "Mono12": np.uint16, "Mono16": np.uint16}
 SUPPORTED_FORMATS = tuple(PIXEL_DTYPES)
 FAKE_PREFIX = "Fake_"  # ids of Aravis's in-process simulated device (its "Fake" interface)
+RELEASE_WAIT_S = 15.0  # a lost handle's release: its GVCP commands' retries, about 10 s
+CONTROL_RETRY_S = 0.25  # between attempts to take a control channel another controller holds
+# Handles of lost imagers being released on a background thread, by device id: an imager opened
+# again waits for its old handle to let go of the control channel first.
+_RELEASING: dict[str, threading.Thread] = {}
 
 
 class IncompleteFrame(CameraError):
@@ -117,6 +123,8 @@ class GigeImager:
         self._stream = None
         try:
             self._device = self._cam.get_device()
+            if isinstance(self._device, arv.GvDevice):
+                self._take_control(self._device)
             self._lost_handler = self._device.connect("control-lost", self._on_control_lost)
             self._configure(arv)
             self._start(arv)
@@ -126,6 +134,28 @@ class GigeImager:
         except CameraError:
             self.close()
             raise
+
+    def _take_control(self, device) -> None:
+        """Hold the control channel, or say who has it. Aravis opens a device whose channel it
+        could not take without a word: the writes that follow are refused, or — once the other
+        controller lets go — land while nobody holds the channel, and the device then ignores
+        every trigger. The channel is waited for while our own handle lost before is released,
+        then for as long as another controller's heartbeat can hold it."""
+        if device.is_controller():
+            return
+        pending = _RELEASING.get(self.device_id)
+        if pending is not None:  # a device that is away fails to open before this wait
+            pending.join(RELEASE_WAIT_S)
+        deadline = time.monotonic() + _heartbeat_timeout_s(device) + CONTROL_RETRY_S
+        while not device.is_controller():
+            if time.monotonic() > deadline:
+                raise self._fail("another application holds its control channel (GigE Vision CCP): "
+                                 "close it, or wait until its heartbeat times out")
+            time.sleep(CONTROL_RETRY_S)
+            try:
+                device.take_control()
+            except glib_error():
+                pass  # still held: the loop's deadline decides
 
     def _on_control_lost(self, _device) -> None:
         # Emitted from Aravis's heartbeat thread; only a flag is set here.
@@ -293,11 +323,21 @@ class GigeImager:
             pass  # gone after all; the stream and sockets are freed all the same
 
 
+def _heartbeat_timeout_s(device) -> float:
+    """How long the device keeps a silent controller's channel (GevHeartbeatTimeout, ms; the
+    standard's default of 3 s when the device does not say)."""
+    try:
+        return device.get_integer_feature_value("GevHeartbeatTimeout") / 1e3
+    except glib_error():
+        return 3.0
+
+
 def _background_release(objects: tuple, name: str):
     """Take a GObject reference to each of ``objects``; the returned function starts a thread
     that drops them. Call it once the caller has dropped its Python wrappers, so the thread's
     references are the last: PyGObject finalizes an object holding the GIL, which would stall
-    every thread for the finalizer's GVCP timeouts, while a ctypes call releases the GIL."""
+    every thread for the finalizer's GVCP timeouts, while a ctypes call releases the GIL. The
+    thread is listed in ``_RELEASING`` under ``name`` (the device id) until it is done."""
     import ctypes
     import ctypes.util
 
@@ -313,5 +353,13 @@ def _background_release(objects: tuple, name: str):
     def release() -> None:
         for address in addresses:
             gobject.g_object_unref(address)
+        if _RELEASING.get(name) is thread:  # not a later loss's release of the same device
+            del _RELEASING[name]
 
-    return threading.Thread(target=release, daemon=True, name=f"release-{name}").start
+    thread = threading.Thread(target=release, daemon=True, name=f"release-{name}")
+
+    def start() -> None:
+        _RELEASING[name] = thread
+        thread.start()
+
+    return start

@@ -74,6 +74,7 @@ class GigeImagerServer:
         self._registers = _register_addresses(self._fake.get_genicam_xml()[0])
         self._lock = threading.Lock()  # the device model: GVCP and stream threads share it
         self._controller: tuple | None = None
+        self.refused = 0  # writes refused to a host without the control channel
         self._controller_seen = 0.0
         self._triggers: queue.Queue = queue.Queue()
         self._sent: dict[int, list[bytes]] = {}  # the last frames' packets by block id, for resends
@@ -170,6 +171,7 @@ class GigeImagerServer:
             if command not in (_WRITE_REG, _WRITE_MEM):
                 return None
             if not writes:
+                self.refused += 1
                 return _ACCESS_DENIED, command + 1, struct.pack(">HH", 0, 0)
             if command == _WRITE_REG:
                 pairs = [struct.unpack(">II", body[i:i + 8]) for i in range(0, len(body) - 7, 8)]
@@ -209,9 +211,12 @@ class GigeImagerServer:
     def _serve_stream(self) -> None:
         while self._triggers.get() is not None:
             with self._lock:
-                streaming = self._fake.get_acquisition_status() != 0 and self._controller is not None
+                idle = ("no controller holds the control channel" if self._controller is None
+                        else "acquisition is stopped" if self._fake.get_acquisition_status() == 0 else None)
                 where = self._fake.get_stream_address()
-            if not streaming:
+            if idle:  # a camera ignores it; say so, as the controller will only see a timeout
+                _log.warning("simulated GigE imager %s: a software trigger came while %s; no frame sent",
+                             self.address, idle)
                 continue
             try:
                 image, timestamp_ns = self._frame()

@@ -39,7 +39,8 @@ class GigeCamera:
     def start(self) -> tuple[str, str]:
         """Serve both imagers; their (LOW, HIGH) addresses."""
         for role in range(2):
-            self.imagers.append(_serve(f"{self.name}-{ROLES[role]}"[:15], lambda r=role: self._frame(r)))
+            serial = f"{self.name}-{ROLES[role]}"[:15]
+            self.imagers.append(serve_imager(serial, lambda r=role: self._frame(r)))
         return self.imagers[0].address, self.imagers[1].address
 
     def stop(self) -> None:
@@ -60,7 +61,7 @@ class GigeCamera:
             return frames[role], stamp
 
 
-def _serve(serial: str, frame) -> GigeImagerServer:
+def serve_imager(serial: str, frame) -> GigeImagerServer:
     """An imager started on the first free loopback address (OSError when none is)."""
     for n in range(FIRST_ADDRESS, LAST_ADDRESS + 1):
         server = GigeImagerServer(f"127.0.0.{n}", serial, frame)

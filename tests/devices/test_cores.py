@@ -119,3 +119,38 @@ def test_a_held_setting_is_applied_once_and_restored_by_the_last_block():
             assert setting.held and setting.saved == "saved"
         assert calls == ["apply"]
     assert calls == ["apply", "restore saved"] and not setting.held and setting.saved is None
+
+
+SPAWNERS = 4
+
+
+@needs_two
+def test_threads_started_while_the_block_begins_are_moved_too():
+    """A thread not moved yet that starts threads while the first block moves the others: every
+    thread it started is on the one core once the block has begun (a thread inherits its
+    creator's cores, so one started just after the threads were listed would otherwise keep
+    every core for the whole block)."""
+    stop, release = threading.Event(), threading.Event()
+    started: list[threading.Thread] = []
+
+    def spawn() -> None:
+        while not stop.is_set():
+            t = threading.Thread(target=release.wait, daemon=True)
+            t.start()
+            started.append(t)
+
+    spawners = [threading.Thread(target=spawn, daemon=True) for _ in range(SPAWNERS)]
+    for s in spawners:
+        s.start()
+    try:
+        with python_on_one_core():
+            stop.set()
+            for s in spawners:
+                s.join(scaled_s(5.0))
+            cores = {frozenset(os.sched_getaffinity(t.native_id)) for t in started}
+            assert len(started) > SPAWNERS and len(cores) == 1 and len(next(iter(cores))) == 1, cores
+    finally:
+        stop.set()
+        release.set()
+        for s in spawners:
+            s.join(scaled_s(5.0))
