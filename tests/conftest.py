@@ -37,6 +37,18 @@ def scaled():
     return scaled_s
 
 
+def aravis_missing() -> str | None:
+    """Why Aravis 0.8 cannot be loaded here (what to install), None when it can."""
+    from controller.errors import DeviceError
+    from simplant.devices.gige_imager import aravis
+
+    try:
+        aravis()
+    except DeviceError as exc:
+        return str(exc)
+    return None
+
+
 def run_cli(argv: list[str]) -> tuple[int, str, str]:
     """``heliocal argv`` in this process: (exit code, stdout, stderr)."""
     from controller.cli import main

@@ -21,7 +21,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from tests.conftest import run_cli, scaled_s
+from tests.conftest import aravis_missing, run_cli, scaled_s
 
 REPO = Path(__file__).resolve().parents[1]
 DEMO = REPO / "configs" / "demo.yaml"
@@ -35,18 +35,7 @@ REHEARSAL = {
 }
 
 
-def _missing() -> str | None:
-    from controller.errors import DeviceError
-    from simplant.devices.gige_imager import aravis
-
-    try:
-        aravis()
-    except DeviceError as exc:
-        return str(exc)
-    return None
-
-
-MISSING = _missing()
+MISSING = aravis_missing()
 if MISSING:
     print(f"tests/test_rehearsal.py: skipping: {MISSING}")
 

@@ -16,23 +16,12 @@ import pytest
 
 from controller.devices.camera import CameraError
 from controller.devices.gige_device import GigeImager, ImagerSettings
-from tests.conftest import scaled_s
+from tests.conftest import aravis_missing, scaled_s
 
 IMAGE = np.arange(48 * 64, dtype=np.uint16).reshape(48, 64) % 4096
 
 
-def _missing() -> str | None:
-    from controller.errors import DeviceError
-    from simplant.devices.gige_imager import aravis
-
-    try:
-        aravis()
-    except DeviceError as exc:
-        return str(exc)
-    return None
-
-
-MISSING = _missing()
+MISSING = aravis_missing()
 if MISSING:
     print(f"tests/devices/test_gige_control.py: skipping: {MISSING}")
 
