@@ -113,6 +113,11 @@ def rehearsal(tmp_path_factory):
     return got
 
 
+def _said(err: str, rehearsal: dict) -> str:
+    """A step's stderr and the end of the plant's, for a failed step's message."""
+    return f"{err}\nthe plant said:\n{rehearsal['plant_stderr'][-4000:]}"
+
+
 def test_getting_started_shows_the_walk_through_this_test_runs():
     text = (REPO / "docs" / "getting-started.md").read_text(encoding="utf-8")
     assert all(f"\n{command}\n" in text for command in REHEARSAL.values())
@@ -143,7 +148,7 @@ def test_the_plant_writes_the_demo_field_with_the_devices_addresses(rehearsal):
 @WALK_THROUGH
 def test_campaign_run_measures_the_heliostats_on_real_transports(rehearsal):
     code, summary, err = rehearsal["run"]
-    assert code == 0, f"{err}\nthe plant said:\n{rehearsal['plant_stderr'][-4000:]}"
+    assert code == 0, _said(err, rehearsal)
     assert summary["status"] == "finished" and summary["heliostats"] == 3
     assert summary["calibrated"] >= 2, summary
     assert summary["error_after_mrad"]["mean"] < summary["error_before_mrad"]["mean"] / 4
@@ -153,7 +158,7 @@ def test_campaign_run_measures_the_heliostats_on_real_transports(rehearsal):
 def test_campaign_night_measures_the_heliostats_on_real_transports(rehearsal):
     code, summary, err = rehearsal["night"]
     # 3: partial (a geometry not measured), still a night
-    assert code in (0, 3), f"{err}\nthe plant said:\n{rehearsal['plant_stderr'][-4000:]}"
+    assert code in (0, 3), _said(err, rehearsal)
     assert summary["heliostats"] == 3 and summary["planned"] >= 3
     assert summary["measured"] >= summary["planned"] // 2, summary
     assert all(lamp["confirmed"] and lamp["by"] == "panel" for lamp in summary["lamps"])
